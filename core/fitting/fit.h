@@ -1,0 +1,97 @@
+#pragma once
+#include <cstdint>
+#include <memory>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "absl/status/statusor.h"
+#include "core/fitting/frames.h"
+#include "core/fitting/neighborhood.h"
+#include "core/fitting/options.h"
+#include "core/util/cancel.h"
+
+namespace geomfit {
+
+/// Index of the Taylor coefficient c_jk (= d^{j+k} f / du^j dv^k at the origin) in the
+/// degree-ordered basis u^j v^k / (j! k!) of (2.3.1): (0,0), (1,0), (0,1), (2,0), (1,1), ...
+constexpr int TaylorIndex(int j, int k) { return (j + k) * (j + k + 1) / 2 + k; }
+
+/// Per-vertex fit diagnostics flags (data, never an RPC failure).
+enum FitFlag : uint8_t {
+  kFlagTooFewPoints = 1,  ///< stencil smaller than #coefficients even after growth
+  kFlagDowngraded = 2,    ///< the condition safeguard dropped one or more degrees
+  kFlagBoundary = 4,      ///< vertex on the mesh boundary
+  kFlagIsolated = 8,      ///< vertex in no face: no fit, quantities are NaN
+};
+
+struct VertexDiagnostics {
+  int16_t points = 0;          ///< stencil points with nonzero weight (centre included)
+  int8_t degree_requested = 0;
+  int8_t degree_used = 0;      ///< after the condition safeguard (2.4)
+  int16_t rank = 0;            ///< number of coefficients solved for
+  uint8_t flags = 0;
+  float condition = 0;         ///< 1-norm condition estimate of the scaled R
+};
+
+/// Position and first/second derivatives of a local parametrization x(u, v) at the
+/// origin, in global coordinates (Table 3.1).
+struct SurfaceJet {
+  Eigen::Vector3d x;                 ///< x(0, 0)
+  Eigen::Matrix<double, 3, 2> J;     ///< [x_u, x_v]
+  Eigen::Vector3d xuu, xuv, xvv;
+};
+
+/// The weighted-least-squares fits of every vertex (2.2-2.4): immutable once built,
+/// shared between requests (the server's fitting cache tier).
+class SurfaceFits {
+ public:
+  const FitOptions& options() const { return options_; }
+  int num_vertices() const { return static_cast<int>(frames_.size()); }
+  /// Values per coefficient: 1 for LHF (height), 3 for LOP (x, y, z).
+  int dims() const { return options_.method == FitMethod::kLHF ? 1 : 3; }
+  int num_coefficients() const { return NumCoefficients(options_.degree); }
+  const LocalFrame& frame(int v) const { return frames_[v]; }
+  /// Coefficients of vertex v: dims() blocks of num_coefficients(), indexed by
+  /// TaylorIndex, zero above the degree used. LHF: height over the frame; LOP:
+  /// x, y, z relative to the frame origin. Derivatives are in frame units (u, v).
+  const double* coefficients(int v) const {
+    return coefficients_.data() + static_cast<size_t>(v) * dims() * num_coefficients();
+  }
+  const VertexDiagnostics& diagnostics(int v) const { return diagnostics_[v]; }
+  const std::vector<VertexDiagnostics>& diagnostics() const { return diagnostics_; }
+  const Neighborhoods& neighborhoods() const { return *neighborhoods_; }
+  /// Position and derivatives of vertex v's fit at its origin.
+  SurfaceJet Jet(int v) const;
+  /// Stencil operators (if requested): coefficient i of vertex v's fit of any nodal
+  /// field g over v's frame is sum_k stencil(v)[i * n + k] * g[points(v)[k]],
+  /// with n = neighborhoods().Size(v). The GFD operators of chapter 5 use these.
+  bool has_stencils() const { return !stencil_offsets_.empty(); }
+  const double* stencil(int v) const { return stencils_.data() + stencil_offsets_[v]; }
+  size_t Bytes() const;
+
+ private:
+  friend class SurfaceFitter;
+  FitOptions options_;
+  std::shared_ptr<const Neighborhoods> neighborhoods_;
+  std::vector<LocalFrame> frames_;
+  std::vector<double> coefficients_;
+  std::vector<VertexDiagnostics> diagnostics_;
+  std::vector<size_t> stencil_offsets_;
+  std::vector<double> stencils_;
+};
+
+struct FitRequest {
+  bool stencils = false;                  ///< also build the stencil operators
+  const CancellationToken* cancel = nullptr;  ///< polled between blocks of vertices
+};
+
+/// Fits every vertex. `neighborhoods` may be shared with other fits of the same
+/// topology (pass the one built for RingSpecFor(options)); null builds it.
+/// Errors: INVALID_ARGUMENT for bad options or a mesh/topology mismatch,
+/// CANCELLED / DEADLINE_EXCEEDED from the token.
+absl::StatusOr<std::shared_ptr<const SurfaceFits>> FitSurface(
+    const Mesh& mesh, const Topology& topo, const FitOptions& options,
+    std::shared_ptr<const Neighborhoods> neighborhoods = nullptr, const FitRequest& request = {});
+
+}  // namespace geomfit

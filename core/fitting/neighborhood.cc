@@ -1,0 +1,142 @@
+#include "core/fitting/neighborhood.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "core/util/parallel.h"
+
+namespace geomfit {
+
+RingSpec RingSpecFor(const FitOptions& o) {
+  RingSpec s;
+  const int n = NumCoefficients(o.degree);
+  s.rings = o.StartRings();
+  s.adaptive = o.adaptive;
+  s.min_points = static_cast<int>(std::ceil(o.min_points_factor * n));
+  s.min_points_boundary = static_cast<int>(std::ceil(o.boundary_points_factor * n));
+  s.max_rings = std::max(o.max_rings, s.rings);
+  s.max_points = o.max_points;
+  return s;
+}
+
+namespace {
+
+// Grows one vertex's stencil ring by ring (2.1). `level_[x]` is the half-step (2 x ring)
+// at which x joined; `mark_[x] == stamp_` says x is in the current stencil.
+class RingGrower {
+ public:
+  RingGrower(const Topology& t, const Mesh& m) : t_(t), m_(m), mark_(t.num_vertices, 0), level_(t.num_vertices, 0) {}
+
+  // Fills `out` with v's stencil; returns the ring reached.
+  float Grow(int v, const RingSpec& spec, std::vector<int32_t>& out) {
+    out_ = &out;
+    out.clear();
+    stamp_ = static_cast<uint32_t>(v) + 1;
+    Add(v, 0);
+    layer_begin_ = 0;
+    layer_end_ = 1;
+    half_steps_ = 0;
+    const int start = static_cast<int>(std::lround(2 * spec.rings));
+    const int max_steps = std::max(start, static_cast<int>(std::lround(2 * spec.max_rings)));
+    const size_t want = t_.is_boundary[v] ? spec.min_points_boundary : spec.min_points;
+    while (half_steps_ < max_steps) {
+      const bool required = half_steps_ < start;
+      if (!required && (!spec.adaptive || out.size() >= want)) break;
+      const size_t before = out.size();
+      Step();
+      if (out.size() > static_cast<size_t>(spec.max_points)) {
+        if (required && before == 1) {
+          out.resize(spec.max_points);  // a huge first ring: keep its first points
+        } else {
+          out.resize(before);  // never half a ring: stop at the last complete one
+          --half_steps_;
+        }
+        break;
+      }
+      if (out.size() == before && half_steps_ % 2 == 0) break;  // component exhausted
+    }
+    return 0.5f * half_steps_;
+  }
+
+ private:
+  void Add(int32_t x, int level) {
+    mark_[x] = stamp_;
+    level_[x] = level;
+    out_->push_back(x);
+  }
+  bool In(int32_t x, int max_level) const { return mark_[x] == stamp_ && level_[x] <= max_level; }
+
+  void Step() {
+    const int k2 = half_steps_ - half_steps_ % 2;  // 2k for the current integer ring k
+    std::vector<int32_t>& out = *out_;
+    if (half_steps_ % 2 == 0) {
+      // k -> k + 0.5: faces on an edge (a, b) with a in layer k and b in the k-ring.
+      for (size_t i = layer_begin_; i < layer_end_; ++i) {
+        const int32_t a = out[i];
+        for (int j = 0; j < t_.NumVertexFaces(a); ++j) {
+          const int f = t_.VertexFaces(a)[j], n = m_.FaceSize(f);
+          int c = 0;
+          while (m_.faces(f, c) != a) ++c;
+          if (!In(m_.faces(f, (c + 1) % n), k2) && !In(m_.faces(f, (c + n - 1) % n), k2)) continue;
+          for (int q = 0; q < n; ++q)
+            if (mark_[m_.faces(f, q)] != stamp_) Add(m_.faces(f, q), k2 + 1);
+        }
+      }
+    } else {
+      // k + 0.5 -> k + 1: every edge neighbour of layer k; layer k+1 starts after the k-ring.
+      const size_t k_ring_end = layer_end_;
+      for (size_t i = layer_begin_; i < layer_end_; ++i) {
+        const int32_t a = out[i];
+        for (int j = 0; j < t_.NumNeighbors(a); ++j) {
+          const int32_t b = t_.Neighbors(a)[j];
+          if (mark_[b] != stamp_) Add(b, k2 + 2);
+        }
+      }
+      layer_begin_ = k_ring_end;
+      layer_end_ = out.size();
+    }
+    ++half_steps_;
+  }
+
+  const Topology& t_;
+  const Mesh& m_;
+  std::vector<uint32_t> mark_;
+  std::vector<int32_t> level_;
+  std::vector<int32_t>* out_ = nullptr;
+  uint32_t stamp_ = 0;
+  size_t layer_begin_ = 0, layer_end_ = 0;
+  int half_steps_ = 0;
+};
+
+}  // namespace
+
+Neighborhoods BuildNeighborhoods(const Topology& topo, const Mesh& mesh, const RingSpec& spec,
+                                 int num_threads) {
+  const int nv = topo.num_vertices;
+  const int threads = ResolveThreads(num_threads);
+  std::vector<std::vector<int32_t>> block_indices(threads);
+  std::vector<std::vector<int32_t>> block_sizes(threads);
+  Neighborhoods nb;
+  nb.rings.resize(nv);
+  ParallelForBlocks(nv, threads, [&](int64_t begin, int64_t end, int b) {
+    RingGrower grower(topo, mesh);
+    std::vector<int32_t> stencil;
+    auto& idx = block_indices[b];
+    idx.reserve((end - begin) * 24);
+    for (int64_t v = begin; v < end; ++v) {
+      nb.rings[v] = grower.Grow(static_cast<int>(v), spec, stencil);
+      block_sizes[b].push_back(static_cast<int32_t>(stencil.size()));
+      idx.insert(idx.end(), stencil.begin(), stencil.end());
+    }
+  });
+  nb.offsets.reserve(nv + 1);
+  nb.offsets.push_back(0);
+  size_t total = 0;
+  for (auto& s : block_sizes)
+    for (int32_t n : s) nb.offsets.push_back(static_cast<int32_t>(total += n));
+  nb.indices.reserve(total);
+  for (auto& idx : block_indices) nb.indices.insert(nb.indices.end(), idx.begin(), idx.end());
+  return nb;
+}
+
+}  // namespace geomfit

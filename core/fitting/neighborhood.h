@@ -1,0 +1,44 @@
+#pragma once
+#include <cstdint>
+#include <vector>
+
+#include "core/fitting/options.h"
+#include "core/mesh/topology.h"
+
+namespace geomfit {
+
+/// Per-vertex stencils in CSR form: points of vertex v are
+/// indices[offsets[v] .. offsets[v+1]), the vertex itself first, then ring by ring.
+struct Neighborhoods {
+  std::vector<int32_t> offsets;
+  std::vector<int32_t> indices;
+  std::vector<float> rings;  ///< ring size reached per vertex (1, 1.5, ...)
+
+  int Size(int v) const { return offsets[v + 1] - offsets[v]; }
+  const int32_t* Points(int v) const { return indices.data() + offsets[v]; }
+  size_t Bytes() const { return 4 * (offsets.size() + indices.size() + rings.size()); }
+};
+
+/// Ring growth rule (2.1). For triangles: the (k+1)-ring adds the 1-ring of every
+/// k-ring vertex; the half ring k+0.5 adds the vertices of faces sharing an edge
+/// with the k-ring faces. For quads (Fig 2.2): the k-ring adds edge neighbours; the
+/// half ring adds the vertices of faces incident on an edge between two k-ring
+/// vertices. Both definitions are the same rule on edges, which we use for mixed
+/// meshes too.
+struct RingSpec {
+  double rings = 1.5;          ///< starting ring (half steps)
+  bool adaptive = true;
+  int min_points = 9;          ///< interior vertices grow until this many points
+  int min_points_boundary = 12;  ///< boundary vertices grow until this many points
+  double max_rings = 6;
+  int max_points = 120;
+};
+
+/// RingSpec for a fit: start at options.StartRings(), grow to factor x #coefficients.
+RingSpec RingSpecFor(const FitOptions& options);
+
+/// Computes every vertex's stencil (parallel; identical for any thread count).
+Neighborhoods BuildNeighborhoods(const Topology& topo, const Mesh& mesh, const RingSpec& spec,
+                                 int num_threads = 0);
+
+}  // namespace geomfit

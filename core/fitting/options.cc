@@ -1,0 +1,51 @@
+#include "core/fitting/options.h"
+
+#include <cmath>
+
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+
+namespace geomfit {
+
+const char* FitMethodName(FitMethod m) { return m == FitMethod::kLHF ? "lhf" : "lop"; }
+
+absl::Status ValidateFitOptions(const FitOptions& o) {
+  auto bad = [](auto&&... args) { return absl::InvalidArgumentError(absl::StrCat(args...)); };
+  if (o.degree < 1 || o.degree > kMaxDegree)
+    return bad("fit option degree = ", o.degree, " is out of range [1, ", kMaxDegree, "]");
+  if (o.rings != 0 && (o.rings < 1 || o.rings > 10 || std::fmod(2 * o.rings, 1.0) != 0))
+    return bad("fit option rings = ", o.rings,
+               " must be 0 (automatic) or a multiple of 0.5 in [1, 10]");
+  if (!(o.max_rings >= o.StartRings() && o.max_rings <= 10))
+    return bad("fit option max_rings = ", o.max_rings, " must be in [rings, 10]");
+  if (!(o.min_points_factor >= 1 && o.min_points_factor <= 10))
+    return bad("fit option min_points_factor = ", o.min_points_factor, " must be in [1, 10]");
+  if (!(o.boundary_points_factor >= 1 && o.boundary_points_factor <= 10))
+    return bad("fit option boundary_points_factor = ", o.boundary_points_factor,
+               " must be in [1, 10]");
+  if (o.max_points < NumCoefficients(o.degree) || o.max_points > kMaxStencil)
+    return bad("fit option max_points = ", o.max_points, " must be in [",
+               NumCoefficients(o.degree), ", ", kMaxStencil, "] for degree ", o.degree);
+  if (!(o.safeguard_angle_deg > 0 && o.safeguard_angle_deg <= 180))
+    return bad("fit option safeguard_angle_deg = ", o.safeguard_angle_deg,
+               " must be in (0, 180]");
+  if (!(o.weight_epsilon > 0 && o.weight_epsilon <= 1))
+    return bad("fit option weight_epsilon = ", o.weight_epsilon, " must be in (0, 1]");
+  for (int d = 1; d <= kMaxDegree; ++d)
+    if (!(o.cond_threshold[d] >= 1))
+      return bad("fit option cond_threshold[", d, "] = ", o.cond_threshold[d], " must be >= 1");
+  if (o.num_threads < 0) return bad("fit option num_threads = ", o.num_threads, " must be >= 0");
+  return absl::OkStatus();
+}
+
+std::string FitOptionsKey(const FitOptions& o) {
+  std::string key = absl::StrFormat(
+      "d%d r%g a%d f%g b%g mr%g mp%d %s s%g i%d t%d w%d e%g", o.degree, o.StartRings(),
+      o.adaptive, o.min_points_factor, o.boundary_points_factor, o.max_rings, o.max_points,
+      FitMethodName(o.method), o.safeguard_angle_deg, o.interpolate, o.two_pass,
+      static_cast<int>(o.frame_normals), o.weight_epsilon);
+  for (int d = 1; d <= kMaxDegree; ++d) absl::StrAppendFormat(&key, " c%g", o.cond_threshold[d]);
+  return key;
+}
+
+}  // namespace geomfit

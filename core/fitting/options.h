@@ -1,0 +1,59 @@
+#pragma once
+#include <string>
+
+#include "absl/status/status.h"
+
+namespace geomfit {
+
+/// How vertex neighbourhoods are parametrized (2.2, 3.2).
+enum class FitMethod {
+  kLHF,  ///< local height function over a tangent plane (Table 3.1, right column)
+  kLOP,  ///< local orthogonal projection; parametric fit of x, y, z (Table 3.1, left)
+};
+
+/// How approximate vertex normals (for frames and the weight safeguard) average faces.
+enum class NormalWeighting { kArea, kAngle };
+
+/// Largest supported fitting degree (28 Taylor coefficients).
+inline constexpr int kMaxDegree = 6;
+/// Largest number of points in one stencil (fixed-capacity work arrays).
+inline constexpr int kMaxStencil = 160;
+
+/// Number of Taylor coefficients of a bivariate polynomial of degree d: (d+1)(d+2)/2.
+constexpr int NumCoefficients(int d) { return (d + 1) * (d + 2) / 2; }
+
+/// Options of the per-vertex weighted-least-squares fit. Defaults follow the
+/// dissertation (chapters 2-3); every field is validated by ValidateFitOptions.
+struct FitOptions {
+  int degree = 2;              ///< 1..6
+  double rings = 0;            ///< k-ring size in half steps (1, 1.5, 2, ...); 0 = (degree+1)/2
+  bool adaptive = true;        ///< grow by half rings until enough points (2.1)
+  double min_points_factor = 1.5;       ///< interior: >= factor x #coefficients points
+  double boundary_points_factor = 2.0;  ///< boundary vertices grow further
+  double max_rings = 6;        ///< adaptive growth stops here
+  int max_points = 120;        ///< and never beyond this many points (<= kMaxStencil)
+  FitMethod method = FitMethod::kLHF;
+  double safeguard_angle_deg = 70;  ///< gamma_i = 0 beyond this normal angle (2.2.1)
+  bool interpolate = true;     ///< fit passes through the centre vertex (c00 fixed)
+  bool two_pass = false;       ///< refit in frames from the first pass's fitted normals
+  NormalWeighting frame_normals = NormalWeighting::kArea;
+  double weight_epsilon = 0.01;  ///< eps of (2.2.1), distances scaled by the stencil radius
+  /// Condition-number cut-off of the column-scaled QR (2.4) per degree 1..6; a fit whose
+  /// R exceeds it drops its highest degree, repeatedly. Index 0 unused.
+  double cond_threshold[kMaxDegree + 1] = {0, 1e3, 1e3, 3.3e3, 1e4, 1e5, 1e6};
+  int num_threads = 0;         ///< 0 = all cores; results are identical for any count
+
+  /// The ring size actually used as the starting ring.
+  double StartRings() const { return rings > 0 ? rings : (degree + 1) / 2.0; }
+};
+
+/// OK, or INVALID_ARGUMENT naming the field and its valid range.
+absl::Status ValidateFitOptions(const FitOptions& options);
+
+/// A stable string of every option that changes results (cache keys). Excludes
+/// num_threads, which does not.
+std::string FitOptionsKey(const FitOptions& options);
+
+const char* FitMethodName(FitMethod m);
+
+}  // namespace geomfit

@@ -1,0 +1,182 @@
+#include "core/mesh/topology.h"
+
+#include <algorithm>
+#include <cmath>
+#include <numeric>
+
+#include "absl/strings/str_format.h"
+
+namespace geomfit {
+namespace {
+
+struct HalfEdge {
+  int32_t lo, hi;  // sorted endpoints
+  int32_t face;
+  bool forward;  // face traverses lo -> hi
+};
+
+// Smallest-root union-find over a handful of faces around one vertex.
+int Find(std::vector<int>& parent, int i) {
+  while (parent[i] != i) i = parent[i] = parent[parent[i]];
+  return i;
+}
+
+}  // namespace
+
+size_t Topology::Bytes() const {
+  return sizeof(*this) + 4 * (vf_offsets.size() + vf_faces.size() + vv_offsets.size() + vv.size()) +
+         is_boundary.size() + is_isolated.size();
+}
+
+absl::StatusOr<Topology> BuildTopology(const Mesh& mesh) {
+  const int nv = mesh.NumVertices(), nf = mesh.NumFaces();
+  if (nv == 0) return absl::InvalidArgumentError("mesh has no vertices");
+  if (nf == 0) return absl::InvalidArgumentError("mesh has no faces");
+
+  Topology t;
+  t.num_vertices = nv;
+  t.num_faces = nf;
+  std::vector<HalfEdge> edges;
+  edges.reserve(static_cast<size_t>(nf) * 4);
+  for (int f = 0; f < nf; ++f) {
+    const int n = mesh.FaceSize(f);
+    if (n == 4) t.has_quads = true;
+    for (int i = 0; i < n; ++i) {
+      const int32_t a = mesh.faces(f, i);
+      if (a < 0 || a >= nv)
+        return absl::InvalidArgumentError(absl::StrFormat(
+            "face %d: vertex index %d out of range [0, %d)", f, a, nv));
+      for (int j = 0; j < i; ++j)
+        if (mesh.faces(f, j) == a)
+          return absl::InvalidArgumentError(
+              absl::StrFormat("face %d: vertex %d appears twice", f, a));
+    }
+    for (int i = 0; i < n; ++i) {
+      const int32_t a = mesh.faces(f, i), b = mesh.faces(f, (i + 1) % n);
+      edges.push_back({std::min(a, b), std::max(a, b), f, a < b});
+    }
+  }
+  std::sort(edges.begin(), edges.end(), [](const HalfEdge& x, const HalfEdge& y) {
+    return x.lo != y.lo ? x.lo < y.lo : x.hi != y.hi ? x.hi < y.hi : x.face < y.face;
+  });
+
+  t.is_boundary.assign(nv, 0);
+  std::vector<int32_t> degree(nv, 0);
+  for (size_t i = 0; i < edges.size();) {
+    size_t j = i + 1;
+    while (j < edges.size() && edges[j].lo == edges[i].lo && edges[j].hi == edges[i].hi) ++j;
+    const HalfEdge& e = edges[i];
+    if (j - i > 2)
+      return absl::InvalidArgumentError(absl::StrFormat(
+          "non-manifold edge (%d, %d): shared by %d faces (faces %d, %d, %d ...)", e.lo, e.hi,
+          j - i, edges[i].face, edges[i + 1].face, edges[i + 2].face));
+    if (j - i == 2 && edges[i].forward == edges[i + 1].forward)
+      return absl::InvalidArgumentError(absl::StrFormat(
+          "inconsistent orientation: faces %d and %d traverse edge (%d, %d) in the same direction",
+          edges[i].face, edges[i + 1].face, e.lo, e.hi));
+    if (j - i == 1) {
+      t.is_boundary[e.lo] = t.is_boundary[e.hi] = 1;
+      ++t.num_boundary_edges;
+    }
+    ++degree[e.lo];
+    ++degree[e.hi];
+    i = j;
+  }
+
+  // vertex -> vertices (edges), sorted because `edges` is sorted by (lo, hi).
+  t.vv_offsets.assign(nv + 1, 0);
+  for (int v = 0; v < nv; ++v) t.vv_offsets[v + 1] = t.vv_offsets[v] + degree[v];
+  t.vv.resize(t.vv_offsets[nv]);
+  {
+    std::vector<int32_t> fill(t.vv_offsets.begin(), t.vv_offsets.end() - 1);
+    for (size_t i = 0; i < edges.size(); ++i) {
+      if (i > 0 && edges[i].lo == edges[i - 1].lo && edges[i].hi == edges[i - 1].hi) continue;
+      t.vv[fill[edges[i].lo]++] = edges[i].hi;
+      t.vv[fill[edges[i].hi]++] = edges[i].lo;
+    }
+    for (int v = 0; v < nv; ++v)
+      std::sort(t.vv.begin() + t.vv_offsets[v], t.vv.begin() + t.vv_offsets[v + 1]);
+  }
+
+  // vertex -> faces.
+  t.vf_offsets.assign(nv + 1, 0);
+  for (int f = 0; f < nf; ++f)
+    for (int i = 0; i < mesh.FaceSize(f); ++i) ++t.vf_offsets[mesh.faces(f, i) + 1];
+  std::partial_sum(t.vf_offsets.begin(), t.vf_offsets.end(), t.vf_offsets.begin());
+  t.vf_faces.resize(t.vf_offsets[nv]);
+  {
+    std::vector<int32_t> fill(t.vf_offsets.begin(), t.vf_offsets.end() - 1);
+    for (int f = 0; f < nf; ++f)
+      for (int i = 0; i < mesh.FaceSize(f); ++i) t.vf_faces[fill[mesh.faces(f, i)]++] = f;
+  }
+
+  // Manifold vertices: the faces around each vertex form one fan (connected through
+  // the edges incident on the vertex).
+  t.is_isolated.assign(nv, 0);
+  std::vector<int> parent;
+  std::vector<std::pair<int32_t, int>> spokes;  // (other endpoint, local face index)
+  for (int v = 0; v < nv; ++v) {
+    const int k = t.NumVertexFaces(v);
+    if (k == 0) {
+      t.is_isolated[v] = 1;
+      ++t.num_isolated;
+      continue;
+    }
+    parent.resize(k);
+    std::iota(parent.begin(), parent.end(), 0);
+    spokes.clear();
+    for (int i = 0; i < k; ++i) {
+      const int f = t.VertexFaces(v)[i], n = mesh.FaceSize(f);
+      for (int c = 0; c < n; ++c)
+        if (mesh.faces(f, c) == v) {
+          spokes.emplace_back(mesh.faces(f, (c + 1) % n), i);
+          spokes.emplace_back(mesh.faces(f, (c + n - 1) % n), i);
+        }
+    }
+    std::sort(spokes.begin(), spokes.end());
+    for (size_t i = 1; i < spokes.size(); ++i)
+      if (spokes[i].first == spokes[i - 1].first)
+        parent[Find(parent, spokes[i].second)] = Find(parent, spokes[i - 1].second);
+    int fans = 0;
+    for (int i = 0; i < k; ++i) fans += Find(parent, i) == i;
+    if (fans > 1)
+      return absl::InvalidArgumentError(absl::StrFormat(
+          "non-manifold vertex %d: its %d faces form %d separate fans", v, k, fans));
+  }
+  return t;
+}
+
+absl::Status ValidateGeometry(const Mesh& mesh) {
+  const int nv = mesh.NumVertices();
+  for (int v = 0; v < nv; ++v)
+    for (int c = 0; c < 3; ++c)
+      if (!std::isfinite(mesh.positions(v, c)))
+        return absl::InvalidArgumentError(absl::StrFormat(
+            "vertex %d: coordinate %c is not finite (%g)", v, "xyz"[c], mesh.positions(v, c)));
+  // Zero-area relative to the mesh scale (bounding-box diagonal squared).
+  const Eigen::Vector3d lo = mesh.positions.colwise().minCoeff(), hi = mesh.positions.colwise().maxCoeff();
+  const double tiny = 1e-14 * std::max((hi - lo).squaredNorm(), 1e-300);
+  for (int f = 0; f < mesh.NumFaces(); ++f) {
+    const int n = mesh.FaceSize(f);
+    Eigen::Vector3d area2 = Eigen::Vector3d::Zero();
+    for (int i = 0; i < n; ++i) {
+      const int a = mesh.faces(f, i), b = mesh.faces(f, (i + 1) % n);
+      if (a < 0 || a >= nv || b < 0 || b >= nv)
+        return absl::InvalidArgumentError(absl::StrFormat("face %d: vertex index out of range", f));
+      area2 += mesh.positions.row(a).transpose().cross(mesh.positions.row(b).transpose());
+    }
+    if (area2.norm() <= tiny)
+      return absl::InvalidArgumentError(absl::StrFormat("face %d has zero area", f));
+  }
+  return absl::OkStatus();
+}
+
+absl::StatusOr<Topology> ValidateMesh(const Mesh& mesh) {
+  auto topo = BuildTopology(mesh);
+  if (!topo.ok()) return topo.status();
+  absl::Status geo = ValidateGeometry(mesh);
+  if (!geo.ok()) return geo;
+  return topo;
+}
+
+}  // namespace geomfit

@@ -1,0 +1,330 @@
+#include "core/surfaces/analytic.h"
+
+#include <cmath>
+#include <map>
+#include <random>
+#include <set>
+#include <tuple>
+
+#include <Eigen/Cholesky>
+
+#include "absl/strings/str_cat.h"
+#include "core/quantities/differentials.h"
+
+namespace geomfit {
+namespace {
+
+using Eigen::Vector3d;
+
+class Sphere final : public AnalyticSurface {
+ public:
+  explicit Sphere(double r) : r_(r) {}
+  std::string Name() const override { return "sphere"; }
+  ExactDifferentials At(const Vector3d& p) const override {
+    return {p.normalized(), 1 / r_, 1 / (r_ * r_), 1 / r_, 1 / r_, Vector3d::Zero(), Vector3d::Zero()};
+  }
+  Vector3d Project(const Vector3d& p) const override { return r_ * p.normalized(); }
+
+ private:
+  double r_;
+};
+
+class Torus final : public AnalyticSurface {
+ public:
+  Torus(double R, double r) : R_(R), r_(r) {}
+  std::string Name() const override { return "torus"; }
+  ExactDifferentials At(const Vector3d& p) const override {
+    const double u = std::atan2(p.y(), p.x());
+    const double v = std::atan2(p.z(), std::hypot(p.x(), p.y()) - R_);
+    ExactDifferentials e;
+    e.normal = Vector3d(std::cos(v) * std::cos(u), std::cos(v) * std::sin(u), std::sin(v));
+    const double tube = 1 / r_, ring = std::cos(v) / (R_ + r_ * std::cos(v));
+    e.k1 = std::max(tube, ring);
+    e.k2 = std::min(tube, ring);
+    e.mean = 0.5 * (tube + ring);
+    e.gaussian = tube * ring;
+    const Vector3d along_tube(-std::sin(v) * std::cos(u), -std::sin(v) * std::sin(u), std::cos(v));
+    const Vector3d along_ring(-std::sin(u), std::cos(u), 0);
+    e.e1 = tube >= ring ? along_tube : along_ring;
+    e.e2 = tube >= ring ? along_ring : along_tube;
+    return e;
+  }
+  Vector3d Project(const Vector3d& p) const override {
+    const double u = std::atan2(p.y(), p.x());
+    const Vector3d c(R_ * std::cos(u), R_ * std::sin(u), 0);
+    return c + r_ * (p - c).normalized();
+  }
+
+ private:
+  double R_, r_;
+};
+
+class Ellipsoid final : public AnalyticSurface {
+ public:
+  Ellipsoid(double a, double b, double c) : ax_(a, b, c) {}
+  std::string Name() const override { return "ellipsoid"; }
+  ExactDifferentials At(const Vector3d& p) const override {
+    const Vector3d a2 = ax_.cwiseProduct(ax_);
+    const Vector3d g = p.cwiseQuotient(a2);  // gradient / 2 of the implicit function
+    const double S = g.squaredNorm(), abc2 = a2.prod();
+    ExactDifferentials e;
+    e.normal = g.normalized();
+    e.mean = (a2.sum() - p.squaredNorm()) / (2 * abc2 * std::pow(S, 1.5));
+    e.gaussian = 1 / (abc2 * S * S);
+    const double root = std::sqrt(std::max(0.0, e.mean * e.mean - e.gaussian));
+    e.k1 = e.mean + root;
+    e.k2 = e.mean - root;
+    e.e1 = e.e2 = Vector3d::Zero();
+    return e;
+  }
+  Vector3d Project(const Vector3d& p) const override {
+    // Closest point x_i = a_i^2 p_i / (a_i^2 + t) with sum (x_i / a_i)^2 = 1; Newton on t.
+    const Vector3d a2 = ax_.cwiseProduct(ax_);
+    double t = 0;
+    for (int it = 0; it < 50; ++it) {
+      double F = -1, dF = 0;
+      for (int i = 0; i < 3; ++i) {
+        const double q = ax_(i) * p(i) / (a2(i) + t);
+        F += q * q;
+        dF += -2 * q * q / (a2(i) + t);
+      }
+      if (std::abs(F) < 1e-15 || dF == 0) break;
+      t -= F / dF;
+    }
+    return Vector3d(a2(0) * p(0) / (a2(0) + t), a2(1) * p(1) / (a2(1) + t), a2(2) * p(2) / (a2(2) + t));
+  }
+
+ private:
+  Vector3d ax_;
+};
+
+// z = f(x, y) = exp(-81/16 ((x-.5)^2 + (y-.5)^2)) (3.3.2), normals upward.
+class GaussianBump final : public AnalyticSurface {
+ public:
+  std::string Name() const override { return "bump"; }
+  struct Derivs { double f, fx, fy, fxx, fxy, fyy; };
+  static Derivs Eval(double x, double y) {
+    constexpr double a = 81.0 / 16.0;
+    const double dx = x - 0.5, dy = y - 0.5, f = std::exp(-a * (dx * dx + dy * dy));
+    return {f, -2 * a * dx * f, -2 * a * dy * f, (4 * a * a * dx * dx - 2 * a) * f,
+            4 * a * a * dx * dy * f, (4 * a * a * dy * dy - 2 * a) * f};
+  }
+  ExactDifferentials At(const Vector3d& p) const override {
+    const Derivs d = Eval(p.x(), p.y());
+    const double l2 = 1 + d.fx * d.fx + d.fy * d.fy, l = std::sqrt(l2);
+    ExactDifferentials e;
+    e.normal = Vector3d(-d.fx, -d.fy, 1) / l;
+    e.mean = -((1 + d.fy * d.fy) * d.fxx - 2 * d.fx * d.fy * d.fxy + (1 + d.fx * d.fx) * d.fyy) / (2 * l2 * l);
+    e.gaussian = (d.fxx * d.fyy - d.fxy * d.fxy) / (l2 * l2);
+    const double root = std::sqrt(std::max(0.0, e.mean * e.mean - e.gaussian));
+    e.k1 = e.mean + root;
+    e.k2 = e.mean - root;
+    // Directions from the exact jet of the graph x(u, v) = (u, v, f(u, v)).
+    SurfaceJet jet;
+    jet.x = Vector3d(p.x(), p.y(), d.f);
+    jet.J << 1, 0, 0, 1, d.fx, d.fy;
+    jet.xuu = Vector3d(0, 0, d.fxx);
+    jet.xuv = Vector3d(0, 0, d.fxy);
+    jet.xvv = Vector3d(0, 0, d.fyy);
+    const PointDifferentials pd = DifferentialsFromJet(jet);
+    e.e1 = pd.e1;
+    e.e2 = pd.e2;
+    return e;
+  }
+  Vector3d Project(const Vector3d& p) const override {
+    double x = p.x(), y = p.y();
+    for (int it = 0; it < 30; ++it) {  // Gauss-Newton on |(x, y, f(x, y)) - p|^2
+      const Derivs d = Eval(x, y);
+      const double r = d.f - p.z();
+      const Eigen::Vector2d g(x - p.x() + r * d.fx, y - p.y() + r * d.fy);
+      Eigen::Matrix2d H;
+      H << 1 + d.fx * d.fx, d.fx * d.fy, d.fx * d.fy, 1 + d.fy * d.fy;
+      const Eigen::Vector2d step = H.ldlt().solve(g);
+      x -= step.x();
+      y -= step.y();
+      if (step.norm() < 1e-16) break;
+    }
+    return Vector3d(x, y, Eval(x, y).f);
+  }
+};
+
+// A (nu x nv)-cell grid over the unit square, optionally periodic, with jittered vertex
+// parameters and each cell split along a random diagonal (or kept as a quad).
+struct ParamGrid {
+  std::vector<Eigen::Vector2d> params;
+  Faces faces;
+};
+
+ParamGrid MakeParamGrid(int nu, int nv, bool periodic, const GeneratorOptions& o) {
+  std::mt19937_64 rng(o.seed);
+  std::uniform_real_distribution<double> jit(-o.jitter, o.jitter);
+  std::bernoulli_distribution coin(0.5);
+  const int cu = periodic ? nu : nu + 1, cv = periodic ? nv : nv + 1;
+  ParamGrid g;
+  g.params.resize(static_cast<size_t>(cu) * cv);
+  for (int j = 0; j < cv; ++j)
+    for (int i = 0; i < cu; ++i) {
+      double di = jit(rng), dj = jit(rng);
+      if (!periodic) {  // boundary vertices slide along the boundary; corners stay
+        if (i == 0 || i == nu) di = 0;
+        if (j == 0 || j == nv) dj = 0;
+      }
+      g.params[static_cast<size_t>(j) * cu + i] = Eigen::Vector2d((i + di) / nu, (j + dj) / nv);
+    }
+  auto id = [&](int i, int j) { return (j % cv) * cu + (i % cu); };
+  g.faces.resize(static_cast<Eigen::Index>(nu) * nv * (o.quads ? 1 : 2), 4);
+  int f = 0;
+  for (int j = 0; j < nv; ++j)
+    for (int i = 0; i < nu; ++i) {
+      const int a = id(i, j), b = id(i + 1, j), c = id(i + 1, j + 1), d = id(i, j + 1);
+      if (o.quads) {
+        g.faces.row(f++) << a, b, c, d;
+      } else if (coin(rng)) {
+        g.faces.row(f++) << a, b, c, -1;
+        g.faces.row(f++) << a, c, d, -1;
+      } else {
+        g.faces.row(f++) << a, b, d, -1;
+        g.faces.row(f++) << b, c, d, -1;
+      }
+    }
+  return g;
+}
+
+}  // namespace
+
+std::unique_ptr<AnalyticSurface> MakeSphere(double radius) { return std::make_unique<Sphere>(radius); }
+std::unique_ptr<AnalyticSurface> MakeTorus(double R, double r) { return std::make_unique<Torus>(R, r); }
+std::unique_ptr<AnalyticSurface> MakeEllipsoid(double a, double b, double c) {
+  return std::make_unique<Ellipsoid>(a, b, c);
+}
+std::unique_ptr<AnalyticSurface> MakeGaussianBump() { return std::make_unique<GaussianBump>(); }
+
+Mesh GenerateTorusMesh(const GeneratorOptions& o, double R, double r) {
+  const ParamGrid g = MakeParamGrid(3 * o.n, o.n, /*periodic=*/true, o);
+  Mesh m;
+  m.faces = g.faces;
+  m.positions.resize(g.params.size(), 3);
+  for (size_t i = 0; i < g.params.size(); ++i) {
+    const double u = 2 * M_PI * g.params[i].x(), v = 2 * M_PI * g.params[i].y();
+    m.positions.row(i) << (R + r * std::cos(v)) * std::cos(u), (R + r * std::cos(v)) * std::sin(u),
+        r * std::sin(v);
+  }
+  return m;
+}
+
+Mesh GenerateBumpMesh(const GeneratorOptions& o) {
+  const ParamGrid g = MakeParamGrid(o.n, o.n, /*periodic=*/false, o);
+  Mesh m;
+  m.faces = g.faces;
+  m.positions.resize(g.params.size(), 3);
+  for (size_t i = 0; i < g.params.size(); ++i) {
+    const double x = g.params[i].x(), y = g.params[i].y();
+    m.positions.row(i) << x, y, GaussianBump::Eval(x, y).f;
+  }
+  return m;
+}
+
+Mesh GenerateSphereMesh(const GeneratorOptions& o, double radius) {
+  // Cubed sphere: six n x n grids on the cube, welded on a lattice, mapped with the
+  // equiangular warp tan(pi/4 c) and normalized; then jittered along the sphere.
+  const int n = o.n;
+  std::mt19937_64 rng(o.seed);
+  std::bernoulli_distribution coin(0.5);
+  std::map<std::tuple<int, int, int>, int> index;
+  std::vector<Vector3d> pts;
+  auto vertex = [&](const Eigen::Vector3i& lat) {
+    auto [it, inserted] = index.emplace(std::make_tuple(lat.x(), lat.y(), lat.z()), static_cast<int>(pts.size()));
+    if (inserted) {
+      Vector3d c = (2.0 * lat.cast<double>() / n).array() - 1.0;
+      for (int k = 0; k < 3; ++k) c(k) = std::tan(M_PI / 4 * c(k));
+      pts.push_back(c.normalized());
+    }
+    return it->second;
+  };
+  std::vector<Eigen::Vector4i> faces;
+  for (int axis = 0; axis < 3; ++axis)
+    for (int side = 0; side < 2; ++side) {
+      // Tangent axes (a, b) with e_a x e_b = outward normal (+/- e_axis).
+      int a = (axis + 1) % 3, b = (axis + 2) % 3;
+      if (side == 0) std::swap(a, b);
+      for (int j = 0; j < n; ++j)
+        for (int i = 0; i < n; ++i) {
+          auto lat = [&](int di, int dj) {
+            Eigen::Vector3i l;
+            l(axis) = side ? n : 0;
+            l(a) = i + di;
+            l(b) = j + dj;
+            return vertex(l);
+          };
+          const int v00 = lat(0, 0), v10 = lat(1, 0), v11 = lat(1, 1), v01 = lat(0, 1);
+          if (coin(rng)) {
+            faces.emplace_back(v00, v10, v11, -1);
+            faces.emplace_back(v00, v11, v01, -1);
+          } else {
+            faces.emplace_back(v00, v10, v01, -1);
+            faces.emplace_back(v10, v11, v01, -1);
+          }
+        }
+    }
+  std::uniform_real_distribution<double> jit(-1, 1);
+  const double spacing = M_PI / 2 / n;
+  Mesh m;
+  m.positions.resize(pts.size(), 3);
+  for (size_t i = 0; i < pts.size(); ++i) {
+    Vector3d t(jit(rng), jit(rng), jit(rng));
+    t -= t.dot(pts[i]) * pts[i];
+    const Vector3d p = (pts[i] + o.jitter * spacing * t / std::max(1.0, t.norm())).normalized();
+    m.positions.row(i) = radius * p;
+  }
+  m.faces.resize(faces.size(), 4);
+  for (size_t f = 0; f < faces.size(); ++f) m.faces.row(f) = faces[f].transpose();
+  return m;
+}
+
+Mesh GenerateEllipsoidMesh(const GeneratorOptions& o, double a, double b, double c) {
+  Mesh m = GenerateSphereMesh(o, 1.0);
+  for (int i = 0; i < m.NumVertices(); ++i) {
+    m.positions(i, 0) *= a;
+    m.positions(i, 1) *= b;
+    m.positions(i, 2) *= c;
+  }
+  return m;
+}
+
+absl::StatusOr<Mesh> GenerateNamedMesh(const std::string& name, const GeneratorOptions& o) {
+  if (o.n < 2 || o.n > 4096) return absl::InvalidArgumentError(absl::StrCat("level ", o.n, " is out of range [2, 4096]"));
+  if (!(o.jitter >= 0 && o.jitter <= 0.3))
+    return absl::InvalidArgumentError(absl::StrCat("jitter ", o.jitter, " is out of range [0, 0.3]"));
+  GeneratorOptions q = o;
+  if (name == "sphere") return GenerateSphereMesh(o);
+  if (name == "torus") return GenerateTorusMesh(o);
+  if (name == "ellipsoid") return GenerateEllipsoidMesh(o, 1.0, 0.8, 0.6);
+  if (name == "bump") return GenerateBumpMesh(o);
+  if (name == "quadtorus") return q.quads = true, GenerateTorusMesh(q);
+  return absl::InvalidArgumentError(
+      absl::StrCat("unknown surface '", name, "' (sphere, torus, ellipsoid, bump, quadtorus)"));
+}
+
+absl::StatusOr<std::unique_ptr<AnalyticSurface>> NamedSurface(const std::string& name) {
+  if (name == "sphere") return MakeSphere();
+  if (name == "torus" || name == "quadtorus") return MakeTorus();
+  if (name == "ellipsoid") return MakeEllipsoid(1.0, 0.8, 0.6);
+  if (name == "bump") return MakeGaussianBump();
+  return absl::InvalidArgumentError(absl::StrCat("unknown surface '", name, "'"));
+}
+
+double AverageEdgeLength(const Mesh& mesh) {
+  std::set<std::pair<int, int>> seen;
+  double sum = 0;
+  for (int f = 0; f < mesh.NumFaces(); ++f) {
+    const int n = mesh.FaceSize(f);
+    for (int i = 0; i < n; ++i) {
+      int a = mesh.faces(f, i), b = mesh.faces(f, (i + 1) % n);
+      if (a > b) std::swap(a, b);
+      if (seen.emplace(a, b).second) sum += (mesh.positions.row(a) - mesh.positions.row(b)).norm();
+    }
+  }
+  return seen.empty() ? 0 : sum / seen.size();
+}
+
+}  // namespace geomfit

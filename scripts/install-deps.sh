@@ -1,0 +1,21 @@
+#!/usr/bin/env bash
+# Installs every system package geomfit needs (Debian 12). Idempotent; safe to re-run.
+set -euo pipefail
+pkgs=(
+  build-essential cmake ninja-build pkg-config
+  libeigen3-dev libabsl-dev libspdlog-dev libfmt-dev
+  libgtest-dev libgmock-dev libbenchmark-dev libcgal-dev libgmp-dev libmpfr-dev
+  libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc
+  libsqlite3-dev prometheus-cpp-dev
+  python3 python3-grpcio python3-protobuf python3-numpy python3-pytest
+)
+missing=()
+for p in "${pkgs[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if ((${#missing[@]})); then
+  SUDO=""; [ "$(id -u)" -eq 0 ] || SUDO="sudo"
+  echo "install-deps: installing ${missing[*]}"
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}"
+fi
