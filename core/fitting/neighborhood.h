@@ -30,7 +30,7 @@ struct RingSpec {
   bool adaptive = true;
   int min_points = 9;          ///< interior vertices grow until this many points
   int min_points_boundary = 12;  ///< boundary vertices grow until this many points
-  double max_rings = 6;
+  double max_rings = 8;
   int max_points = 120;
 };
 

@@ -30,7 +30,7 @@ struct FitOptions {
   bool adaptive = true;        ///< grow by half rings until enough points (2.1)
   double min_points_factor = 1.5;       ///< interior: >= factor x #coefficients points
   double boundary_points_factor = 2.0;  ///< boundary vertices grow further
-  double max_rings = 6;        ///< adaptive growth stops here
+  double max_rings = 8;        ///< adaptive growth stops here (corners of open meshes need it)
   int max_points = 120;        ///< and never beyond this many points (<= kMaxStencil)
   FitMethod method = FitMethod::kLHF;
   double safeguard_angle_deg = 70;  ///< gamma_i = 0 beyond this normal angle (2.2.1)

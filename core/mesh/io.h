@@ -1,0 +1,74 @@
+#pragma once
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "core/mesh/mesh.h"
+
+namespace geomfit {
+
+/// Mesh file formats. VTP (VTK XML PolyData) is write-only.
+enum class MeshFormat { kObj, kOff, kPly, kStl, kVtp };
+
+/// The format named by a path's extension (.obj .off .ply .stl .vtp, any case).
+absl::StatusOr<MeshFormat> FormatFromPath(std::string_view path);
+const char* MeshFormatName(MeshFormat format);
+
+/// Parses a mesh held in memory (an uploaded file, a test's bytes). Readers check
+/// syntax, counts and face sizes (3 or 4) and never trust a count further than the
+/// bytes that follow it; indices out of range and non-finite coordinates are passed
+/// through for ValidateMesh to reject. Errors (INVALID_ARGUMENT) start with
+/// `source_name` and give the line (text) or byte offset (binary).
+///  - OBJ: `v` and `f` lines (v, v/vt, v/vt/vn, v//vn; negative = relative); rest ignored.
+///  - OFF: optional [ST][C][N]OFF keyword, `#` comments, extra per-vertex/face fields.
+///  - PLY: ascii and binary_little_endian; x, y, z of any numeric type; other
+///    properties and elements skipped; faces from `vertex_indices` / `vertex_index`.
+///  - STL: binary when the size is 84 + 50 n, else ascii; vertices with bitwise-equal
+///    coordinates are welded.
+absl::StatusOr<Mesh> ParseMesh(std::string_view bytes, MeshFormat format,
+                               std::string_view source_name = "mesh");
+
+/// Reads a mesh file; the format comes from the extension.
+absl::StatusOr<Mesh> ReadMesh(const std::string& path);
+
+/// Serializes a mesh: OBJ and OFF as text with %.17g (exact round trip), PLY as
+/// binary little endian with double coordinates and int indices, STL as binary
+/// (float32 coordinates; quads split along their 0-2 diagonal).
+absl::StatusOr<std::string> FormatMesh(const Mesh& mesh, MeshFormat format);
+
+/// Writes a mesh in the format named by the extension (.vtp writes no point data).
+/// Like every writer here it writes `path + ".tmp"` and renames it, so a failed write
+/// never leaves a partial file under `path`.
+absl::Status WriteMesh(const Mesh& mesh, const std::string& path);
+
+/// A per-vertex array for VTP output: rows = #V, cols = components (1, 3, 9, ...).
+struct PointField {
+  std::string name;
+  Eigen::MatrixXd values;
+};
+
+/// VTK XML PolyData (ParaView's .vtp): Points, Polys (triangles and quads) and one
+/// Float64 PointData array per field. Arrays are ASCII with %.17g; an array holding a
+/// NaN or infinity (which VTK's ASCII parser cannot read) is written inline base64
+/// ("binary") instead, bit-exact.
+absl::StatusOr<std::string> FormatVtp(const Mesh& mesh, const std::vector<PointField>& fields);
+absl::Status WriteVtp(const std::string& path, const Mesh& mesh,
+                      const std::vector<PointField>& fields);
+
+using RowMajorMatrixXd = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+
+/// NumPy .npy v1.0: '<f8', fortran_order False, shape (rows, cols).
+std::string FormatNpy(const Eigen::Ref<const RowMajorMatrixXd>& a);
+absl::Status WriteNpy(const std::string& path, const Eigen::Ref<const RowMajorMatrixXd>& a);
+
+/// Whole-file helpers shared by the writers and the CLI. Errors name the path and
+/// the errno text.
+absl::StatusOr<std::string> ReadFileToString(const std::string& path);
+/// Writes `path + ".tmp"`, then renames it to `path`.
+absl::Status WriteFileAtomically(const std::string& path, std::string_view contents);
+
+}  // namespace geomfit

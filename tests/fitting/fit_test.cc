@@ -1,0 +1,225 @@
+// The per-vertex WLS fit (2.2-2.4): exactness on polynomials, its stencil operator,
+// the condition safeguard, diagnostics, option validation, cancellation.
+#include <cmath>
+#include <random>
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include "core/fitting/fit.h"
+#include "core/quantities/differentials.h"
+#include "core/surfaces/analytic.h"
+
+namespace geomfit {
+namespace {
+
+using ::testing::HasSubstr;
+
+// A flat, jittered, randomly split grid in the plane z = 0: every frame normal is
+// exactly +z, so frame coordinates are an exact rotation of (x, y).
+Mesh FlatMesh(int n) {
+  GeneratorOptions g;
+  g.n = n;
+  Mesh m = GenerateBumpMesh(g);
+  m.positions.col(2).setZero();
+  return m;
+}
+
+// g(x, y): a full polynomial of degree d with fixed pseudo-random coefficients.
+double Poly(int d, double x, double y) {
+  double s = 0;
+  int i = 0;
+  for (int p = 0; p <= d; ++p)
+    for (int k = 0; k <= p; ++k, ++i) s += std::sin(1.0 + i) * std::pow(x, p - k) * std::pow(y, k);
+  return s;
+}
+
+// Gradient of Poly by central differences of its exact polynomial (step small, exact
+// enough for a 1e-6 check) is avoided: differentiate analytically instead.
+Eigen::Vector2d PolyGrad(int d, double x, double y) {
+  Eigen::Vector2d g = Eigen::Vector2d::Zero();
+  int i = 0;
+  for (int p = 0; p <= d; ++p)
+    for (int k = 0; k <= p; ++k, ++i) {
+      const double c = std::sin(1.0 + i), j = p - k;
+      if (j > 0) g.x() += c * j * std::pow(x, j - 1) * std::pow(y, k);
+      if (k > 0) g.y() += c * k * std::pow(x, j) * std::pow(y, k - 1);
+    }
+  return g;
+}
+
+TEST(FitTest, StencilsReproducePolynomialsOfTheFitDegreeExactly) {
+  const Mesh m = FlatMesh(12);
+  const Topology t = BuildTopology(m).value();
+  for (int d = 1; d <= 6; ++d) {
+    for (bool interpolate : {true, false}) {
+      FitOptions o;
+      o.degree = d;
+      o.interpolate = interpolate;
+      auto fits = FitSurface(m, t, o, nullptr, FitRequest{.stencils = true}).value();
+      ASSERT_TRUE(fits->has_stencils());
+      Eigen::VectorXd g(m.NumVertices());
+      for (int v = 0; v < m.NumVertices(); ++v) g(v) = Poly(d, m.positions(v, 0), m.positions(v, 1));
+      for (int v = 0; v < m.NumVertices(); v += 7) {
+        ASSERT_EQ(fits->diagnostics(v).degree_used, d) << "vertex " << v;
+        const int n = fits->neighborhoods().Size(v);
+        const int32_t* pts = fits->neighborhoods().Points(v);
+        const double* S = fits->stencil(v);
+        double c00 = 0, c10 = 0, c01 = 0;
+        for (int k = 0; k < n; ++k) {
+          c00 += S[TaylorIndex(0, 0) * n + k] * g(pts[k]);
+          c10 += S[TaylorIndex(1, 0) * n + k] * g(pts[k]);
+          c01 += S[TaylorIndex(0, 1) * n + k] * g(pts[k]);
+        }
+        const LocalFrame& fr = fits->frame(v);
+        const Eigen::Vector2d grad = PolyGrad(d, m.positions(v, 0), m.positions(v, 1));
+        const Eigen::Vector3d grad3(grad.x(), grad.y(), 0);
+        const double scale = 1 + grad.norm();
+        EXPECT_NEAR(c00, g(v), 1e-9 * scale) << "d " << d << " vertex " << v;
+        EXPECT_NEAR(c10, grad3.dot(fr.t1), 1e-8 * scale) << "d " << d << " vertex " << v;
+        EXPECT_NEAR(c01, grad3.dot(fr.t2), 1e-8 * scale) << "d " << d << " vertex " << v;
+      }
+    }
+  }
+}
+
+TEST(FitTest, StencilAppliedToHeightsEqualsTheFit) {
+  GeneratorOptions gen;
+  gen.n = 16;
+  const Mesh m = GenerateTorusMesh(gen);
+  const Topology t = BuildTopology(m).value();
+  FitOptions o;
+  o.degree = 4;
+  auto fits = FitSurface(m, t, o, nullptr, FitRequest{.stencils = true}).value();
+  for (int v = 0; v < m.NumVertices(); v += 11) {
+    const LocalFrame& fr = fits->frame(v);
+    const int n = fits->neighborhoods().Size(v), nc = fits->num_coefficients();
+    const int32_t* pts = fits->neighborhoods().Points(v);
+    for (int c = 0; c < nc; ++c) {
+      double value = 0;
+      for (int k = 0; k < n; ++k)
+        value += fits->stencil(v)[c * n + k] * fr.normal.dot(m.positions.row(pts[k]).transpose() - fr.origin);
+      EXPECT_NEAR(value, fits->coefficients(v)[c], 1e-9 * (1 + std::abs(value))) << v << " " << c;
+    }
+  }
+}
+
+TEST(FitTest, ConditionSafeguardDropsWholeDegrees) {
+  GeneratorOptions gen;
+  gen.n = 12;
+  const Mesh m = GenerateTorusMesh(gen);
+  const Topology t = BuildTopology(m).value();
+  FitOptions o;
+  o.degree = 4;
+  o.cond_threshold[4] = 1.0;  // no degree-4 system is that well conditioned
+  o.cond_threshold[3] = 1.0;
+  auto fits = FitSurface(m, t, o).value();
+  for (int v = 0; v < m.NumVertices(); ++v) {
+    const VertexDiagnostics& d = fits->diagnostics(v);
+    ASSERT_EQ(d.degree_requested, 4);
+    ASSERT_EQ(d.degree_used, 2);
+    ASSERT_TRUE(d.flags & kFlagDowngraded);
+    ASSERT_EQ(d.rank, NumCoefficients(2));  // interpolating: 5 solved + c00
+    // Coefficients above the degree used are zero.
+    for (int c = NumCoefficients(2); c < NumCoefficients(4); ++c) ASSERT_EQ(fits->coefficients(v)[c], 0.0);
+  }
+  // Without the forced cut-off nothing is downgraded on this well-shaped mesh.
+  o.cond_threshold[4] = 1e4;
+  o.cond_threshold[3] = 3.3e3;
+  fits = FitSurface(m, t, o).value();
+  for (int v = 0; v < m.NumVertices(); ++v) ASSERT_EQ(fits->diagnostics(v).degree_used, 4);
+}
+
+TEST(FitTest, SafeguardAngleFiltersFoldedNeighbours) {
+  // On a coarse torus with a tiny cut-off angle, points are dropped (fewer used).
+  GeneratorOptions gen;
+  gen.n = 6;
+  const Mesh m = GenerateTorusMesh(gen);
+  const Topology t = BuildTopology(m).value();
+  FitOptions wide, narrow;
+  wide.degree = narrow.degree = 2;
+  narrow.safeguard_angle_deg = 20;
+  auto a = FitSurface(m, t, wide).value(), b = FitSurface(m, t, narrow).value();
+  int fewer = 0;
+  for (int v = 0; v < m.NumVertices(); ++v) fewer += b->diagnostics(v).points < a->diagnostics(v).points;
+  EXPECT_GT(fewer, m.NumVertices() / 2);
+}
+
+TEST(FitTest, IsolatedAndStarvedVerticesAreFlaggedNotFatal) {
+  Mesh m;
+  m.positions.resize(4, 3);
+  m.positions << 0, 0, 0, 1, 0, 0, 0, 1, 0, 5, 5, 5;  // vertex 3 is isolated
+  m.faces.resize(1, 4);
+  m.faces << 0, 1, 2, -1;
+  FitOptions o;
+  o.degree = 2;
+  auto d = ComputeDifferentials(m, o);
+  ASSERT_TRUE(d.ok()) << d.status();
+  EXPECT_TRUE(d->diagnostics[3].flags & kFlagIsolated);
+  EXPECT_TRUE(std::isnan(d->mean(3)));
+  for (int v = 0; v < 3; ++v) {
+    EXPECT_TRUE(d->diagnostics[v].flags & kFlagTooFewPoints);
+    EXPECT_TRUE(d->diagnostics[v].flags & kFlagBoundary);
+    EXPECT_NEAR(std::abs(d->normals(v, 2)), 1.0, 1e-12);  // degree 1 still gives the plane
+  }
+}
+
+TEST(FitTest, RejectsBadOptionsNamingTheField) {
+  FitOptions o;
+  o.degree = 7;
+  EXPECT_THAT(ValidateFitOptions(o).message(), HasSubstr("degree"));
+  o = FitOptions();
+  o.rings = 1.25;
+  EXPECT_THAT(ValidateFitOptions(o).message(), HasSubstr("rings"));
+  o = FitOptions();
+  o.safeguard_angle_deg = 0;
+  EXPECT_THAT(ValidateFitOptions(o).message(), HasSubstr("safeguard_angle_deg"));
+  o = FitOptions();
+  o.max_points = 5000;
+  EXPECT_THAT(ValidateFitOptions(o).message(), HasSubstr("max_points"));
+  o = FitOptions();
+  o.cond_threshold[3] = 0;
+  EXPECT_THAT(ValidateFitOptions(o).message(), HasSubstr("cond_threshold[3]"));
+  EXPECT_EQ(ValidateFitOptions(o).code(), absl::StatusCode::kInvalidArgument);
+  // Options that change results change the cache key; the thread count does not.
+  FitOptions a, b;
+  b.num_threads = 3;
+  EXPECT_EQ(FitOptionsKey(a), FitOptionsKey(b));
+  b.interpolate = false;
+  EXPECT_NE(FitOptionsKey(a), FitOptionsKey(b));
+}
+
+TEST(FitTest, CancellationStopsTheFit) {
+  GeneratorOptions gen;
+  gen.n = 40;
+  const Mesh m = GenerateTorusMesh(gen);
+  const Topology t = BuildTopology(m).value();
+  CancellationToken token;
+  token.Cancel();
+  FitRequest req;
+  req.cancel = &token;
+  auto fits = FitSurface(m, t, FitOptions(), nullptr, req);
+  EXPECT_EQ(fits.status().code(), absl::StatusCode::kCancelled);
+  CancellationToken expired(CancellationToken::Clock::now() - std::chrono::seconds(1));
+  req.cancel = &expired;
+  EXPECT_EQ(FitSurface(m, t, FitOptions(), nullptr, req).status().code(), absl::StatusCode::kDeadlineExceeded);
+}
+
+TEST(FitTest, TwoPassRefitsInFittedFrames) {
+  GeneratorOptions gen;
+  gen.n = 16;
+  const Mesh m = GenerateTorusMesh(gen);
+  const Topology t = BuildTopology(m).value();
+  FitOptions o;
+  o.degree = 4;
+  auto one = FitSurface(m, t, o).value();
+  o.two_pass = true;
+  auto two = FitSurface(m, t, o).value();
+  // Second-pass frames are the first pass's fitted normals, not the averaged ones.
+  const PointDifferentials p = DifferentialsFromJet(one->Jet(5));
+  EXPECT_NEAR((two->frame(5).normal - p.normal).norm(), 0, 1e-14);
+  EXPECT_GT((one->frame(5).normal - p.normal).norm(), 1e-6);
+}
+
+}  // namespace
+}  // namespace geomfit
