@@ -5,19 +5,11 @@
 
 
 #include "absl/strings/str_format.h"
-#include "core/fitting/small_qr.h"
+#include "core/fitting/wls.h"
 #include "core/util/parallel.h"
 
 namespace geomfit {
 namespace {
-
-constexpr int kMaxCoef = NumCoefficients(kMaxDegree);
-
-// 1 / (j! k!) for the Taylor basis of (2.3.1).
-double InvFactorialProduct(int j, int k) {
-  static const double f[] = {1, 1, 2, 6, 24, 120, 720};
-  return 1.0 / (f[j] * f[k]);
-}
 
 // Everything a vertex fit reads, and where it writes.
 struct FitInput {
@@ -25,7 +17,6 @@ struct FitInput {
   const Neighborhoods& nb;
   const Positions& normals;  // per-vertex normals for frames and the safeguard weights
   const FitOptions& o;
-  bool stencils;
 };
 
 struct FitOutput {
@@ -35,169 +26,74 @@ struct FitOutput {
   double* stencil;       // ncoef x stencil size, or null
 };
 
-// The weighted-least-squares fit of one vertex (2.2-2.4): Taylor-basis Vandermonde
-// (2.3.2) with weights (2.2.1), column scaling (2.6.6), Householder QR with the
-// condition safeguard that drops whole trailing degrees (2.4).
+// The fit of one vertex (2.2-2.4): its stencil in the frame of its approximate normal,
+// rows filtered by the normal-angle safeguard gamma_i of (2.2.1), solved by SolveWls.
 void FitVertex(int v, const FitInput& in, const FitOutput& out) {
   const FitOptions& o = in.o;
   const int n_pts = in.nb.Size(v);
   const int32_t* pts = in.nb.Points(v);
   const int dims = o.method == FitMethod::kLHF ? 1 : 3;
   const int ncoef = NumCoefficients(o.degree);
-  const int first_col = o.interpolate ? 1 : 0;  // c00 is fixed by interpolation
+  const int first = o.interpolate ? 1 : 0;  // the centre is a row unless interpolating
   VertexDiagnostics& diag = *out.diag;
   diag.degree_requested = static_cast<int8_t>(o.degree);
-  std::fill(out.coefficients, out.coefficients + dims * ncoef, 0.0);
 
   const Eigen::Vector3d x0 = in.mesh.positions.row(v).transpose();
   const Eigen::Vector3d m0 = in.normals.row(v).transpose();
   if (m0.squaredNorm() == 0) {  // isolated vertex: no faces, no frame
     diag.flags |= kFlagIsolated;
     *out.frame = FrameFromNormal(x0, Eigen::Vector3d::UnitZ());
+    std::fill(out.coefficients, out.coefficients + dims * ncoef, 0.0);
     return;
   }
   const LocalFrame frame = FrameFromNormal(x0, m0);
   *out.frame = frame;
 
-  // Local coordinates and safeguard factors gamma_i (2.2.1).
   const double cos_cut = std::cos(o.safeguard_angle_deg * M_PI / 180.0);
-  Eigen::Matrix<double, kMaxStencil, 3> uvw;
-  Eigen::Matrix<double, kMaxStencil, 1> gamma;
-  Eigen::Matrix<int16_t, kMaxStencil, 1> row_point;  // row -> index in the stencil
-  int rows = 0;
-  double radius2 = 0;
-  for (int i = first_col; i < n_pts; ++i) {  // the centre is row 0 unless interpolating
-    const int p = pts[i];
-    const double g = i == 0 ? 1.0 : in.normals.row(p).dot(m0);
-    if (g < cos_cut || g <= 0) continue;
+  WlsProblem P;
+  P.dims = dims;
+  P.rows = n_pts - first;
+  int used = first;
+  for (int i = first; i < n_pts; ++i) {
+    const int r = i - first, p = pts[i];
     const Eigen::Vector3d d = in.mesh.positions.row(p).transpose() - x0;
-    uvw.row(rows) << d.dot(frame.t1), d.dot(frame.t2), d.dot(frame.normal);
-    gamma(rows) = g;
-    row_point(rows) = static_cast<int16_t>(i);
-    radius2 = std::max(radius2, uvw(rows, 0) * uvw(rows, 0) + uvw(rows, 1) * uvw(rows, 1));
-    ++rows;
-  }
-  diag.points = static_cast<int16_t>(rows + first_col);
-  const int needed = ncoef - first_col;
-  if (rows < needed) diag.flags |= kFlagTooFewPoints;
-  if (rows == 0 || radius2 == 0) return;
-  const double h = std::sqrt(radius2);  // distances are scaled by the stencil radius
-
-  // Weighted Vandermonde [A | B] with right-hand sides (2.3.5), column-major, ld = rows.
-  const int cols = needed, ld = rows;
-  double a[kMaxStencil * (kMaxCoef + 3)];
-  double* B = a + cols * ld;
-  for (int r = 0; r < rows; ++r) {
-    const double u = uvw(r, 0) / h, w_v = uvw(r, 1) / h;
-    // (2.2.1): w = gamma / (sqrt(|u|^2 + eps))^(d/2), as an integer power of s^(1/4).
-    const double s4 = std::sqrt(std::sqrt(u * u + w_v * w_v + o.weight_epsilon));
-    double denom = s4;
-    for (int e = 1; e < o.degree; ++e) denom *= s4;
-    const double weight = gamma(r) / denom;
-    double upow[kMaxDegree + 1] = {1}, vpow[kMaxDegree + 1] = {1};
-    for (int e = 1; e <= o.degree; ++e) upow[e] = upow[e - 1] * u, vpow[e] = vpow[e - 1] * w_v;
-    int c = 0;
-    for (int p = first_col; p <= o.degree; ++p)
-      for (int k = 0; k <= p; ++k)
-        a[(c++) * ld + r] = weight * upow[p - k] * vpow[k] * InvFactorialProduct(p - k, k);
+    P.u[r] = d.dot(frame.t1);
+    P.v[r] = d.dot(frame.t2);
+    const double g = i == 0 ? 1.0 : in.normals.row(p).dot(m0);
+    P.gamma[r] = g >= cos_cut ? g : 0.0;
+    used += P.gamma[r] > 0;
     if (dims == 1) {
-      B[r] = weight * uvw(r, 2);
+      P.rhs[0][r] = d.dot(frame.normal);
     } else {
-      const Eigen::Vector3d d = in.mesh.positions.row(pts[row_point(r)]).transpose() - x0;
-      for (int q = 0; q < 3; ++q) B[q * ld + r] = weight * d(q);
+      for (int q = 0; q < 3; ++q) P.rhs[q][r] = d(q);
     }
-    gamma(r) = weight;  // keep the row weight for the stencil operator
   }
-  // Column scaling by 2-norms (2.6.6).
-  double scale[kMaxCoef];
-  for (int c = 0; c < cols; ++c) {
-    double norm2 = 0;
-    for (int r = 0; r < rows; ++r) norm2 += a[c * ld + r] * a[c * ld + r];
-    scale[c] = norm2 > 0 ? 1 / std::sqrt(norm2) : 1.0;
-    for (int r = 0; r < rows; ++r) a[c * ld + r] *= scale[c];
-  }
-  double tau[kMaxCoef];
-  HouseholderQRInPlace(a, ld, rows, cols, dims, tau);  // [A | B] -> [R | Q^T B]
-  const int kq = std::min(rows, cols);
+  diag.points = static_cast<int16_t>(used);
+  if (used < ncoef) diag.flags |= kFlagTooFewPoints;
 
-  // Condition safeguard (2.4): the leading k x k block of R factors the first k columns
-  // and inv(R)'s leading block inverts it, so 1-norms of every leading block are prefix
-  // maxima of column sums: one triangular inverse prices every degree.
-  int usable = kq;  // columns before the first (numerically) zero pivot
-  const double tiny = 1e-13 * std::max(1.0, std::abs(a[0]));
-  for (int c = 0; c < kq; ++c)
-    if (!(std::abs(a[c * ld + c]) > tiny)) { usable = c; break; }
-  double rinv[kMaxCoef * kMaxCoef];
-  InvertUpper(a, ld, usable, rinv);
-  double colsum_r[kMaxCoef], colsum_i[kMaxCoef];
-  for (int c = 0; c < usable; ++c) {
-    colsum_r[c] = colsum_i[c] = 0;
-    for (int i = 0; i <= c; ++i) colsum_r[c] += std::abs(a[c * ld + i]), colsum_i[c] += std::abs(rinv[c * usable + i]);
-    if (c > 0) colsum_r[c] = std::max(colsum_r[c], colsum_r[c - 1]), colsum_i[c] = std::max(colsum_i[c], colsum_i[c - 1]);
-  }
-  int degree = o.degree, k = 0;
-  double cond = 0;
-  for (; degree >= 1; --degree) {
-    k = NumCoefficients(degree) - first_col;
-    if (k > usable) continue;
-    cond = colsum_r[k - 1] * colsum_i[k - 1];
-    if (cond <= o.cond_threshold[degree]) break;
-  }
-  diag.condition = static_cast<float>(cond);
-  if (degree < 1) {
-    diag.degree_used = 0;
-    diag.flags |= kFlagDowngraded;
-    return;
-  }
-  if (degree < o.degree) diag.flags |= kFlagDowngraded;
-  diag.degree_used = static_cast<int8_t>(degree);
-  diag.rank = static_cast<int16_t>(k + first_col);
+  WlsSettings S;
+  S.degree = o.degree;
+  S.interpolate = o.interpolate;
+  S.weight_epsilon = o.weight_epsilon;
+  S.cond_threshold = o.cond_threshold;
+  S.oscillation_safeguard = o.oscillation_safeguard;
+  double op[kMaxCoefficients * kMaxStencil];
+  const WlsSolution sol = SolveWls(P, S, out.coefficients, out.stencil ? op : nullptr);
+  diag.degree_used = static_cast<int8_t>(sol.degree_used);
+  diag.rank = static_cast<int16_t>(sol.rank);
+  diag.condition = static_cast<float>(sol.condition);
+  if (sol.condition_downgraded || sol.degree_used < 1) diag.flags |= kFlagDowngraded;
+  if (sol.oscillation_downgraded) diag.flags |= kFlagOscillation;
 
-  // y = R_k^-1 (Q^T b)_k, then undo the column and radius scaling.
-  double hp[kMaxDegree + 1];
-  hp[0] = 1;
-  for (int p = 1; p <= degree; ++p) hp[p] = hp[p - 1] * h;
-  for (int d = 0; d < dims; ++d) {
-    double y[kMaxCoef];
-    for (int i = k - 1; i >= 0; --i) {  // back substitution
-      double sum = B[d * ld + i];
-      for (int l = i + 1; l < k; ++l) sum -= a[l * ld + i] * y[l];
-      y[i] = sum / a[i * ld + i];
-    }
-    double* c_out = out.coefficients + d * ncoef;
-    int c = 0;
-    for (int p = first_col; p <= degree; ++p)
-      for (int kk = 0; kk <= p; ++kk, ++c) c_out[TaylorIndex(p - kk, kk)] = scale[c] * y[c] / hp[p];
-  }
-
-  if (out.stencil) {
-    // Operator rows: coefficients = S R_k^-1 Q_k^T Omega g (g = values at the rows, minus
-    // the centre value when interpolating), i.e. row c of the operator is
-    // S_c / h^p * sum_l Rinv(c, l) (Q e_l)^T Omega.
+  if (out.stencil) {  // operator rows over the stencil points (centre first)
     std::fill(out.stencil, out.stencil + static_cast<size_t>(ncoef) * n_pts, 0.0);
-    double q[kMaxCoef * kMaxStencil];  // columns Q e_l, l < k
-    for (int l = 0; l < k; ++l) {
-      double* ql = q + l * rows;
-      std::fill(ql, ql + rows, 0.0);
-      ql[l] = 1;
-      ApplyQ(a, ld, rows, kq, tau, ql);
+    if (sol.degree_used < 1) return;
+    for (int c = 0; c < ncoef; ++c) {
+      double* row = out.stencil + static_cast<size_t>(c) * n_pts;
+      double sum = 0;
+      for (int r = 0; r < P.rows; ++r) sum += row[r + first] = op[c * P.rows + r];
+      if (o.interpolate) row[0] = (c == 0 ? 1.0 : 0.0) - sum;  // values relative to the centre
     }
-    int c = 0;
-    for (int p = first_col; p <= degree; ++p) {
-      for (int kk = 0; kk <= p; ++kk, ++c) {
-        double* row = out.stencil + static_cast<size_t>(TaylorIndex(p - kk, kk)) * n_pts;
-        double sum = 0;
-        for (int r = 0; r < rows; ++r) {
-          double acc = 0;
-          for (int l = c; l < k; ++l) acc += rinv[l * usable + c] * q[l * rows + r];
-          const double val = gamma(r) * acc * scale[c] / hp[p];
-          row[row_point(r)] = val;
-          sum += val;
-        }
-        if (o.interpolate) row[0] -= sum;
-      }
-    }
-    if (o.interpolate) out.stencil[0] = 1.0;  // c00 = g(centre)
   }
 }
 
@@ -227,6 +123,26 @@ SurfaceJet SurfaceFits::Jet(int v) const {
     }
   }
   return jet;
+}
+
+SurfaceFits::LocalPoint SurfaceFits::Evaluate(int v, const Eigen::Vector3d& x) const {
+  const LocalFrame& fr = frames_[v];
+  const Eigen::Vector3d d = x - fr.origin;
+  const double u = d.dot(fr.t1), w = d.dot(fr.t2);
+  const int n = num_coefficients(), deg = options_.degree;
+  const double* c = coefficients(v);
+  LocalPoint p;
+  if (dims() == 1) {  // x = origin + u t1 + v t2 + f(u, v) m (Table 3.1)
+    double f, fu, fv;
+    EvalTaylor(c, deg, u, w, &f, &fu, &fv);
+    p.position = fr.origin + u * fr.t1 + w * fr.t2 + f * fr.normal;
+    p.du = fr.t1 + fu * fr.normal;
+    p.dv = fr.t2 + fv * fr.normal;
+  } else {  // x = origin + (X(u, v), Y(u, v), Z(u, v))
+    for (int k = 0; k < 3; ++k) EvalTaylor(c + k * n, deg, u, w, &p.position(k), &p.du(k), &p.dv(k));
+    p.position += fr.origin;
+  }
+  return p;
 }
 
 size_t SurfaceFits::Bytes() const {
@@ -284,7 +200,7 @@ class SurfaceFitter {
         f.stencil_offsets_[v + 1] = f.stencil_offsets_[v] + static_cast<size_t>(f.num_coefficients()) * nb->Size(v);
       f.stencils_.assign(f.stencil_offsets_[nv], 0.0);
     }
-    const FitInput in{mesh, *nb, normals, o, req.stencils};
+    const FitInput in{mesh, *nb, normals, o};
     std::atomic<bool> stop{false};
     constexpr int64_t kGrain = 512;
     ParallelFor((nv + kGrain - 1) / kGrain, o.num_threads, [&](int64_t chunk) {

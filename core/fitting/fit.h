@@ -23,6 +23,7 @@ enum FitFlag : uint8_t {
   kFlagDowngraded = 2,    ///< the condition safeguard dropped one or more degrees
   kFlagBoundary = 4,      ///< vertex on the mesh boundary
   kFlagIsolated = 8,      ///< vertex in no face: no fit, quantities are NaN
+  kFlagOscillation = 16,  ///< the oscillation safeguard (4.1.3) lowered the degree
 };
 
 struct VertexDiagnostics {
@@ -63,6 +64,12 @@ class SurfaceFits {
   const Neighborhoods& neighborhoods() const { return *neighborhoods_; }
   /// Position and derivatives of vertex v's fit at its origin.
   SurfaceJet Jet(int v) const;
+  /// Vertex v's fit evaluated at the orthogonal projection of `x` onto its frame's
+  /// tangent plane: the point of the fitted surface and its (u, v) derivatives.
+  struct LocalPoint {
+    Eigen::Vector3d position, du, dv;
+  };
+  LocalPoint Evaluate(int v, const Eigen::Vector3d& x) const;
   /// Stencil operators (if requested): coefficient i of vertex v's fit of any nodal
   /// field g over v's frame is sum_k stencil(v)[i * n + k] * g[points(v)[k]],
   /// with n = neighborhoods().Size(v). The GFD operators of chapter 5 use these.

@@ -40,10 +40,10 @@ absl::Status ValidateFitOptions(const FitOptions& o) {
 
 std::string FitOptionsKey(const FitOptions& o) {
   std::string key = absl::StrFormat(
-      "d%d r%g a%d f%g b%g mr%g mp%d %s s%g i%d t%d w%d e%g", o.degree, o.StartRings(),
+      "d%d r%g a%d f%g b%g mr%g mp%d %s s%g i%d t%d w%d e%g o%d", o.degree, o.StartRings(),
       o.adaptive, o.min_points_factor, o.boundary_points_factor, o.max_rings, o.max_points,
       FitMethodName(o.method), o.safeguard_angle_deg, o.interpolate, o.two_pass,
-      static_cast<int>(o.frame_normals), o.weight_epsilon);
+      static_cast<int>(o.frame_normals), o.weight_epsilon, o.oscillation_safeguard);
   for (int d = 1; d <= kMaxDegree; ++d) absl::StrAppendFormat(&key, " c%g", o.cond_threshold[d]);
   return key;
 }

@@ -35,6 +35,7 @@ struct FitOptions {
   FitMethod method = FitMethod::kLHF;
   double safeguard_angle_deg = 70;  ///< gamma_i = 0 beyond this normal angle (2.2.1)
   bool interpolate = true;     ///< fit passes through the centre vertex (c00 fixed)
+  bool oscillation_safeguard = false;  ///< (4.1.3) lower the degree of oscillatory fits
   bool two_pass = false;       ///< refit in frames from the first pass's fitted normals
   NormalWeighting frame_normals = NormalWeighting::kArea;
   double weight_epsilon = 0.01;  ///< eps of (2.2.1), distances scaled by the stencil radius

@@ -1,0 +1,192 @@
+#include "core/fitting/wls.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "core/fitting/small_qr.h"
+
+namespace geomfit {
+namespace {
+
+constexpr int kMaxCoef = kMaxCoefficients;
+constexpr double kFactorial[] = {1, 1, 2, 6, 24, 120, 720};
+constexpr int TaylorIdx(int j, int k) { return (j + k) * (j + k + 1) / 2 + k; }
+
+// y = R_k^-1 (Q^T b)_k by back substitution; column-major R with leading dimension ld.
+void BackSubstitute(const double* R, int ld, int k, const double* qtb, double* y) {
+  for (int i = k - 1; i >= 0; --i) {
+    double sum = qtb[i];
+    for (int l = i + 1; l < k; ++l) sum -= R[l * ld + i] * y[l];
+    y[i] = sum / R[i * ld + i];
+  }
+}
+
+}  // namespace
+
+void EvalTaylor(const double* c, int degree, double u, double v, double* value, double* du,
+                double* dv) {
+  double up[kMaxDegree + 1] = {1}, vp[kMaxDegree + 1] = {1};
+  for (int e = 1; e <= degree; ++e) up[e] = up[e - 1] * u, vp[e] = vp[e - 1] * v;
+  double f = 0, fu = 0, fv = 0;
+  for (int p = 0; p <= degree; ++p)
+    for (int k = 0; k <= p; ++k) {
+      const int j = p - k;
+      const double a = c[TaylorIdx(j, k)] / (kFactorial[j] * kFactorial[k]);
+      f += a * up[j] * vp[k];
+      if (j > 0) fu += a * j * up[j - 1] * vp[k];
+      if (k > 0) fv += a * k * up[j] * vp[k - 1];
+    }
+  if (value) *value = f;
+  if (du) *du = fu;
+  if (dv) *dv = fv;
+}
+
+WlsSolution SolveWls(const WlsProblem& P, const WlsSettings& S, double* coefficients, double* op) {
+  WlsSolution sol;
+  const int ncoef = NumCoefficients(S.degree);
+  const int first_col = S.interpolate ? 1 : 0;  // c00 is fixed by interpolation
+  std::fill(coefficients, coefficients + P.dims * ncoef, 0.0);
+  if (op) std::fill(op, op + static_cast<size_t>(ncoef) * P.rows, 0.0);
+
+  // Keep rows with a positive safeguard factor; scale distances by the stencil radius.
+  int keep[kMaxStencil];
+  int rows = 0;
+  double radius2 = 0;
+  for (int r = 0; r < P.rows; ++r) {
+    if (!(P.gamma[r] > 0)) continue;
+    keep[rows++] = r;
+    radius2 = std::max(radius2, P.u[r] * P.u[r] + P.v[r] * P.v[r]);
+  }
+  if (rows == 0 || radius2 == 0) return sol;
+  const double h = sol.radius = std::sqrt(radius2);
+
+  // Weighted Vandermonde [A | B] (2.3.5), column-major with ld = rows.
+  const int cols = ncoef - first_col, ld = rows, dims = P.dims;
+  double a[kMaxStencil * (kMaxCoef + 3)];
+  double weight[kMaxStencil];
+  double* B = a + cols * ld;
+  for (int i = 0; i < rows; ++i) {
+    const int r = keep[i];
+    const double u = P.u[r] / h, v = P.v[r] / h;
+    // (2.2.1): w = gamma / (sqrt(|u|^2 + eps))^(d/2), as an integer power of s^(1/4).
+    const double s4 = std::sqrt(std::sqrt(u * u + v * v + S.weight_epsilon));
+    double denom = s4;
+    for (int e = 1; e < S.degree; ++e) denom *= s4;
+    const double w = weight[i] = P.gamma[r] / denom;
+    double up[kMaxDegree + 1] = {1}, vp[kMaxDegree + 1] = {1};
+    for (int e = 1; e <= S.degree; ++e) up[e] = up[e - 1] * u, vp[e] = vp[e - 1] * v;
+    int c = 0;
+    for (int p = first_col; p <= S.degree; ++p)
+      for (int k = 0; k <= p; ++k) a[(c++) * ld + i] = w * up[p - k] * vp[k] / (kFactorial[p - k] * kFactorial[k]);
+    for (int d = 0; d < dims; ++d) B[d * ld + i] = w * P.rhs[d][r];
+  }
+  // Column scaling by 2-norms (2.6.6).
+  double scale[kMaxCoef];
+  for (int c = 0; c < cols; ++c) {
+    double norm2 = 0;
+    for (int i = 0; i < rows; ++i) norm2 += a[c * ld + i] * a[c * ld + i];
+    scale[c] = norm2 > 0 ? 1 / std::sqrt(norm2) : 1.0;
+    for (int i = 0; i < rows; ++i) a[c * ld + i] *= scale[c];
+  }
+  double tau[kMaxCoef];
+  HouseholderQRInPlace(a, ld, rows, cols, dims, tau);  // [A | B] -> [R | Q^T B]
+  const int kq = std::min(rows, cols);
+
+  // Condition safeguard (2.4): the leading k x k block of R factors the first k columns
+  // and inv(R)'s leading block inverts it, so the 1-norms of every leading block are
+  // prefix maxima of column sums: one triangular inverse prices every degree.
+  int usable = kq;  // columns before the first (numerically) zero pivot
+  const double tiny = 1e-13 * std::max(1.0, std::abs(a[0]));
+  for (int c = 0; c < kq; ++c)
+    if (!(std::abs(a[c * ld + c]) > tiny)) {
+      usable = c;
+      break;
+    }
+  double rinv[kMaxCoef * kMaxCoef];
+  InvertUpper(a, ld, usable, rinv);
+  double colsum_r[kMaxCoef], colsum_i[kMaxCoef];
+  for (int c = 0; c < usable; ++c) {
+    colsum_r[c] = colsum_i[c] = 0;
+    for (int i = 0; i <= c; ++i) colsum_r[c] += std::abs(a[c * ld + i]), colsum_i[c] += std::abs(rinv[c * usable + i]);
+    if (c > 0) colsum_r[c] = std::max(colsum_r[c], colsum_r[c - 1]), colsum_i[c] = std::max(colsum_i[c], colsum_i[c - 1]);
+  }
+  auto cols_of = [&](int degree) { return NumCoefficients(degree) - first_col; };
+  int degree = S.degree;
+  for (; degree >= 1; --degree) {
+    const int k = cols_of(degree);
+    if (k > usable) continue;
+    sol.condition = colsum_r[k - 1] * colsum_i[k - 1];
+    if (sol.condition <= S.cond_threshold[degree]) break;
+  }
+  sol.condition_downgraded = degree < S.degree;
+  if (degree < 1) return sol;
+
+  // Scaled solutions y (coefficients of the column-scaled, radius-scaled problem).
+  double y[3][kMaxCoef];
+  auto solve = [&](int deg, double out[3][kMaxCoef]) {
+    for (int d = 0; d < dims; ++d) BackSubstitute(a, ld, cols_of(deg), B + d * ld, out[d]);
+  };
+  solve(degree, y);
+  // Oscillation safeguard (4.1.3): the degree-p coefficients (2 <= p < degree) of the
+  // degree-p fit (the leading block of the same QR) must agree with the degree-d fit's:
+  // |c^_p - c_p| <= max(|c^_p|, eps), taken as 2-norms over all degree-p coefficients,
+  // in heights at the stencil radius (c h^p).
+  if (S.oscillation_safeguard) {
+    while (degree > 2) {
+      bool ok = true;
+      for (int p = 2; p < degree && ok; ++p) {
+        double yp[3][kMaxCoef];
+        solve(p, yp);
+        double diff2 = 0, ref2 = 0;
+        for (int c = cols_of(p - 1); c < cols_of(p); ++c)
+          for (int d = 0; d < dims; ++d) {
+            const double lo = scale[c] * yp[d][c], hi = scale[c] * y[d][c];
+            diff2 += (lo - hi) * (lo - hi);
+            ref2 += lo * lo;
+          }
+        ok = std::sqrt(diff2) <= std::max(std::sqrt(ref2), S.oscillation_epsilon);
+      }
+      if (ok) break;
+      --degree;
+      sol.oscillation_downgraded = true;
+      solve(degree, y);
+    }
+  }
+  const int k = cols_of(degree);
+  sol.degree_used = degree;
+  sol.rank = k + first_col;
+
+  // Undo the column and radius scaling: c_jk = s_c y_c / h^(j+k).
+  double hp[kMaxDegree + 1] = {1};
+  for (int p = 1; p <= degree; ++p) hp[p] = hp[p - 1] * h;
+  for (int d = 0; d < dims; ++d) {
+    int c = 0;
+    for (int p = first_col; p <= degree; ++p)
+      for (int kk = 0; kk <= p; ++kk, ++c) coefficients[d * ncoef + TaylorIdx(p - kk, kk)] = scale[c] * y[d][c] / hp[p];
+  }
+
+  if (op) {
+    // Operator rows: coefficients = S R_k^-1 Q_k^T Omega g, i.e. row c of the operator
+    // is s_c / h^p * sum_l Rinv(c, l) (Q e_l)^T Omega.
+    double q[kMaxCoef * kMaxStencil];  // columns Q e_l, l < k
+    for (int l = 0; l < k; ++l) {
+      double* ql = q + l * rows;
+      std::fill(ql, ql + rows, 0.0);
+      ql[l] = 1;
+      ApplyQ(a, ld, rows, kq, tau, ql);
+    }
+    int c = 0;
+    for (int p = first_col; p <= degree; ++p)
+      for (int kk = 0; kk <= p; ++kk, ++c) {
+        double* row = op + static_cast<size_t>(TaylorIdx(p - kk, kk)) * P.rows;
+        for (int i = 0; i < rows; ++i) {
+          double acc = 0;
+          for (int l = c; l < k; ++l) acc += rinv[l * usable + c] * q[l * rows + i];
+          row[keep[i]] = weight[i] * acc * scale[c] / hp[p];
+        }
+      }
+  }
+  return sol;
+}
+
+}  // namespace geomfit
