@@ -278,6 +278,20 @@ Mesh GenerateSphereMesh(const GeneratorOptions& o, double radius) {
   }
   m.faces.resize(faces.size(), 4);
   for (size_t f = 0; f < faces.size(); ++f) m.faces.row(f) = faces[f].transpose();
+  // Narrow cells near the cube's corners can fold under jitter: put the vertices of any
+  // face that turns too far from the sphere's normal back where they were.
+  for (bool changed = true; changed;) {
+    changed = false;
+    for (int f = 0; f < m.NumFaces(); ++f) {
+      const Vector3d a = m.positions.row(m.faces(f, 0)), b = m.positions.row(m.faces(f, 1)),
+                     c = m.positions.row(m.faces(f, 2));
+      if ((b - a).cross(c - a).normalized().dot((a + b + c).normalized()) > 0.5) continue;
+      for (int i = 0; i < 3; ++i) {
+        const int v = m.faces(f, i);
+        if (m.positions.row(v) != radius * pts[v].transpose()) m.positions.row(v) = radius * pts[v].transpose(), changed = true;
+      }
+    }
+  }
   return m;
 }
 

@@ -1,0 +1,124 @@
+#include "core/integration/integrate.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "absl/strings/str_format.h"
+#include "core/fitting/wls.h"
+#include "core/integration/quadrature.h"
+#include "core/util/parallel.h"
+
+namespace geomfit {
+namespace {
+
+absl::Status CheckField(const Eigen::MatrixXd& a, int rows, int cols, const char* name) {
+  if (a.size() == 0) return absl::OkStatus();
+  if (a.rows() != rows || (cols > 0 && a.cols() != cols))
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "%s has shape %d x %d; expected %d x %s (one row per vertex)", name, a.rows(), a.cols(), rows,
+        cols > 0 ? std::to_string(cols) : "k"));
+  for (Eigen::Index i = 0; i < a.rows(); ++i)
+    for (Eigen::Index j = 0; j < a.cols(); ++j)
+      if (!std::isfinite(a(i, j)))
+        return absl::InvalidArgumentError(absl::StrFormat("%s: value at vertex %d, column %d is not finite", name, i, j));
+  return absl::OkStatus();
+}
+
+}  // namespace
+
+absl::StatusOr<Integrals> Integrate(const ReconstructedSurface& surface, const IntegrationInput& in,
+                                    int num_threads) {
+  const Mesh& mesh = surface.mesh();
+  const int nv = mesh.NumVertices(), nf = mesh.NumFaces();
+  const auto* walf = dynamic_cast<const WalfSurface*>(&surface);
+  if (!walf && !dynamic_cast<const LinearSurface*>(&surface))
+    return absl::InvalidArgumentError("integration supports the linear and WALF surfaces only");
+  if (absl::Status s = CheckField(in.scalars, nv, 0, "scalar field"); !s.ok()) return s;
+  if (absl::Status s = CheckField(in.vectors, nv, 3, "vector field"); !s.ok()) return s;
+  const int degree = walf ? walf->fits().options().degree : 1;
+  const int qdeg = in.quadrature_degree > 0 ? in.quadrature_degree : std::max(4, degree + 2);
+  if (qdeg > kMaxQuadratureDegree)
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "quadrature degree %d is out of range [1, %d]", qdeg, kMaxQuadratureDegree));
+
+  // Nodal fields side by side: scalars, then the vector's three components.
+  const int ns = static_cast<int>(in.scalars.cols()), nfield = ns + (in.vectors.size() ? 3 : 0);
+  if (ns > 29) return absl::InvalidArgumentError(absl::StrFormat("%d scalar fields; at most 29 per call", ns));
+  Eigen::MatrixXd values(nv, nfield);
+  if (ns) values.leftCols(ns) = in.scalars;
+  if (in.vectors.size()) values.rightCols(3) = in.vectors;
+
+  // WALF fields: per-vertex Taylor coefficients of each field from the stencil
+  // operators of the geometry fits (same frames, weights and degree) (4.3.13).
+  const int ncoef = NumCoefficients(degree);
+  std::vector<double> coef;
+  if (walf && nfield) {
+    const SurfaceFits& fits = walf->fits();
+    if (!fits.has_stencils())
+      return absl::FailedPreconditionError("field integration needs fits built with stencil operators");
+    coef.assign(static_cast<size_t>(nv) * nfield * ncoef, 0.0);
+    ParallelFor(nv, num_threads, [&](int64_t v) {
+      const int n = fits.neighborhoods().Size(static_cast<int>(v));
+      const int32_t* pts = fits.neighborhoods().Points(static_cast<int>(v));
+      const double* S = fits.stencil(static_cast<int>(v));
+      for (int f = 0; f < nfield; ++f)
+        for (int c = 0; c < ncoef; ++c) {
+          double sum = 0;
+          for (int k = 0; k < n; ++k) sum += S[c * n + k] * values(pts[k], f);
+          coef[(static_cast<size_t>(v) * nfield + f) * ncoef + c] = sum;
+        }
+    });
+  }
+
+  const QuadratureRule tri = TriangleRule(qdeg), quad = QuadRule(qdeg);
+  // Per-face sums, added in face order afterwards: identical for any thread count.
+  const int ncol = 3 + nfield;
+  Eigen::MatrixXd per_face = Eigen::MatrixXd::Zero(nf, ncol);
+  ParallelFor(nf, num_threads, [&](int64_t f) {
+    const QuadratureRule& rule = mesh.FaceSize(static_cast<int>(f)) == 3 ? tri : quad;
+    double N[4], dNa[4], dNb[4], phi[32];
+    for (int q = 0; q < rule.size(); ++q) {
+      const FacePoint fp{static_cast<int32_t>(f), rule.xi[q], rule.eta[q]};
+      const SurfacePoint sp = surface.Evaluate(fp);
+      const Eigen::Vector3d n = sp.jacobian.col(0).cross(sp.jacobian.col(1));  // j1 x j2 (4.3.4)
+      const double w = rule.weight[q];
+      per_face(f, 0) += w * n.norm();                   // area (4.3.2)
+      per_face(f, 1) += w * sp.position.dot(n) / 3.0;   // volume (4.3.16)
+      if (!nfield) continue;
+      const int nn = ShapeFunctions(mesh, fp.face, fp.xi, fp.eta, N, dNa, dNb);
+      std::fill(phi, phi + nfield, 0.0);
+      Eigen::Vector3d x = Eigen::Vector3d::Zero();
+      for (int i = 0; i < nn; ++i) x += N[i] * mesh.positions.row(mesh.faces(f, i)).transpose();
+      for (int i = 0; i < nn; ++i) {
+        const int v = mesh.faces(f, i);
+        if (!walf) {
+          for (int k = 0; k < nfield; ++k) phi[k] += N[i] * values(v, k);
+          continue;
+        }
+        const LocalFrame& fr = walf->fits().frame(v);
+        const double u = (x - fr.origin).dot(fr.t1), t = (x - fr.origin).dot(fr.t2);
+        for (int k = 0; k < nfield; ++k) {
+          double val;
+          EvalTaylor(&coef[(static_cast<size_t>(v) * nfield + k) * ncoef], degree, u, t, &val, nullptr, nullptr);
+          phi[k] += N[i] * val;
+        }
+      }
+      for (int k = 0; k < ns; ++k) per_face(f, 3 + k) += w * phi[k] * n.norm();
+      if (in.vectors.size()) per_face(f, 2) += w * Eigen::Vector3d(phi[ns], phi[ns + 1], phi[ns + 2]).dot(n);
+    }
+  }, 64);
+  Integrals out;
+  out.quadrature_points = tri.size();
+  out.scalars.assign(ns, 0.0);
+  for (int f = 0; f < nf; ++f) {
+    out.area += per_face(f, 0);
+    out.volume += per_face(f, 1);
+    out.flux += per_face(f, 2);
+    for (int k = 0; k < ns; ++k) out.scalars[k] += per_face(f, 3 + k);
+  }
+  if (!in.area) out.area = 0;
+  if (!in.volume) out.volume = 0;
+  return out;
+}
+
+}  // namespace geomfit
