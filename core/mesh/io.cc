@@ -16,6 +16,7 @@
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "absl/strings/str_replace.h"
 #include "absl/strings/str_split.h"
 #include "core/util/status_macros.h"
 
@@ -93,7 +94,8 @@ void PutFloat(std::string* out, float f) {
 }
 uint64_t GetLE(const char* p, int nbytes) {
   uint64_t u = 0;
-  for (int i = 0; i < nbytes; ++i) u |= static_cast<uint64_t>(static_cast<uint8_t>(p[i])) << (8 * i);
+  for (int i = 0; i < nbytes; ++i)
+    u |= static_cast<uint64_t>(static_cast<uint8_t>(p[i])) << (8 * i);
   return u;
 }
 
@@ -247,7 +249,8 @@ absl::StatusOr<Mesh> ParseOff(absl::string_view bytes, absl::string_view source)
       return lines.Error(absl::StrCat("'", tok[0], "' is not a face size"));
     GF_RETURN_IF_ERROR(CheckFaceSize(lines, f, n));
     if (static_cast<int64_t>(tok.size()) < n + 1)
-      return lines.Error(absl::StrFormat("face %d needs %d indices, found %d", f, n, tok.size() - 1));
+      return lines.Error(
+          absl::StrFormat("face %d needs %d indices, found %d", f, n, tok.size() - 1));
     int32_t v[4];
     for (int i = 0; i < n; ++i)
       if (!absl::SimpleAtoi(tok[i + 1], &v[i]))
@@ -268,9 +271,9 @@ struct PlyTypeInfo {
   int size;
 };
 constexpr PlyTypeInfo kPlyTypes[] = {
-    {{"char", "int8"}, PlyType::kInt8, 1},       {{"uchar", "uint8"}, PlyType::kUint8, 1},
-    {{"short", "int16"}, PlyType::kInt16, 2},    {{"ushort", "uint16"}, PlyType::kUint16, 2},
-    {{"int", "int32"}, PlyType::kInt32, 4},      {{"uint", "uint32"}, PlyType::kUint32, 4},
+    {{"char", "int8"}, PlyType::kInt8, 1},        {{"uchar", "uint8"}, PlyType::kUint8, 1},
+    {{"short", "int16"}, PlyType::kInt16, 2},     {{"ushort", "uint16"}, PlyType::kUint16, 2},
+    {{"int", "int32"}, PlyType::kInt32, 4},       {{"uint", "uint32"}, PlyType::kUint32, 4},
     {{"float", "float32"}, PlyType::kFloat32, 4}, {{"double", "float64"}, PlyType::kFloat64, 8},
 };
 
@@ -500,8 +503,9 @@ absl::StatusOr<Mesh> ParsePlyData(const PlyHeader& h, PlySource& src, absl::stri
         }
         const size_t max_items = src.MaxItems(prop.type);
         if (!IsIntegerIn(v, 0, static_cast<double>(max_items)))
-          return src.Error(absl::StrFormat("bad list length %g in element '%s' %d (at most %d can follow)",
-                                           v, e.name, r, max_items));
+          return src.Error(
+              absl::StrFormat("bad list length %g in element '%s' %d (at most %d can follow)", v,
+                              e.name, r, max_items));
         const int n = static_cast<int>(v);
         if (k == list && (n < 3 || n > 4))
           return src.Error(absl::StrFormat(
@@ -612,50 +616,53 @@ absl::StatusOr<Mesh> ParseAsciiStl(absl::string_view bytes, absl::string_view so
 }
 
 absl::StatusOr<Mesh> ParseStl(absl::string_view bytes, absl::string_view source) {
-  if (bytes.size() >= 84) {
-    const uint64_t n = GetLE(bytes.data() + 80, 4);
-    if (84 + 50 * n == bytes.size()) {
-      if (n > kMaxInt32 / 3)
-        return absl::InvalidArgumentError(absl::StrCat(source, ": too many triangles (", n, ")"));
-      return ParseBinaryStl(bytes, static_cast<int64_t>(n));
-    }
-    if (!LooksLikeAsciiStl(bytes))
-      return absl::InvalidArgumentError(absl::StrFormat(
-          "%s: byte 80: binary STL header claims %d triangles (%d bytes) but the file has %d bytes",
-          source, n, 84 + 50 * n, bytes.size()));
-  } else if (!LooksLikeAsciiStl(bytes)) {
+  if (bytes.size() < 84 && !LooksLikeAsciiStl(bytes))
     return absl::InvalidArgumentError(absl::StrCat(
         source, ": not an STL file (shorter than the 84-byte binary header and no 'solid')"));
+  const uint64_t n = bytes.size() >= 84 ? GetLE(bytes.data() + 80, 4) : 0;
+  if (bytes.size() >= 84 && 84 + 50 * n == bytes.size()) {
+    if (n > kMaxInt32 / 3)
+      return absl::InvalidArgumentError(absl::StrCat(source, ": too many triangles (", n, ")"));
+    return ParseBinaryStl(bytes, static_cast<int64_t>(n));
   }
-  return ParseAsciiStl(bytes, source);
+  const std::string binary_error = absl::StrFormat(
+      "byte 80: binary STL header claims %d triangles (%d bytes) but the file has %d bytes", n,
+      84 + 50 * n, bytes.size());
+  if (!LooksLikeAsciiStl(bytes))
+    return absl::InvalidArgumentError(absl::StrCat(source, ": ", binary_error));
+  absl::StatusOr<Mesh> ascii = ParseAsciiStl(bytes, source);
+  // A binary STL may start with "solid" too: say what is wrong either way.
+  if (!ascii.ok() && bytes.size() >= 84)
+    return absl::InvalidArgumentError(
+        absl::StrCat(ascii.status().message(), " (and as a binary STL: ", binary_error, ")"));
+  return ascii;
 }
 
 // ---------------------------------------------------------------------------
 // Writers
 
+/// Vertex and face lines of OBJ ("v x y z", "f 1 2 3": 1-based) or OFF ("x y z", "3 0 1 2").
+void AppendTextBody(std::string* out, const Mesh& m, bool obj) {
+  for (int v = 0; v < m.NumVertices(); ++v)
+    absl::StrAppendFormat(out, "%s%.17g %.17g %.17g\n", obj ? "v " : "", m.positions(v, 0),
+                          m.positions(v, 1), m.positions(v, 2));
+  for (int f = 0; f < m.NumFaces(); ++f) {
+    absl::StrAppend(out, obj ? "f" : absl::StrCat(m.FaceSize(f)));
+    for (int i = 0; i < m.FaceSize(f); ++i)
+      absl::StrAppend(out, " ", m.faces(f, i) + (obj ? 1 : 0));
+    *out += '\n';
+  }
+}
+
 std::string FormatObj(const Mesh& m) {
   std::string out = "# geomfit\n";
-  for (int v = 0; v < m.NumVertices(); ++v)
-    absl::StrAppendFormat(&out, "v %.17g %.17g %.17g\n", m.positions(v, 0), m.positions(v, 1),
-                          m.positions(v, 2));
-  for (int f = 0; f < m.NumFaces(); ++f) {
-    out += 'f';
-    for (int i = 0; i < m.FaceSize(f); ++i) absl::StrAppend(&out, " ", m.faces(f, i) + 1);
-    out += '\n';
-  }
+  AppendTextBody(&out, m, /*obj=*/true);
   return out;
 }
 
 std::string FormatOff(const Mesh& m) {
   std::string out = absl::StrFormat("OFF\n%d %d 0\n", m.NumVertices(), m.NumFaces());
-  for (int v = 0; v < m.NumVertices(); ++v)
-    absl::StrAppendFormat(&out, "%.17g %.17g %.17g\n", m.positions(v, 0), m.positions(v, 1),
-                          m.positions(v, 2));
-  for (int f = 0; f < m.NumFaces(); ++f) {
-    absl::StrAppend(&out, m.FaceSize(f));
-    for (int i = 0; i < m.FaceSize(f); ++i) absl::StrAppend(&out, " ", m.faces(f, i));
-    out += '\n';
-  }
+  AppendTextBody(&out, m, /*obj=*/false);
   return out;
 }
 
@@ -707,32 +714,24 @@ std::string Base64(absl::string_view in) {
   for (size_t i = 0; i < in.size(); i += 3) {
     uint32_t w = 0;
     const size_t n = std::min<size_t>(3, in.size() - i);
-    for (size_t k = 0; k < n; ++k) w |= static_cast<uint32_t>(static_cast<uint8_t>(in[i + k])) << (16 - 8 * k);
+    for (size_t k = 0; k < n; ++k)
+      w |= static_cast<uint32_t>(static_cast<uint8_t>(in[i + k])) << (16 - 8 * k);
     for (size_t k = 0; k < 4; ++k) out += k <= n ? kChars[(w >> (18 - 6 * k)) & 63] : '=';
   }
   return out;
 }
 
 std::string XmlEscape(absl::string_view s) {
-  std::string out;
-  for (char c : s) {
-    switch (c) {
-      case '&': out += "&amp;"; break;
-      case '<': out += "&lt;"; break;
-      case '>': out += "&gt;"; break;
-      case '"': out += "&quot;"; break;
-      case '\'': out += "&apos;"; break;
-      default: out += c;
-    }
-  }
-  return out;
+  return absl::StrReplaceAll(
+      s, {{"&", "&amp;"}, {"<", "&lt;"}, {">", "&gt;"}, {"\"", "&quot;"}, {"'", "&apos;"}});
 }
 
 /// One Float64 DataArray of `rows` x `cols` values given by value(r, c): ASCII, or
 /// inline base64 (UInt32 byte-count header encoded separately, as VTK writes it)
 /// when a value is not finite.
 template <typename Fn>
-void AppendFloat64Array(std::string* out, absl::string_view name, int64_t rows, int cols, Fn value) {
+void AppendFloat64Array(std::string* out, absl::string_view name, int64_t rows, int cols,
+                        Fn value) {
   bool finite = true;
   for (int64_t r = 0; r < rows && finite; ++r)
     for (int c = 0; c < cols; ++c) finite = finite && std::isfinite(value(r, c));
@@ -774,8 +773,8 @@ absl::StatusOr<MeshFormat> FormatFromPath(std::string_view path_in) {
   if (ext == "ply") return MeshFormat::kPly;
   if (ext == "stl") return MeshFormat::kStl;
   if (ext == "vtp") return MeshFormat::kVtp;
-  return absl::InvalidArgumentError(absl::StrCat(
-      path, ": unknown mesh file extension '", ext, "' (expected .obj, .off, .ply, .stl or .vtp)"));
+  return absl::InvalidArgumentError(absl::StrCat(path, ": unknown mesh file extension '", ext,
+                                                 "' (expected .obj, .off, .ply, .stl or .vtp)"));
 }
 
 const char* MeshFormatName(MeshFormat format) {
@@ -883,7 +882,8 @@ absl::StatusOr<std::string> FormatVtp(const Mesh& mesh, const std::vector<PointF
 absl::Status WriteVtp(const std::string& path, const Mesh& mesh,
                       const std::vector<PointField>& fields) {
   absl::StatusOr<std::string> xml = FormatVtp(mesh, fields);
-  if (!xml.ok()) return absl::InvalidArgumentError(absl::StrCat(path, ": ", xml.status().message()));
+  if (!xml.ok())
+    return absl::InvalidArgumentError(absl::StrCat(path, ": ", xml.status().message()));
   return WriteFileAtomically(path, *xml);
 }
 
@@ -913,7 +913,8 @@ absl::StatusOr<std::string> ReadFileToString(const std::string& path) {
   char buf[1 << 16];
   size_t n;
   while ((n = std::fread(buf, 1, sizeof(buf), f.get())) > 0) out.append(buf, n);
-  if (std::ferror(f.get())) return absl::ErrnoToStatus(errno, absl::StrCat("cannot read '", path, "'"));
+  if (std::ferror(f.get()))
+    return absl::ErrnoToStatus(errno, absl::StrCat("cannot read '", path, "'"));
   return out;
 }
 
@@ -921,8 +922,8 @@ absl::Status WriteFileAtomically(const std::string& path, std::string_view conte
   const std::string tmp = path + ".tmp";
   FILE* f = std::fopen(tmp.c_str(), "wb");
   if (!f) return absl::ErrnoToStatus(errno, absl::StrCat("cannot write '", path, "'"));
-  bool ok = std::fwrite(contents.data(), 1, contents.size(), f) == contents.size() &&
-            std::fflush(f) == 0;
+  bool ok =
+      std::fwrite(contents.data(), 1, contents.size(), f) == contents.size() && std::fflush(f) == 0;
   int err = ok ? 0 : errno;
   if (std::fclose(f) != 0 && ok) {
     ok = false;

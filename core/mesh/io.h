@@ -1,9 +1,8 @@
 #pragma once
+#include <Eigen/Core>
 #include <string>
 #include <string_view>
 #include <vector>
-
-#include <Eigen/Core>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
@@ -24,7 +23,8 @@ const char* MeshFormatName(MeshFormat format);
 /// through for ValidateMesh to reject. Errors (INVALID_ARGUMENT) start with
 /// `source_name` and give the line (text) or byte offset (binary).
 ///  - OBJ: `v` and `f` lines (v, v/vt, v/vt/vn, v//vn; negative = relative); rest ignored.
-///  - OFF: optional [ST][C][N]OFF keyword, `#` comments, extra per-vertex/face fields.
+///  - OFF: optional [ST][C][N]OFF keyword, `#` comments; one vertex or face per line,
+///    extra fields (colours) ignored.
 ///  - PLY: ascii and binary_little_endian; x, y, z of any numeric type; other
 ///    properties and elements skipped; faces from `vertex_indices` / `vertex_index`.
 ///  - STL: binary when the size is 84 + 50 n, else ascii; vertices with bitwise-equal

@@ -1,0 +1,151 @@
+#pragma once
+// The `geomfit` command-line tool: shared pieces of the in-process (--local) mode
+// (local.cc) and the service mode (--server, remote.cc when built with the client).
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "absl/strings/string_view.h"
+#include "core/fitting/options.h"
+#include "core/mesh/io.h"
+#include "core/mesh/mesh.h"
+#include "core/quantities/differentials.h"
+
+namespace geomfit::cli {
+
+inline constexpr char kVersion[] = "0.1.0";
+
+/// Exit codes: 0 success, 1 runtime error (I/O, invalid mesh, server), 2 usage error.
+inline constexpr int kExitOk = 0;
+inline constexpr int kExitRuntimeError = 1;
+inline constexpr int kExitUsageError = 2;
+
+/// An INVALID_ARGUMENT status marked as a usage error (bad command line), so that
+/// Main() exits with 2 rather than 1.
+absl::Status UsageError(absl::string_view message);
+bool IsUsageError(const absl::Status& status);
+
+/// A small command-line parser shared by every subcommand: `--name value`,
+/// `--name=value`, boolean `--flag`, positionals in order, `--` ends options,
+/// `-h`/`--help`. Values are stored straight into the caller's variables, whose
+/// values at registration are shown as defaults in Usage().
+class ArgParser {
+ public:
+  /// `command` is e.g. "geomfit curvature"; `synopsis` follows it in the usage line.
+  ArgParser(std::string command, std::string synopsis, std::string description = "");
+
+  ArgParser& Flag(const std::string& name, bool* out, const std::string& help);
+  ArgParser& Int(const std::string& name, int* out, const std::string& help);
+  ArgParser& UInt64(const std::string& name, uint64_t* out, const std::string& help);
+  ArgParser& Double(const std::string& name, double* out, const std::string& help);
+  ArgParser& String(const std::string& name, std::string* out, const std::string& help,
+                    const std::string& value_name = "VALUE");
+  /// A required positional argument (in registration order).
+  ArgParser& Positional(const std::string& name, std::string* out, const std::string& help);
+
+  /// Parses `args` (everything after the subcommand). Errors are usage errors.
+  /// After --help, missing positionals are not an error.
+  absl::Status Parse(const std::vector<std::string>& args);
+  bool help_requested() const { return help_; }
+  /// True if option `name` (without dashes) appeared on the command line.
+  bool WasSet(const std::string& name) const;
+  std::string Usage() const;
+
+ private:
+  enum class Kind { kFlag, kInt, kUInt64, kDouble, kString };
+  struct Option {
+    std::string name, help, value_name, default_text;
+    Kind kind;
+    void* out;
+    bool set = false;
+  };
+  struct Arg {
+    std::string name, help;
+    std::string* out;
+  };
+  ArgParser& Add(const std::string& name, Kind kind, void* out, const std::string& help,
+                 const std::string& value_name, const std::string& default_text);
+  absl::Status Store(Option& option, const std::string& value);
+
+  std::string command_, synopsis_, description_;
+  std::vector<Option> options_;
+  std::vector<Arg> positionals_;
+  bool help_ = false;
+};
+
+/// True if `args` contains `--name` or `--name=...` before any `--`.
+bool HasOption(const std::vector<std::string>& args, const std::string& name);
+
+/// Arguments of `geomfit curvature`, shared by --local and --server.
+struct CurvatureArgs {
+  std::string mesh;    ///< mesh file (local) or mesh file / id (remote)
+  bool local = false;  ///< --local: in-process (the default without --server)
+  std::string server;  ///< --server HOST:PORT
+  FitOptions fit;      ///< --degree, --rings, --method, --two-pass, --approximate, ...
+  std::string method = "lhf";
+  bool interpolate = false;  ///< --interpolate: explicit default
+  bool approximate = false;  ///< --approximate: fit need not pass through the vertex
+  std::string output;        ///< .vtp, .npy, .tsv / .txt; empty = TSV on stdout
+  bool verbose = false;
+};
+
+/// Registers the curvature options on `parser`, writing into `args`.
+void AddCurvatureOptions(ArgParser* parser, CurvatureArgs* args);
+/// Parses the curvature command line and checks everything that needs no mesh
+/// (option ranges via ValidateFitOptions, output extension): usage errors. With
+/// --help it prints the usage to stdout and sets *help.
+absl::Status ParseCurvatureArgs(const std::vector<std::string>& argv, CurvatureArgs* args,
+                                bool* help);
+
+// ---- Output of per-vertex differential quantities (output.cc) ----
+
+enum class OutputKind { kTsv, kNpy, kVtp };
+/// By extension: .tsv/.txt, .npy, .vtp (any case). Unknown: a usage error.
+absl::StatusOr<OutputKind> OutputKindFromPath(const std::string& path);
+
+/// Column names of the table (the TSV header); the first 13 are the NPY columns.
+const std::vector<std::string>& DifferentialsColumns();
+/// #V x 13: nx ny nz H K k1 k2 e1x e1y e1z e2x e2y e2z (NaN where not computed).
+RowMajorMatrixXd DifferentialsTable(const Differentials& d);
+/// Header line, then one tab-separated line per vertex (%.17g; then degree_used,
+/// points, flags from the diagnostics, 0 when absent).
+std::string DifferentialsTsv(const Differentials& d);
+/// VTP point arrays: Normals, MeanCurvature, GaussianCurvature, k1, k2, Direction1,
+/// Direction2, CurvatureTensor, DegreeUsed, Points, Flags (those present).
+std::vector<PointField> DifferentialsFields(const Differentials& d);
+/// Writes by extension; an empty path writes TSV to stdout. `mesh` is needed for VTP.
+absl::Status WriteDifferentials(const std::string& path, const Mesh& mesh, const Differentials& d);
+
+// ---- Commands: each returns OK, a usage error or a runtime error ----
+
+absl::Status RunCurvature(const std::vector<std::string>& args);  ///< local.cc
+absl::Status RunGenerate(const std::vector<std::string>& args);   ///< local.cc
+absl::Status RunConvert(const std::vector<std::string>& args);    ///< local.cc
+absl::Status RunProject(const std::vector<std::string>& args);    ///< reconstruct.cc
+absl::Status RunRefine(const std::vector<std::string>& args);     ///< reconstruct.cc
+absl::Status RunNodes(const std::vector<std::string>& args);      ///< reconstruct.cc
+absl::Status RunIntegrate(const std::vector<std::string>& args);  ///< reconstruct.cc
+
+#ifdef GEOMFIT_WITH_CLIENT
+/// Service mode (remote.cc): `curvature --server ...` with parsed arguments.
+absl::Status RunCurvatureRemote(const CurvatureArgs& args);
+/// Service-only commands (remote.cc): upload, update, info, list, delete.
+/// Returns a usage error for a command it does not know.
+absl::Status RunRemoteCommand(const std::string& command, const std::vector<std::string>& args);
+#endif
+
+/// Names of the service-only commands (for help text and a clear error when the
+/// client is not built in).
+inline const std::vector<std::string>& RemoteCommandNames() {
+  static const std::vector<std::string> names = {"upload", "update", "info", "list", "delete"};
+  return names;
+}
+inline constexpr char kNoClientMessage[] = "this geomfit was built without the service client";
+
+/// The whole program: returns the exit code. Errors go to stderr as ONE line
+/// `geomfit: error: <message>`.
+int Main(int argc, char** argv);
+
+}  // namespace geomfit::cli

@@ -1,0 +1,125 @@
+// In-process commands of the `geomfit` tool: curvature --local, generate, convert.
+#include <cstdio>
+
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "clients/cpp/cli/cli.h"
+#include "core/mesh/topology.h"
+#include "core/surfaces/analytic.h"
+#include "core/util/status_macros.h"
+#include "core/util/timer.h"
+
+namespace geomfit::cli {
+namespace {
+
+/// The same status with "<prefix>: " in front of its message.
+absl::Status WithPrefix(const absl::Status& s, const std::string& prefix) {
+  if (s.ok()) return s;
+  return absl::Status(s.code(), absl::StrCat(prefix, ": ", s.message()));
+}
+
+/// Checks an output path's mesh extension before any work is done (a usage error).
+absl::Status CheckMeshOutput(const std::string& path) {
+  auto format = FormatFromPath(path);
+  return format.ok() ? absl::OkStatus() : UsageError(format.status().message());
+}
+
+void Verbose(bool on, const std::string& line) {
+  if (on) std::fprintf(stderr, "geomfit: %s\n", line.c_str());
+}
+
+}  // namespace
+
+absl::Status RunCurvature(const std::vector<std::string>& argv) {
+  CurvatureArgs a;
+  bool help = false;
+  GF_RETURN_IF_ERROR(ParseCurvatureArgs(argv, &a, &help));
+  if (help) return absl::OkStatus();
+  if (!a.server.empty()) {
+#ifdef GEOMFIT_WITH_CLIENT
+    return RunCurvatureRemote(a);
+#else
+    return UsageError(kNoClientMessage);
+#endif
+  }
+
+  Stopwatch read_timer;
+  GF_ASSIGN_OR_RETURN(const Mesh mesh, ReadMesh(a.mesh));
+  GF_RETURN_IF_ERROR(WithPrefix(ValidateMesh(mesh).status(), a.mesh));
+  Verbose(a.verbose, absl::StrFormat("read %s: %d vertices, %d faces in %.3f s", a.mesh,
+                                     mesh.NumVertices(), mesh.NumFaces(), read_timer.Seconds()));
+
+  Stopwatch fit_timer;
+  GF_ASSIGN_OR_RETURN(const Differentials d, ComputeDifferentials(mesh, a.fit));
+  Verbose(a.verbose, absl::StrFormat("fit + quantities (degree %d, %s): %.3f s", a.fit.degree,
+                                     FitMethodName(a.fit.method), fit_timer.Seconds()));
+
+  Stopwatch write_timer;
+  GF_RETURN_IF_ERROR(WriteDifferentials(a.output, mesh, d));
+  Verbose(a.verbose, absl::StrFormat("wrote %s in %.3f s", a.output.empty() ? "stdout" : a.output,
+                                     write_timer.Seconds()));
+  return absl::OkStatus();
+}
+
+absl::Status RunGenerate(const std::vector<std::string>& argv) {
+  std::string name, output;
+  GeneratorOptions g;
+  bool verbose = false;
+  ArgParser p("geomfit generate", "NAME [--level N] [--jitter J] [--seed S] --output FILE",
+              "Generates a mesh on an analytic surface (vertices exactly on it, irregular\n"
+              "connectivity), in any mesh format or .vtp.");
+  p.Positional("NAME", &name, "sphere, torus, ellipsoid, bump or quadtorus")
+      .Int("level", &g.n, "resolution n (edge length ~ 1/n), 2..4096")
+      .Double("jitter", &g.jitter, "vertex jitter along the surface, x local spacing, 0..0.3")
+      .UInt64("seed", &g.seed, "random seed of the jitter and diagonals")
+      .String("output", &output, "output file (.obj .off .ply .stl .vtp)", "FILE")
+      .Flag("verbose", &verbose, "print timings to stderr");
+  GF_RETURN_IF_ERROR(p.Parse(argv));
+  if (p.help_requested()) {
+    std::fputs(p.Usage().c_str(), stdout);
+    return absl::OkStatus();
+  }
+  if (output.empty()) return UsageError("'geomfit generate' needs --output FILE");
+  GF_RETURN_IF_ERROR(CheckMeshOutput(output));
+
+  Stopwatch timer;
+  absl::StatusOr<Mesh> mesh = GenerateNamedMesh(name, g);
+  // Its only failures are bad arguments (name, level, jitter).
+  if (!mesh.ok()) return UsageError(mesh.status().message());
+  Verbose(verbose, absl::StrFormat("generated %s: %d vertices, %d faces in %.3f s", name,
+                                   mesh->NumVertices(), mesh->NumFaces(), timer.Seconds()));
+  Stopwatch write_timer;
+  GF_RETURN_IF_ERROR(WriteMesh(*mesh, output));
+  Verbose(verbose, absl::StrFormat("wrote %s in %.3f s", output, write_timer.Seconds()));
+  return absl::OkStatus();
+}
+
+absl::Status RunConvert(const std::vector<std::string>& argv) {
+  std::string in, out;
+  bool verbose = false;
+  ArgParser p("geomfit convert", "IN OUT",
+              "Converts a mesh between formats, chosen by extension. Reads .obj .off .ply\n"
+              ".stl; writes those (PLY binary, STL binary) and .vtp.");
+  p.Positional("IN", &in, "input mesh file")
+      .Positional("OUT", &out, "output mesh file")
+      .Flag("verbose", &verbose, "print timings to stderr");
+  GF_RETURN_IF_ERROR(p.Parse(argv));
+  if (p.help_requested()) {
+    std::fputs(p.Usage().c_str(), stdout);
+    return absl::OkStatus();
+  }
+  GF_RETURN_IF_ERROR(CheckMeshOutput(out));
+  if (FormatFromPath(in).value_or(MeshFormat::kVtp) == MeshFormat::kVtp)
+    return UsageError(absl::StrCat("input '", in, "': expected .obj, .off, .ply or .stl"));
+
+  Stopwatch timer;
+  GF_ASSIGN_OR_RETURN(const Mesh mesh, ReadMesh(in));
+  Verbose(verbose, absl::StrFormat("read %s: %d vertices, %d faces in %.3f s", in,
+                                   mesh.NumVertices(), mesh.NumFaces(), timer.Seconds()));
+  Stopwatch write_timer;
+  GF_RETURN_IF_ERROR(WriteMesh(mesh, out));
+  Verbose(verbose, absl::StrFormat("wrote %s in %.3f s", out, write_timer.Seconds()));
+  return absl::OkStatus();
+}
+
+}  // namespace geomfit::cli

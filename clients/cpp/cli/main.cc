@@ -1,0 +1,115 @@
+// The `geomfit` command-line tool: command dispatch, help, exit codes.
+#include <cstdio>
+#include <exception>
+#include <string>
+#include <vector>
+
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "absl/strings/str_join.h"
+#include "absl/strings/str_join.h"
+#include "absl/strings/str_replace.h"
+#include "clients/cpp/cli/cli.h"
+
+namespace geomfit::cli {
+namespace {
+
+struct Command {
+  const char* name;
+  const char* summary;
+  absl::Status (*run)(const std::vector<std::string>& args);
+};
+
+constexpr Command kCommands[] = {
+    {"curvature", "normals, curvatures and principal directions of a mesh", RunCurvature},
+    {"generate", "generate a test mesh on an analytic surface", RunGenerate},
+    {"convert", "convert a mesh between OBJ, OFF, PLY, STL (and write VTP)", RunConvert},
+    {"project", "project points onto the reconstructed high-order surface", RunProject},
+    {"refine", "refine a mesh uniformly onto the reconstructed surface", RunRefine},
+    {"nodes", "quadratic or cubic element nodes on the reconstructed surface", RunNodes},
+    {"integrate", "high-order area, volume, scalar and flux integrals", RunIntegrate},
+};
+
+bool IsRemoteCommand(const std::string& name) {
+  for (const std::string& r : RemoteCommandNames())
+    if (r == name) return true;
+  return false;
+}
+
+std::string MainUsage() {
+  std::string out =
+      "usage: geomfit COMMAND [options]\n"
+      "       geomfit COMMAND --help\n"
+      "       geomfit --version\n\n"
+      "High-order differential geometry of surface meshes (OBJ, OFF, PLY, STL).\n\n"
+      "commands:\n";
+  for (const Command& c : kCommands) absl::StrAppendFormat(&out, "  %-12s %s\n", c.name, c.summary);
+#ifdef GEOMFIT_WITH_CLIENT
+  absl::StrAppend(&out, "\nservice commands (--server HOST:PORT): ",
+                  absl::StrJoin(RemoteCommandNames(), ", "), "; and curvature --server\n");
+#else
+  out += "\n(built without the service client: --server and the service commands are off)\n";
+#endif
+  out += "\nexit status: 0 success, 1 runtime error, 2 usage error\n";
+  return out;
+}
+
+absl::Status Dispatch(const std::string& name, const std::vector<std::string>& args) {
+  for (const Command& c : kCommands)
+    if (name == c.name) return c.run(args);
+  if (IsRemoteCommand(name)) {
+#ifdef GEOMFIT_WITH_CLIENT
+    return RunRemoteCommand(name, args);
+#else
+    return UsageError(kNoClientMessage);
+#endif
+  }
+  return UsageError(absl::StrCat("unknown command '", name, "' (see 'geomfit --help')"));
+}
+
+}  // namespace
+
+#ifdef GEOMFIT_WITH_CLIENT
+// Placeholders so the tool links before remote.cc exists; remote.cc's (strong)
+// definitions replace these weak ones at link time.
+__attribute__((weak)) absl::Status RunCurvatureRemote(const CurvatureArgs&) {
+  return absl::UnimplementedError("the service mode of geomfit curvature is not implemented yet");
+}
+__attribute__((weak)) absl::Status RunRemoteCommand(const std::string& command,
+                                                    const std::vector<std::string>&) {
+  return absl::UnimplementedError(
+      absl::StrCat("the service command '", command, "' is not implemented yet"));
+}
+#endif
+
+int Main(int argc, char** argv) {
+  const std::vector<std::string> args(argv + 1, argv + argc);
+  if (args.empty()) {
+    std::fputs("geomfit: error: missing command (see 'geomfit --help')\n", stderr);
+    return kExitUsageError;
+  }
+  const std::string& command = args[0];
+  if (command == "--help" || command == "-h" || command == "help") {
+    std::fputs(MainUsage().c_str(), stdout);
+    return kExitOk;
+  }
+  if (command == "--version") {
+    std::printf("geomfit %s\n", kVersion);
+    return kExitOk;
+  }
+  absl::Status status;
+  try {
+    status = Dispatch(command, std::vector<std::string>(args.begin() + 1, args.end()));
+  } catch (const std::exception& e) {
+    status = absl::InternalError(absl::StrCat("unexpected exception: ", e.what()));
+  }
+  if (status.ok()) return kExitOk;
+  // One line on stderr, whatever the message holds.
+  const std::string message = absl::StrReplaceAll(status.message(), {{"\r", " "}, {"\n", "; "}});
+  std::fprintf(stderr, "geomfit: error: %s\n", message.c_str());
+  return IsUsageError(status) ? kExitUsageError : kExitRuntimeError;
+}
+
+}  // namespace geomfit::cli
+
+int main(int argc, char** argv) { return geomfit::cli::Main(argc, argv); }

@@ -1,0 +1,129 @@
+// Writing per-vertex differential quantities as TSV, NPY or VTP (both CLI modes).
+#include <algorithm>
+#include <cerrno>
+#include <cstdio>
+#include <limits>
+
+#include "absl/strings/ascii.h"
+#include "absl/strings/match.h"
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "absl/strings/str_join.h"
+#include "clients/cpp/cli/cli.h"
+
+namespace geomfit::cli {
+namespace {
+
+constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+
+/// Value (v, c) of an optional per-vertex array; NaN if the array was not computed.
+template <typename M>
+double At(const M& m, int v, int c) {
+  return v < m.rows() ? m(v, c) : kNaN;
+}
+
+int NumVertices(const Differentials& d) {
+  return static_cast<int>(
+      std::max({d.normals.rows(), d.mean.rows(), d.gaussian.rows(), d.k1.rows(), d.dir1.rows(),
+                d.tensor.rows(), static_cast<Eigen::Index>(d.diagnostics.size())}));
+}
+
+/// A #V x cols field copied out of any per-vertex array.
+template <typename M>
+PointField Field(const std::string& name, const M& m) {
+  return {name, Eigen::MatrixXd(m.template cast<double>())};
+}
+
+}  // namespace
+
+absl::StatusOr<OutputKind> OutputKindFromPath(const std::string& path) {
+  const std::string lower = absl::AsciiStrToLower(path);
+  if (absl::EndsWith(lower, ".tsv") || absl::EndsWith(lower, ".txt")) return OutputKind::kTsv;
+  if (absl::EndsWith(lower, ".npy")) return OutputKind::kNpy;
+  if (absl::EndsWith(lower, ".vtp")) return OutputKind::kVtp;
+  return UsageError(
+      absl::StrCat("output '", path, "': unknown extension (expected .vtp, .npy, .tsv or .txt)"));
+}
+
+const std::vector<std::string>& DifferentialsColumns() {
+  static const std::vector<std::string> columns = {
+      "nx",  "ny",  "nz",  "H",   "K",   "k1",          "k2",     "e1x",
+      "e1y", "e1z", "e2x", "e2y", "e2z", "degree_used", "points", "flags"};
+  return columns;
+}
+
+RowMajorMatrixXd DifferentialsTable(const Differentials& d) {
+  const int nv = NumVertices(d);
+  RowMajorMatrixXd t(nv, 13);
+  for (int v = 0; v < nv; ++v) {
+    for (int c = 0; c < 3; ++c) {
+      t(v, c) = At(d.normals, v, c);
+      t(v, 7 + c) = At(d.dir1, v, c);
+      t(v, 10 + c) = At(d.dir2, v, c);
+    }
+    t(v, 3) = At(d.mean, v, 0);
+    t(v, 4) = At(d.gaussian, v, 0);
+    t(v, 5) = At(d.k1, v, 0);
+    t(v, 6) = At(d.k2, v, 0);
+  }
+  return t;
+}
+
+std::string DifferentialsTsv(const Differentials& d) {
+  const RowMajorMatrixXd t = DifferentialsTable(d);
+  std::string out = absl::StrJoin(DifferentialsColumns(), "\t");
+  out += '\n';
+  for (int v = 0; v < t.rows(); ++v) {
+    for (int c = 0; c < t.cols(); ++c) absl::StrAppendFormat(&out, "%.17g\t", t(v, c));
+    const VertexDiagnostics diag =
+        v < static_cast<int>(d.diagnostics.size()) ? d.diagnostics[v] : VertexDiagnostics{};
+    absl::StrAppend(&out, static_cast<int>(diag.degree_used), "\t", static_cast<int>(diag.points),
+                    "\t", static_cast<int>(diag.flags), "\n");
+  }
+  return out;
+}
+
+std::vector<PointField> DifferentialsFields(const Differentials& d) {
+  std::vector<PointField> fields;
+  if (d.normals.rows() > 0) fields.push_back(Field("Normals", d.normals));
+  if (d.mean.rows() > 0) fields.push_back(Field("MeanCurvature", d.mean));
+  if (d.gaussian.rows() > 0) fields.push_back(Field("GaussianCurvature", d.gaussian));
+  if (d.k1.rows() > 0) fields.push_back(Field("k1", d.k1));
+  if (d.k2.rows() > 0) fields.push_back(Field("k2", d.k2));
+  if (d.dir1.rows() > 0) fields.push_back(Field("Direction1", d.dir1));
+  if (d.dir2.rows() > 0) fields.push_back(Field("Direction2", d.dir2));
+  if (d.tensor.rows() > 0) fields.push_back(Field("CurvatureTensor", d.tensor));
+  if (!d.diagnostics.empty()) {
+    const int nv = static_cast<int>(d.diagnostics.size());
+    PointField degree{"DegreeUsed", Eigen::MatrixXd(nv, 1)},
+        points{"Points", Eigen::MatrixXd(nv, 1)}, flags{"Flags", Eigen::MatrixXd(nv, 1)};
+    for (int v = 0; v < nv; ++v) {
+      degree.values(v, 0) = d.diagnostics[v].degree_used;
+      points.values(v, 0) = d.diagnostics[v].points;
+      flags.values(v, 0) = d.diagnostics[v].flags;
+    }
+    fields.push_back(std::move(degree));
+    fields.push_back(std::move(points));
+    fields.push_back(std::move(flags));
+  }
+  return fields;
+}
+
+absl::Status WriteDifferentials(const std::string& path, const Mesh& mesh, const Differentials& d) {
+  if (path.empty()) {
+    const std::string tsv = DifferentialsTsv(d);
+    if (std::fwrite(tsv.data(), 1, tsv.size(), stdout) != tsv.size() || std::fflush(stdout) != 0)
+      return absl::ErrnoToStatus(errno, "cannot write to standard output");
+    return absl::OkStatus();
+  }
+  auto kind = OutputKindFromPath(path);
+  if (!kind.ok()) return kind.status();
+  switch (*kind) {
+    case OutputKind::kTsv: return WriteFileAtomically(path, DifferentialsTsv(d));
+    case OutputKind::kNpy: return WriteNpy(path, DifferentialsTable(d));
+    case OutputKind::kVtp: return WriteVtp(path, mesh, DifferentialsFields(d));
+  }
+  return absl::InternalError("unreachable");
+}
+
+}  // namespace geomfit::cli

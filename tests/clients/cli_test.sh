@@ -1,0 +1,164 @@
+#!/usr/bin/env bash
+# End-to-end test of the geomfit command-line tool in local mode.
+# Usage: cli_test.sh PATH/TO/geomfit
+set -u
+[ $# -eq 1 ] || { echo "usage: $0 PATH/TO/geomfit" >&2; exit 2; }
+G="$(realpath "$1")"
+work="$(mktemp -d)"
+trap 'rm -rf "$work"' EXIT
+cd "$work" || exit 1
+
+checks=0
+fail() { echo "FAIL: $*" >&2; exit 1; }
+pass() { checks=$((checks + 1)); }
+
+# Runs geomfit and fails the test unless it exits 0.
+run_ok() {
+  "$G" "$@" >stdout.txt 2>stderr.txt || fail "geomfit $* exited $?: $(cat stderr.txt)"
+  pass
+}
+
+# expect_error RC PATTERN ARGS...: exit code RC, exactly one stderr line
+# "geomfit: error: ..." containing PATTERN, nothing on stdout.
+expect_error() {
+  local want_rc="$1" pattern="$2"
+  shift 2
+  "$G" "$@" >stdout.txt 2>stderr.txt
+  local rc=$?
+  [ "$rc" -eq "$want_rc" ] || fail "geomfit $*: exit $rc, expected $want_rc ($(cat stderr.txt))"
+  [ "$(wc -l <stderr.txt)" -eq 1 ] || fail "geomfit $*: stderr is not one line: $(cat stderr.txt)"
+  grep -q '^geomfit: error: ' stderr.txt || fail "geomfit $*: bad error line: $(cat stderr.txt)"
+  grep -q -- "$pattern" stderr.txt || fail "geomfit $*: error lacks '$pattern': $(cat stderr.txt)"
+  [ ! -s stdout.txt ] || fail "geomfit $*: wrote to stdout on error"
+  pass
+}
+
+header=$'nx\tny\tnz\tH\tK\tk1\tk2\te1x\te1y\te1z\te2x\te2y\te2z\tdegree_used\tpoints\tflags'
+
+# --- generate, curvature to TSV -------------------------------------------------
+run_ok generate torus --level 8 --output t.obj
+nv=$(grep -c '^v ' t.obj)
+[ "$nv" -gt 0 ] || fail "generated mesh has no vertices"
+
+run_ok curvature --local t.obj --degree 2 --output out.tsv
+[ "$(head -n 1 out.tsv)" = "$header" ] || fail "bad TSV header: $(head -n 1 out.tsv)"
+[ "$(wc -l <out.tsv)" -eq $((nv + 1)) ] || fail "out.tsv has $(wc -l <out.tsv) lines, want $((nv + 1))"
+awk -F'\t' 'NF != 16 { exit 1 }' out.tsv || fail "a TSV line does not have 16 fields"
+# Degree 2 everywhere on a fine closed torus, mean curvature positive on the outer rim.
+awk -F'\t' 'NR > 1 && $14 != 2 { exit 1 }' out.tsv || fail "degree_used is not 2 everywhere"
+pass
+
+# Without --output: the same TSV on stdout.
+run_ok curvature --local t.obj --degree 2
+cmp -s stdout.txt out.tsv || fail "stdout TSV differs from out.tsv"
+
+# --- VTP and NPY ------------------------------------------------------------------
+run_ok curvature --local t.obj --degree 3 --method lop --two-pass --output out.vtp --verbose
+grep -q "read t.obj" stderr.txt || fail "--verbose printed no timings"
+grep -q '<VTKFile type="PolyData" version="0.1" byte_order="LittleEndian">' out.vtp ||
+  fail "VTP lacks the VTKFile element"
+grep -q "NumberOfPoints=\"$nv\"" out.vtp || fail "VTP point count is not $nv"
+for name in Normals MeanCurvature GaussianCurvature k1 k2 Direction1 Direction2 \
+  CurvatureTensor DegreeUsed Points Flags; do
+  grep -q "Name=\"$name\"" out.vtp || fail "VTP lacks array $name"
+done
+if command -v python3 >/dev/null 2>&1; then
+  python3 - out.vtp "$nv" <<'PY' || fail "python could not read out.vtp"
+import sys, xml.etree.ElementTree as ET
+piece = ET.parse(sys.argv[1]).getroot().find("PolyData/Piece")
+nv = int(sys.argv[2])
+assert int(piece.get("NumberOfPoints")) == nv
+for a in piece.find("PointData"):
+    if a.get("format") == "ascii":
+        assert len(a.text.split()) == nv * int(a.get("NumberOfComponents")), a.get("Name")
+PY
+fi
+pass
+
+run_ok curvature --local t.obj --approximate --output out.npy
+[ "$(head -c 6 out.npy | tail -c 5)" = "NUMPY" ] || fail "out.npy lacks the NUMPY magic"
+hlen=$(od -An -tu2 -j8 -N2 --endian=little out.npy | tr -d ' ')
+[ "$(stat -c %s out.npy)" -eq $((10 + hlen + nv * 13 * 8)) ] || fail "out.npy has the wrong size"
+head -c $((10 + hlen)) out.npy | grep -q "'shape': ($nv, 13)" || fail "out.npy header lacks the shape"
+pass
+
+# --- convert: a binary PLY round trip is exact, so results are identical ---------
+run_ok convert t.obj t.ply
+run_ok curvature --local t.ply --degree 2 --output ply.tsv
+cmp -s ply.tsv out.tsv || fail "curvature of the PLY copy differs"
+run_ok convert t.ply t.off
+run_ok convert t.off t.vtp
+
+# --- help and version ------------------------------------------------------------
+run_ok --help
+grep -q curvature stdout.txt || fail "--help lacks the curvature command"
+run_ok curvature --help
+grep -q -- "--degree" stdout.txt || fail "curvature --help lacks --degree"
+run_ok --version
+grep -q '^geomfit ' stdout.txt || fail "--version output: $(cat stdout.txt)"
+
+# --- bad input -----------------------------------------------------------------
+printf 'v 0 0 0\nv 1 nan 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 2 4 3\n' >nan.obj
+printf 'v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 2 0\nf 1 2 3 4 5\n' >pentagon.obj
+printf 'v 0 0 0\nv 1 0 0\nv 1 1 0\nf 1 2 7\n' >range.obj
+
+expect_error 1 "missing.obj" curvature --local missing.obj
+expect_error 1 "not finite" curvature --local nan.obj
+expect_error 1 "line 6.*5 vertices" curvature --local pentagon.obj
+expect_error 1 "out of range" curvature --local range.obj
+expect_error 2 "degree" curvature --local t.obj --degree 9 --output bad.tsv
+[ ! -e bad.tsv ] || fail "a failed run left bad.tsv"
+expect_error 2 "not an integer" curvature --local t.obj --degree two
+expect_error 2 "requires a value" curvature --local t.obj --degree
+expect_error 2 "unknown option '--bogus'" curvature --local t.obj --bogus
+expect_error 2 "lhf or lop" curvature --local t.obj --method xyz
+expect_error 2 "unknown extension" curvature --local t.obj --output out.png
+expect_error 2 "needs MESH" curvature --local
+expect_error 2 "unknown command" frobnicate
+expect_error 2 "missing command"
+expect_error 2 "unknown surface" generate cube --output c.obj
+expect_error 2 "needs --output" generate sphere --level 4
+expect_error 1 "cannot write" generate sphere --level 4 --output no/such/dir/s.obj
+
+# --- chapter 4: integrate, refine, nodes, project ------------------------------------
+run_ok generate sphere --level 8 --output s.obj
+run_ok integrate s.obj --degree 4
+python3 - stdout.txt <<'PY' || fail "sphere area/volume not within 1e-3 of 4 pi, 4 pi / 3"
+import math, sys
+vals = dict(line.split() for line in open(sys.argv[1]))
+assert abs(float(vals["area"]) - 4 * math.pi) < 1e-3 * 4 * math.pi, vals
+assert abs(float(vals["volume"]) - 4 * math.pi / 3) < 1e-3 * 4 * math.pi / 3, vals
+PY
+python3 -c "
+for line in open('s.obj'):
+    if line.startswith('v '): x, y, z = map(float, line.split()[1:4]); print(x * x)
+" >x2.txt
+run_ok integrate s.obj --degree 4 --scalar x2.txt
+python3 - stdout.txt <<'PY' || fail "integral of x^2 over the unit sphere is not 4 pi / 3"
+import math, sys
+vals = dict(line.split() for line in open(sys.argv[1]))
+assert abs(float(vals["scalar"]) - 4 * math.pi / 3) < 1e-3, vals
+PY
+run_ok refine s.obj --factor 2 --output s2.obj
+[ "$(grep -c '^f ' s2.obj)" -eq $((4 * $(grep -c '^f ' s.obj))) ] || fail "refine did not split every face in four"
+run_ok nodes s.obj --order 3 --output s3
+[ "$(wc -l <s3.elements.tsv)" -eq "$(grep -c '^f ' s.obj)" ] || fail "nodes: one element line per face"
+printf '0 0.25 0.25\n1 0.1 0.2\n' >fp.txt
+run_ok project s.obj --face-points fp.txt --method cmf
+[ "$(wc -l <stdout.txt)" -eq 3 ] || fail "project: header + 2 lines expected"
+printf '0 0 1.05\n0.7 0.7 0.1\n' >xyz.txt
+run_ok project s.obj --points xyz.txt --output proj.tsv
+python3 - proj.tsv <<'PY' || fail "projected points are not on the unit sphere"
+import sys
+rows = [l.split() for l in open(sys.argv[1]).read().splitlines()[1:]]
+for r in rows:
+    x, y, z = map(float, r[3:6]); assert abs((x*x + y*y + z*z) ** 0.5 - 1) < 1e-4, r
+PY
+printf '0 0.9 0.3\n' >outside.txt
+expect_error 1 "outside triangle face 0" project s.obj --face-points outside.txt
+printf '1\n2\n' >short.txt
+expect_error 1 "shape 2 x 1" integrate s.obj --scalar short.txt
+expect_error 2 "factor" refine s.obj --factor 1 --output r.obj
+expect_error 2 "walf, cmf or linear" refine s.obj --method spline --output r.obj
+
+echo "cli_test: $checks checks passed"

@@ -1,0 +1,222 @@
+#include "core/mesh/topology.h"
+
+#include <array>
+#include <cmath>
+#include <limits>
+#include <string>
+#include <vector>
+
+#include "gmock/gmock.h"
+#include "gtest/gtest.h"
+
+namespace geomfit {
+namespace {
+
+using ::testing::ElementsAre;
+using ::testing::HasSubstr;
+
+/// A mesh from a vertex list and faces of 3 or 4 indices.
+Mesh MakeMesh(const std::vector<std::array<double, 3>>& verts,
+              const std::vector<std::vector<int>>& faces) {
+  Mesh m;
+  m.positions.resize(verts.size(), 3);
+  for (size_t v = 0; v < verts.size(); ++v)
+    for (int c = 0; c < 3; ++c) m.positions(v, c) = verts[v][c];
+  m.faces.setConstant(faces.size(), 4, -1);
+  for (size_t f = 0; f < faces.size(); ++f)
+    for (size_t i = 0; i < faces[f].size(); ++i) m.faces(f, i) = faces[f][i];
+  return m;
+}
+
+Mesh Tetrahedron() {
+  return MakeMesh({{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {0, 0, 1}},
+                  {{0, 2, 1}, {0, 1, 3}, {0, 3, 2}, {1, 2, 3}});
+}
+
+Mesh Square() {  // two triangles, open
+  return MakeMesh({{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}}, {{0, 1, 2}, {0, 2, 3}});
+}
+
+Mesh Cube() {  // six outward quads, closed
+  return MakeMesh(
+      {{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}, {0, 0, 1}, {1, 0, 1}, {1, 1, 1}, {0, 1, 1}},
+      {{0, 3, 2, 1}, {4, 5, 6, 7}, {0, 1, 5, 4}, {1, 2, 6, 5}, {2, 3, 7, 6}, {3, 0, 4, 7}});
+}
+
+/// The CSR row of vertex v as a vector.
+std::vector<int32_t> Neighbors(const Topology& t, int v) {
+  return std::vector<int32_t>(t.Neighbors(v), t.Neighbors(v) + t.NumNeighbors(v));
+}
+std::vector<int32_t> VertexFaces(const Topology& t, int v) {
+  return std::vector<int32_t>(t.VertexFaces(v), t.VertexFaces(v) + t.NumVertexFaces(v));
+}
+
+/// Expects INVALID_ARGUMENT with a message containing every one of `words`.
+void ExpectInvalid(const absl::Status& s, const std::vector<std::string>& words) {
+  EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument) << s;
+  for (const std::string& w : words) EXPECT_THAT(std::string(s.message()), HasSubstr(w));
+}
+
+TEST(TopologyTest, ClosedTetrahedron) {
+  auto t = ValidateMesh(Tetrahedron());
+  ASSERT_TRUE(t.ok()) << t.status();
+  EXPECT_EQ(t->num_vertices, 4);
+  EXPECT_EQ(t->num_faces, 4);
+  EXPECT_FALSE(t->has_quads);
+  EXPECT_EQ(t->num_boundary_edges, 0);
+  EXPECT_EQ(t->num_isolated, 0);
+  EXPECT_THAT(t->is_boundary, ElementsAre(0, 0, 0, 0));
+  EXPECT_THAT(Neighbors(*t, 0), ElementsAre(1, 2, 3));
+  EXPECT_THAT(Neighbors(*t, 1), ElementsAre(0, 2, 3));
+  EXPECT_THAT(Neighbors(*t, 2), ElementsAre(0, 1, 3));
+  EXPECT_THAT(Neighbors(*t, 3), ElementsAre(0, 1, 2));
+  EXPECT_THAT(VertexFaces(*t, 0), ElementsAre(0, 1, 2));
+  EXPECT_THAT(VertexFaces(*t, 1), ElementsAre(0, 1, 3));
+  EXPECT_THAT(VertexFaces(*t, 2), ElementsAre(0, 2, 3));
+  EXPECT_THAT(VertexFaces(*t, 3), ElementsAre(1, 2, 3));
+  EXPECT_GT(t->Bytes(), sizeof(Topology));
+}
+
+TEST(TopologyTest, OpenSquareHasFourBoundaryVertices) {
+  auto t = ValidateMesh(Square());
+  ASSERT_TRUE(t.ok()) << t.status();
+  EXPECT_EQ(t->num_boundary_edges, 4);
+  EXPECT_THAT(t->is_boundary, ElementsAre(1, 1, 1, 1));
+  EXPECT_THAT(t->is_isolated, ElementsAre(0, 0, 0, 0));
+  EXPECT_THAT(Neighbors(*t, 0), ElementsAre(1, 2, 3));
+  EXPECT_THAT(Neighbors(*t, 1), ElementsAre(0, 2));
+  EXPECT_THAT(Neighbors(*t, 2), ElementsAre(0, 1, 3));
+  EXPECT_THAT(Neighbors(*t, 3), ElementsAre(0, 2));
+  EXPECT_THAT(VertexFaces(*t, 0), ElementsAre(0, 1));
+  EXPECT_THAT(VertexFaces(*t, 1), ElementsAre(0));
+  EXPECT_THAT(VertexFaces(*t, 2), ElementsAre(0, 1));
+  EXPECT_THAT(VertexFaces(*t, 3), ElementsAre(1));
+}
+
+TEST(TopologyTest, QuadStrip) {
+  // 0-1-2 on y = 0, 3-4-5 on y = 1; two quads.
+  const Mesh m = MakeMesh({{0, 0, 0}, {1, 0, 0}, {2, 0, 0}, {0, 1, 0}, {1, 1, 0}, {2, 1, 0}},
+                          {{0, 1, 4, 3}, {1, 2, 5, 4}});
+  auto t = ValidateMesh(m);
+  ASSERT_TRUE(t.ok()) << t.status();
+  EXPECT_TRUE(t->has_quads);
+  EXPECT_EQ(t->num_boundary_edges, 6);
+  EXPECT_THAT(t->is_boundary, ElementsAre(1, 1, 1, 1, 1, 1));
+  EXPECT_THAT(Neighbors(*t, 0), ElementsAre(1, 3));
+  EXPECT_THAT(Neighbors(*t, 1), ElementsAre(0, 2, 4));
+  EXPECT_THAT(Neighbors(*t, 4), ElementsAre(1, 3, 5));
+  EXPECT_THAT(Neighbors(*t, 5), ElementsAre(2, 4));
+  EXPECT_THAT(VertexFaces(*t, 1), ElementsAre(0, 1));
+  EXPECT_THAT(VertexFaces(*t, 3), ElementsAre(0));
+}
+
+TEST(TopologyTest, ClosedCubeOfQuads) {
+  auto t = ValidateMesh(Cube());
+  ASSERT_TRUE(t.ok()) << t.status();
+  EXPECT_TRUE(t->has_quads);
+  EXPECT_EQ(t->num_boundary_edges, 0);
+  for (int v = 0; v < 8; ++v) {
+    EXPECT_EQ(t->NumNeighbors(v), 3) << v;
+    EXPECT_EQ(t->NumVertexFaces(v), 3) << v;
+    EXPECT_EQ(t->is_boundary[v], 0) << v;
+  }
+  EXPECT_THAT(Neighbors(*t, 0), ElementsAre(1, 3, 4));
+  EXPECT_THAT(Neighbors(*t, 6), ElementsAre(2, 5, 7));
+}
+
+TEST(TopologyTest, MixedTrianglesAndQuads) {
+  const Mesh m = MakeMesh({{0, 0, 0}, {1, 0, 0}, {2, 0, 0}, {0, 1, 0}, {1, 1, 0}, {2, 1, 0}},
+                          {{0, 1, 4, 3}, {1, 2, 5}, {1, 5, 4}});
+  auto t = ValidateMesh(m);
+  ASSERT_TRUE(t.ok()) << t.status();
+  EXPECT_TRUE(t->has_quads);
+  EXPECT_EQ(t->num_boundary_edges, 6);
+  EXPECT_THAT(Neighbors(*t, 1), ElementsAre(0, 2, 4, 5));
+  EXPECT_THAT(Neighbors(*t, 5), ElementsAre(1, 2, 4));
+  EXPECT_THAT(VertexFaces(*t, 1), ElementsAre(0, 1, 2));
+  EXPECT_THAT(VertexFaces(*t, 5), ElementsAre(1, 2));
+  EXPECT_THAT(t->is_boundary, ElementsAre(1, 1, 1, 1, 1, 1));
+}
+
+TEST(TopologyTest, IsolatedVertexIsAllowedButFlagged) {
+  Mesh m =
+      MakeMesh({{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}, {5, 5, 5}}, {{0, 1, 2}, {0, 2, 3}});
+  auto t = ValidateMesh(m);
+  ASSERT_TRUE(t.ok()) << t.status();
+  EXPECT_EQ(t->num_isolated, 1);
+  EXPECT_THAT(t->is_isolated, ElementsAre(0, 0, 0, 0, 1));
+  EXPECT_EQ(t->is_boundary[4], 0);
+  EXPECT_EQ(t->NumNeighbors(4), 0);
+  EXPECT_EQ(t->NumVertexFaces(4), 0);
+}
+
+TEST(TopologyErrorTest, EmptyMesh) {
+  ExpectInvalid(BuildTopology(Mesh{}).status(), {"no vertices"});
+  Mesh no_faces = Square();
+  no_faces.faces.resize(0, 4);
+  ExpectInvalid(BuildTopology(no_faces).status(), {"no faces"});
+}
+
+TEST(TopologyErrorTest, IndexOutOfRange) {
+  Mesh m = Square();
+  m.faces(1, 2) = 7;
+  ExpectInvalid(ValidateMesh(m).status(), {"face 1", "7", "out of range"});
+}
+
+TEST(TopologyErrorTest, NegativeIndex) {
+  Mesh m = Square();
+  m.faces(0, 1) = -2;
+  ExpectInvalid(ValidateMesh(m).status(), {"face 0", "-2", "out of range"});
+}
+
+TEST(TopologyErrorTest, RepeatedVertexInFace) {
+  Mesh m = Square();
+  m.faces(1, 2) = 2;  // (0, 2, 2)
+  ExpectInvalid(ValidateMesh(m).status(), {"face 1", "vertex 2", "twice"});
+}
+
+TEST(TopologyErrorTest, NonManifoldEdge) {
+  // Three triangles share edge (0, 1).
+  const Mesh m = MakeMesh({{0, 0, 0}, {1, 0, 0}, {0.5, 1, 0}, {0.5, -1, 0}, {0.5, 0, 1}},
+                          {{0, 1, 2}, {1, 0, 3}, {0, 1, 4}});
+  ExpectInvalid(ValidateMesh(m).status(), {"non-manifold edge (0, 1)", "3 faces"});
+}
+
+TEST(TopologyErrorTest, NonManifoldVertexBowTie) {
+  // Two open cones whose apexes are the same vertex 0.
+  const Mesh m = MakeMesh({{0, 0, 0},
+                           {1, 0, 1},
+                           {-0.5, 0.8, 1},
+                           {-0.5, -0.8, 1},
+                           {1, 0, -1},
+                           {-0.5, 0.8, -1},
+                           {-0.5, -0.8, -1}},
+                          {{0, 1, 2}, {0, 2, 3}, {0, 3, 1}, {0, 5, 4}, {0, 6, 5}, {0, 4, 6}});
+  ExpectInvalid(ValidateMesh(m).status(), {"non-manifold vertex 0", "2 separate fans"});
+}
+
+TEST(TopologyErrorTest, FlippedFace) {
+  Mesh m = Square();
+  m.faces.row(1) << 0, 3, 2, -1;  // traverses (2 -> 0) like face 0
+  ExpectInvalid(ValidateMesh(m).status(),
+                {"inconsistent orientation", "faces 0 and 1", "edge (0, 2)"});
+}
+
+TEST(TopologyErrorTest, NonFiniteCoordinates) {
+  Mesh m = Tetrahedron();
+  m.positions(1, 2) = std::numeric_limits<double>::quiet_NaN();
+  ExpectInvalid(ValidateMesh(m).status(), {"vertex 1", "coordinate z", "not finite"});
+  EXPECT_TRUE(BuildTopology(m).ok());  // connectivity alone is fine
+  m = Tetrahedron();
+  m.positions(3, 0) = -std::numeric_limits<double>::infinity();
+  ExpectInvalid(ValidateGeometry(m), {"vertex 3", "coordinate x", "not finite"});
+}
+
+TEST(TopologyErrorTest, ZeroAreaFace) {
+  const Mesh m = MakeMesh({{0, 0, 0}, {1, 0, 0}, {2, 0, 0}, {1, 1, 0}},
+                          {{0, 3, 1}, {0, 1, 2}});  // face 1 is collinear
+  ExpectInvalid(ValidateMesh(m).status(), {"face 1", "zero area"});
+}
+
+}  // namespace
+}  // namespace geomfit
