@@ -305,6 +305,60 @@ Mesh GenerateEllipsoidMesh(const GeneratorOptions& o, double a, double b, double
   return m;
 }
 
+Mesh GenerateCylinderMesh(int n) {
+  const int around = 4 * n, rows = 2 * n, rings = n;
+  std::vector<Vector3d> pts;
+  std::vector<Eigen::Vector4i> faces;
+  auto ring_point = [&](double r, int i, double z) {
+    const double a = 2 * M_PI * i / around;
+    return Vector3d(r * std::cos(a), r * std::sin(a), z);
+  };
+  // Side rows j = 0..rows at z = -1 + 2 j / rows; vertex (i, j) = j * around + i.
+  for (int j = 0; j <= rows; ++j)
+    for (int i = 0; i < around; ++i) pts.push_back(ring_point(1, i, -1 + 2.0 * j / rows));
+  for (int j = 0; j < rows; ++j)
+    for (int i = 0; i < around; ++i) {
+      const int a = j * around + i, b = j * around + (i + 1) % around, c = b + around, d = a + around;
+      faces.emplace_back(a, b, c, -1);
+      faces.emplace_back(a, c, d, -1);
+    }
+  // Caps: rings k = 1..rings-1 inside the rim, then the centre; outward = -z at the bottom.
+  for (int top = 0; top < 2; ++top) {
+    const double z = top ? 1 : -1;
+    std::vector<int> prev(around);
+    for (int i = 0; i < around; ++i) prev[i] = (top ? rows : 0) * around + i;  // the rim
+    for (int k = rings - 1; k >= 1; --k) {
+      std::vector<int> cur(around);
+      for (int i = 0; i < around; ++i) cur[i] = static_cast<int>(pts.size()), pts.push_back(ring_point(double(k) / rings, i, z));
+      for (int i = 0; i < around; ++i) {
+        const int a = prev[i], b = prev[(i + 1) % around], c = cur[(i + 1) % around], d = cur[i];
+        if (top) faces.emplace_back(a, b, c, -1), faces.emplace_back(a, c, d, -1);
+        else faces.emplace_back(a, c, b, -1), faces.emplace_back(a, d, c, -1);
+      }
+      prev = cur;
+    }
+    const int centre = static_cast<int>(pts.size());
+    pts.emplace_back(0, 0, z);
+    for (int i = 0; i < around; ++i) {
+      if (top) faces.emplace_back(prev[i], prev[(i + 1) % around], centre, -1);
+      else faces.emplace_back(prev[i], centre, prev[(i + 1) % around], -1);
+    }
+  }
+  Mesh m;
+  m.positions.resize(pts.size(), 3);
+  for (size_t i = 0; i < pts.size(); ++i) m.positions.row(i) = pts[i].transpose();
+  m.faces.resize(faces.size(), 4);
+  for (size_t f = 0; f < faces.size(); ++f) m.faces.row(f) = faces[f].transpose();
+  return m;
+}
+
+double CylinderDistance(const Vector3d& p) {
+  const double r = std::hypot(p.x(), p.y()), z = std::abs(p.z());
+  const double rim = std::hypot(r - 1, z - 1);
+  const double side = z <= 1 ? std::abs(r - 1) : rim, cap = r <= 1 ? std::abs(z - 1) : rim;
+  return std::min(side, cap);
+}
+
 absl::StatusOr<Mesh> GenerateNamedMesh(const std::string& name, const GeneratorOptions& o) {
   if (o.n < 2 || o.n > 4096) return absl::InvalidArgumentError(absl::StrCat("level ", o.n, " is out of range [2, 4096]"));
   if (!(o.jitter >= 0 && o.jitter <= 0.3))

@@ -50,6 +50,12 @@ Mesh GenerateTorusMesh(const GeneratorOptions& o, double R = 1.0, double r = 0.3
 Mesh GenerateEllipsoidMesh(const GeneratorOptions& o, double a, double b, double c);
 Mesh GenerateBumpMesh(const GeneratorOptions& o);  ///< open graph over [0,1]^2, n x n cells
 
+/// A closed cylinder x^2 + y^2 = 1, |z| <= 1, with flat caps: sharp circular edges
+/// (4.1.4). 4n segments around, 2n rows on the side, n rings per cap.
+Mesh GenerateCylinderMesh(int n);
+/// Distance from p to that closed cylinder.
+double CylinderDistance(const Eigen::Vector3d& p);
+
 /// Generates by name: sphere, torus, ellipsoid (axes 1, 0.8, 0.6), bump, quadtorus.
 absl::StatusOr<Mesh> GenerateNamedMesh(const std::string& name, const GeneratorOptions& o);
 /// The analytic surface of a named mesh (same names).
