@@ -62,8 +62,7 @@ for name in Normals MeanCurvature GaussianCurvature k1 k2 Direction1 Direction2 
   CurvatureTensor DegreeUsed Points Flags; do
   grep -q "Name=\"$name\"" out.vtp || fail "VTP lacks array $name"
 done
-if command -v python3 >/dev/null 2>&1; then
-  python3 - out.vtp "$nv" <<'PY' || fail "python could not read out.vtp"
+/usr/bin/python3 - out.vtp "$nv" <<'PY' || fail "python could not read out.vtp"
 import sys, xml.etree.ElementTree as ET
 piece = ET.parse(sys.argv[1]).getroot().find("PolyData/Piece")
 nv = int(sys.argv[2])
@@ -72,7 +71,6 @@ for a in piece.find("PointData"):
     if a.get("format") == "ascii":
         assert len(a.text.split()) == nv * int(a.get("NumberOfComponents")), a.get("Name")
 PY
-fi
 pass
 
 run_ok curvature --local t.obj --approximate --output out.npy
@@ -123,18 +121,18 @@ expect_error 1 "cannot write" generate sphere --level 4 --output no/such/dir/s.o
 # --- chapter 4: integrate, refine, nodes, project ------------------------------------
 run_ok generate sphere --level 8 --output s.obj
 run_ok integrate s.obj --degree 4
-python3 - stdout.txt <<'PY' || fail "sphere area/volume not within 1e-3 of 4 pi, 4 pi / 3"
+/usr/bin/python3 - stdout.txt <<'PY' || fail "sphere area/volume not within 1e-3 of 4 pi, 4 pi / 3"
 import math, sys
 vals = dict(line.split() for line in open(sys.argv[1]))
 assert abs(float(vals["area"]) - 4 * math.pi) < 1e-3 * 4 * math.pi, vals
 assert abs(float(vals["volume"]) - 4 * math.pi / 3) < 1e-3 * 4 * math.pi / 3, vals
 PY
-python3 -c "
+/usr/bin/python3 -c "
 for line in open('s.obj'):
     if line.startswith('v '): x, y, z = map(float, line.split()[1:4]); print(x * x)
 " >x2.txt
 run_ok integrate s.obj --degree 4 --scalar x2.txt
-python3 - stdout.txt <<'PY' || fail "integral of x^2 over the unit sphere is not 4 pi / 3"
+/usr/bin/python3 - stdout.txt <<'PY' || fail "integral of x^2 over the unit sphere is not 4 pi / 3"
 import math, sys
 vals = dict(line.split() for line in open(sys.argv[1]))
 assert abs(float(vals["scalar"]) - 4 * math.pi / 3) < 1e-3, vals
@@ -148,7 +146,7 @@ run_ok project s.obj --face-points fp.txt --method cmf
 [ "$(wc -l <stdout.txt)" -eq 3 ] || fail "project: header + 2 lines expected"
 printf '0 0 1.05\n0.7 0.7 0.1\n' >xyz.txt
 run_ok project s.obj --points xyz.txt --output proj.tsv
-python3 - proj.tsv <<'PY' || fail "projected points are not on the unit sphere"
+/usr/bin/python3 - proj.tsv <<'PY' || fail "projected points are not on the unit sphere"
 import sys
 rows = [l.split() for l in open(sys.argv[1]).read().splitlines()[1:]]
 for r in rows:

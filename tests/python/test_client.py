@@ -1,0 +1,159 @@
+"""The Python client against the real geomfit-server binary."""
+import os
+import signal
+
+import grpc
+import numpy as np
+import pytest
+
+import geomfit
+from conftest import ServerProcess, torus
+
+
+def exact_torus_mean(positions, R=1.0, r=0.3):
+    """H of the torus at points on it (outward normal; +1/R convention)."""
+    rho = np.hypot(positions[:, 0], positions[:, 1])
+    cos_v = (rho - R) / r
+    return (R + 2 * r * cos_v) / (2 * r * (R + r * cos_v))
+
+
+def test_upload_curvature_update_download(server, torus_mesh):
+    positions, faces = torus_mesh
+    with geomfit.Client(server.address, chunk_rows=100) as client:
+        info = client.upload(positions, faces, name="torus", labels={"k": "v"})
+        assert info.revision == 1
+        assert info.num_vertices == len(positions)
+        assert client.upload(positions, faces, name="torus", labels={"k": "v"}).mesh_id == info.mesh_id
+
+        d = client.curvature(info.mesh_id, degree=3, quantities=["normals", "mean", "principal"],
+                             diagnostics=True)
+        assert d.mean.shape == (len(positions),)
+        assert d.normals.shape == (len(positions), 3)
+        assert d.gaussian is None
+        assert np.all(d.k1 >= d.k2)
+        np.testing.assert_allclose(d.mean, exact_torus_mean(positions), rtol=0.05)
+        assert d.summary.degree_requested == 3
+        assert d.diagnostics["degree_used"].min() >= 1
+
+        again = client.curvature(info.mesh_id, degree=3, quantities=["mean"])
+        assert again.summary.fit_cache_hit
+        np.testing.assert_array_equal(again.mean, d.mean)
+
+        updated = client.update_positions(info.mesh_id, 2.0 * positions, expected_revision=1)
+        assert updated.revision == 2
+        scaled = client.curvature(info.mesh_id, degree=3, quantities=["mean"])
+        np.testing.assert_allclose(scaled.mean, d.mean / 2.0, rtol=1e-6, atol=1e-9)
+
+        back, back_faces, back_info = client.download(info.mesh_id)
+        assert back.tobytes() == (2.0 * positions).tobytes()
+        np.testing.assert_array_equal(back_faces[:, :3], faces)
+        assert np.all(back_faces[:, 3] == -1)
+        assert back_info.revision == 2
+
+
+def test_errors_carry_code_and_message(server, torus_mesh):
+    positions, faces = torus_mesh
+    with geomfit.Client(server.address) as client:
+        with pytest.raises(geomfit.GeomfitError) as e:
+            client.curvature("m-unknown")
+        assert e.value.code == grpc.StatusCode.NOT_FOUND
+        assert "m-unknown" in e.value.details
+
+        info = client.upload(positions, faces)
+        with pytest.raises(geomfit.GeomfitError) as e:
+            client.update_positions(info.mesh_id, positions, expected_revision=5)
+        assert e.value.code == grpc.StatusCode.ABORTED
+
+        bad = positions.copy()
+        bad[7, 2] = np.nan
+        with pytest.raises(geomfit.GeomfitError) as e:
+            client.upload(bad, faces)
+        assert e.value.code == grpc.StatusCode.INVALID_ARGUMENT
+        assert "vertex 7" in e.value.details
+
+        bad_faces = faces.copy()
+        bad_faces[11, 0] = len(positions) + 3
+        with pytest.raises(geomfit.GeomfitError) as e:
+            client.upload(positions, bad_faces)
+        assert "face 11" in e.value.details
+
+        with pytest.raises(geomfit.GeomfitError) as e:
+            client.curvature(info.mesh_id, degree=12)
+        assert e.value.code == grpc.StatusCode.INVALID_ARGUMENT
+        assert "degree" in e.value.details
+
+        assert client.get_mesh(info.mesh_id).revision == 1  # intact
+        assert client.server_info().api_version == "geomfit.v1"
+
+
+def test_upload_file_and_list_delete(server, tmp_path, torus_mesh):
+    positions, faces = torus_mesh
+    path = tmp_path / "t.obj"
+    with open(path, "w") as f:
+        for p in positions:
+            f.write("v %.17g %.17g %.17g\n" % tuple(p))
+        for t in faces + 1:
+            f.write("f %d %d %d\n" % tuple(t))
+    with geomfit.Client(server.address) as client:
+        info = client.upload_file(str(path))
+        assert info.name == "t.obj"
+        back, _, _ = client.download(info.mesh_id)
+        assert back.tobytes() == positions.tobytes()
+        assert [m.mesh_id for m in client.list_meshes()] == [info.mesh_id]
+        client.delete_mesh(info.mesh_id)
+        assert client.list_meshes() == []
+        stats = client.statistics()
+        assert {m.method for m in stats.methods} >= {"UploadMesh", "DownloadMesh", "DeleteMesh"}
+
+
+def _raw(channel, method, request_bytes):
+    """A call with hand-encoded bytes: relies on nothing but the wire format."""
+    return channel.unary_unary(method, request_serializer=None, response_deserializer=None)(
+        request_bytes, timeout=10)
+
+
+def test_health_and_reflection_without_our_stubs(server):
+    from google.protobuf import descriptor_pb2
+    with grpc.insecure_channel(server.address) as channel:
+        assert _raw(channel, "/grpc.health.v1.Health/Check", b"") == b"\x08\x01"  # SERVING
+        name = b"geomfit.v1.GeomFit"
+        assert _raw(channel, "/grpc.health.v1.Health/Check", b"\x0a" + bytes([len(name)]) + name) == b"\x08\x01"
+
+        reflect = channel.stream_stream("/grpc.reflection.v1alpha.ServerReflection/ServerReflectionInfo",
+                                        request_serializer=None, response_deserializer=None)
+        # ServerReflectionRequest.list_services (7) then file_containing_symbol (4).
+        replies = list(reflect(iter([b"\x3a\x00", b"\x22" + bytes([len(name)]) + name]), timeout=10))
+        assert name in replies[0]
+        # The second reply carries FileDescriptorProto bytes: find and parse them.
+        blob = replies[1]
+        start = blob.index(b"geomfit/v1/geomfit.proto") - 2
+        fdp = descriptor_pb2.FileDescriptorProto()
+        fdp.ParseFromString(blob[start:])
+        methods = {m.name for s in fdp.service for m in s.method}
+        assert {"UploadMesh", "ComputeDifferentials", "GetStatistics"} <= methods
+
+
+def test_durable_store_survives_kill9(data_dir, torus_mesh):
+    positions, faces = torus_mesh
+    first = ServerProcess("--store=sqlite", "--data-dir=" + data_dir)
+    try:
+        with geomfit.Client(first.address) as client:
+            info = client.upload(positions, faces, name="durable")
+            client.update_positions(info.mesh_id, positions * 1.25, expected_revision=1)
+    finally:
+        first.kill(signal.SIGKILL)
+    second = ServerProcess("--store=sqlite", "--data-dir=" + data_dir)
+    try:
+        with geomfit.Client(second.address) as client:
+            back, back_faces, back_info = client.download(info.mesh_id)
+            assert back.tobytes() == (positions * 1.25).tobytes()
+            assert back_info.revision == 2
+    finally:
+        assert second.kill(signal.SIGTERM) == 0
+
+
+def test_retry_gives_unavailable_when_nobody_listens():
+    with geomfit.Client("127.0.0.1:1", max_attempts=2, backoff=0.01, timeout=2) as client:
+        with pytest.raises(geomfit.GeomfitError) as e:
+            client.server_info()
+        assert e.value.code == grpc.StatusCode.UNAVAILABLE

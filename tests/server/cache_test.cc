@@ -1,0 +1,122 @@
+#include "server/cache.h"
+
+#include <atomic>
+#include <thread>
+
+#include <gtest/gtest.h>
+
+namespace geomfit::server {
+namespace {
+
+Cache::ComputeFn Value(int v, int64_t bytes, std::atomic<int>* calls = nullptr, int sleep_ms = 0) {
+  return [=]() -> absl::StatusOr<Cache::Computed> {
+    if (calls) ++*calls;
+    if (sleep_ms) std::this_thread::sleep_for(std::chrono::milliseconds(sleep_ms));
+    return Cache::Computed{std::make_shared<const int>(v), bytes};
+  };
+}
+
+int Get(Cache& c, Tier t, const std::string& key, int v, int64_t bytes, bool* hit = nullptr) {
+  auto r = c.GetOrCompute(t, key, Value(v, bytes), nullptr, hit);
+  return r.ok() ? *std::static_pointer_cast<const int>(*r) : -1;
+}
+
+TEST(CacheTest, ConcurrentRequestsComputeOnce) {
+  Cache cache(1 << 20);
+  std::atomic<int> calls{0};
+  std::vector<std::thread> threads;
+  std::atomic<int> sum{0};
+  for (int i = 0; i < 8; ++i) {
+    threads.emplace_back([&] {
+      auto r = cache.GetOrCompute(Tier::kFitting, "m/r1/fit/x", Value(7, 10, &calls, 100));
+      if (r.ok()) sum += *std::static_pointer_cast<const int>(*r);
+    });
+  }
+  for (auto& t : threads) t.join();
+  EXPECT_EQ(calls.load(), 1);
+  EXPECT_EQ(sum.load(), 56);
+  EXPECT_EQ(cache.Stats(Tier::kFitting).misses, 1);
+  EXPECT_EQ(cache.Stats(Tier::kFitting).hits, 7);
+}
+
+TEST(CacheTest, FittingsAreEvictedBeforeMeshes) {
+  Cache cache(100);
+  Get(cache, Tier::kTopology, "a/topo", 1, 30);
+  Get(cache, Tier::kGeometry, "a/r1/geom", 2, 30);
+  Get(cache, Tier::kFitting, "a/r1/fit/1", 3, 30);
+  Get(cache, Tier::kFitting, "a/r1/fit/2", 4, 30);  // over budget: oldest fitting goes
+  EXPECT_EQ(cache.bytes(), 90);
+  EXPECT_EQ(cache.Stats(Tier::kFitting).evictions, 1);
+  EXPECT_EQ(cache.Stats(Tier::kGeometry).evictions, 0);
+  bool hit = false;
+  Get(cache, Tier::kFitting, "a/r1/fit/2", 4, 30, &hit);
+  EXPECT_TRUE(hit);
+  Get(cache, Tier::kFitting, "a/r1/fit/1", 3, 30, &hit);
+  EXPECT_FALSE(hit);
+  Get(cache, Tier::kGeometry, "b/r1/geom", 5, 60);  // needs both fittings gone, then a mesh
+  EXPECT_LE(cache.bytes(), 100);
+  EXPECT_EQ(cache.Stats(Tier::kFitting).entries, 0);
+  EXPECT_EQ(cache.Stats(Tier::kTopology).entries, 1);
+}
+
+TEST(CacheTest, LeastRecentlyUsedGoesFirst) {
+  Cache cache(100);
+  Get(cache, Tier::kFitting, "f1", 1, 40);
+  Get(cache, Tier::kFitting, "f2", 2, 40);
+  bool hit = false;
+  Get(cache, Tier::kFitting, "f1", 1, 40, &hit);  // touch f1
+  ASSERT_TRUE(hit);
+  Get(cache, Tier::kFitting, "f3", 3, 40);
+  Get(cache, Tier::kFitting, "f1", 1, 40, &hit);
+  EXPECT_TRUE(hit);
+  Get(cache, Tier::kFitting, "f2", 2, 40, &hit);
+  EXPECT_FALSE(hit);
+}
+
+TEST(CacheTest, ValueLargerThanBudgetIsReturnedNotKept) {
+  Cache cache(100);
+  EXPECT_EQ(Get(cache, Tier::kFitting, "big", 9, 1000), 9);
+  EXPECT_EQ(cache.bytes(), 0);
+}
+
+TEST(CacheTest, ErrorsAreNotCachedAndCancelledLeaderDoesNotFailWaiters) {
+  Cache cache(1 << 20);
+  std::atomic<int> calls{0};
+  auto cancelled = [&]() -> absl::StatusOr<Cache::Computed> {
+    ++calls;
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    return absl::CancelledError("leader cancelled");
+  };
+  std::thread leader([&] { EXPECT_FALSE(cache.GetOrCompute(Tier::kFitting, "k", cancelled).ok()); });
+  std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  auto r = cache.GetOrCompute(Tier::kFitting, "k", Value(5, 1, &calls));
+  leader.join();
+  ASSERT_TRUE(r.ok()) << r.status();
+  EXPECT_EQ(*std::static_pointer_cast<const int>(*r), 5);
+  EXPECT_EQ(calls.load(), 2);
+}
+
+TEST(CacheTest, WaiterGivesUpWithItsOwnToken) {
+  Cache cache(1 << 20);
+  std::thread leader([&] { (void)cache.GetOrCompute(Tier::kFitting, "slow", Value(1, 1, nullptr, 300)); });
+  std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  CancellationToken token(CancellationToken::Clock::now() + std::chrono::milliseconds(30));
+  auto r = cache.GetOrCompute(Tier::kFitting, "slow", Value(2, 1), &token);
+  EXPECT_EQ(r.status().code(), absl::StatusCode::kDeadlineExceeded);
+  leader.join();
+}
+
+TEST(CacheTest, ErasePrefixDropsOneMesh) {
+  Cache cache(1000);
+  Get(cache, Tier::kTopology, "a/topo", 1, 10);
+  Get(cache, Tier::kGeometry, "a/r1/geom", 1, 10);
+  Get(cache, Tier::kGeometry, "ab/r1/geom", 1, 10);
+  cache.ErasePrefix("a/");
+  EXPECT_EQ(cache.bytes(), 10);
+  bool hit = false;
+  Get(cache, Tier::kGeometry, "ab/r1/geom", 1, 10, &hit);
+  EXPECT_TRUE(hit);
+}
+
+}  // namespace
+}  // namespace geomfit::server

@@ -1,0 +1,123 @@
+// geomfit::Client against an in-process server over loopback.
+#include "clients/cpp/client/client.h"
+
+#include <netinet/in.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
+#include <thread>
+
+#include <gtest/gtest.h>
+
+#include "geomfit/v1/geomfit.pb.h"
+#include "tests/server/test_util.h"
+
+namespace geomfit {
+namespace {
+
+using server::testing::InProcessServer;
+
+std::unique_ptr<Client> ClientFor(int port, bool reupload = false) {
+  ClientOptions o;
+  o.target = "127.0.0.1:" + std::to_string(port);
+  o.chunk_rows = 100;
+  o.reupload_on_not_found = reupload;
+  o.deadline = std::chrono::seconds(30);
+  return Client::Connect(o);
+}
+
+TEST(ClientTest, RoundTrip) {
+  InProcessServer server;
+  auto client = ClientFor(server.port());
+  const Mesh mesh = server::testing::TestTorus(10);
+  auto info = client->Upload(mesh, "torus", {{"kind", "test"}});
+  ASSERT_TRUE(info.ok()) << info.status();
+  EXPECT_EQ(info->revision, 1);
+  EXPECT_EQ(info->labels.at("kind"), "test");
+  EXPECT_EQ(info->num_vertices, mesh.NumVertices());
+
+  FitOptions options;
+  options.degree = 3;
+  auto d = client->ComputeDifferentials(info->mesh_id, options, kMeanCurvature | kNormals, 0, true);
+  ASSERT_TRUE(d.ok()) << d.status();
+  EXPECT_EQ(d->values.mean.size(), mesh.NumVertices());
+  EXPECT_EQ(d->values.normals.rows(), mesh.NumVertices());
+  EXPECT_EQ(d->values.k1.size(), 0) << "not requested";
+  EXPECT_EQ(d->values.diagnostics.size(), static_cast<size_t>(mesh.NumVertices()));
+  EXPECT_EQ(d->summary.degree_requested, 3);
+
+  auto updated = client->UpdatePositions(info->mesh_id, mesh.positions * 2.0, 1);
+  ASSERT_TRUE(updated.ok()) << updated.status();
+  EXPECT_EQ(updated->revision, 2);
+  EXPECT_EQ(client->UpdatePositions(info->mesh_id, mesh.positions, 1).status().code(), absl::StatusCode::kAborted);
+  RemoteMesh got;
+  auto downloaded = client->Download(info->mesh_id, &got);
+  ASSERT_TRUE(downloaded.ok()) << downloaded.status();
+  EXPECT_EQ(downloaded->positions, Positions(mesh.positions * 2.0));
+  EXPECT_EQ(downloaded->faces, mesh.faces);
+  EXPECT_EQ(got.revision, 2);
+
+  auto list = client->ListMeshes();
+  ASSERT_TRUE(list.ok());
+  ASSERT_EQ(list->size(), 1u);
+  ASSERT_TRUE(client->DeleteMesh(info->mesh_id).ok());
+  EXPECT_EQ(client->GetMesh(info->mesh_id).status().code(), absl::StatusCode::kNotFound);
+  auto server_info = client->GetServerInfo();
+  ASSERT_TRUE(server_info.ok());
+  EXPECT_EQ(server_info->api_version(), "geomfit.v1");
+}
+
+TEST(ClientTest, ReuploadsWhenTheServerLostTheMesh) {
+  InProcessServer server;
+  auto client = ClientFor(server.port(), /*reupload=*/true);
+  auto other = ClientFor(server.port());
+  const Mesh mesh = server::testing::TestSphere(6);
+  auto info = client->Upload(mesh, "s");
+  ASSERT_TRUE(info.ok());
+  ASSERT_TRUE(client->UpdatePositions(info->mesh_id, mesh.positions * 3.0).ok());
+  ASSERT_TRUE(other->DeleteMesh(info->mesh_id).ok());  // behind the client's back
+  auto d = client->ComputeDifferentials(info->mesh_id, FitOptions(), kMeanCurvature);
+  ASSERT_TRUE(d.ok()) << d.status();
+  EXPECT_NEAR(d->values.mean.mean(), 1.0 / 3.0, 0.05) << "re-uploaded with the latest positions";
+  EXPECT_NE(client->ResolveId(info->mesh_id), info->mesh_id);
+  EXPECT_EQ(other->ComputeDifferentials(info->mesh_id, FitOptions()).status().code(), absl::StatusCode::kNotFound);
+}
+
+int FreePort() {
+  const int fd = socket(AF_INET, SOCK_STREAM, 0);
+  sockaddr_in addr{};
+  addr.sin_family = AF_INET;
+  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  bind(fd, reinterpret_cast<sockaddr*>(&addr), sizeof(addr));
+  socklen_t len = sizeof(addr);
+  getsockname(fd, reinterpret_cast<sockaddr*>(&addr), &len);
+  close(fd);
+  return ntohs(addr.sin_port);
+}
+
+TEST(ClientTest, RetriesWhileTheServerIsUnavailable) {
+  const int port = FreePort();
+  ClientOptions o;
+  o.target = "127.0.0.1:" + std::to_string(port);
+  o.max_attempts = 30;
+  o.initial_backoff = std::chrono::milliseconds(50);
+  o.max_backoff = std::chrono::milliseconds(100);
+  auto client = Client::Connect(o);
+  std::unique_ptr<InProcessServer> server;
+  std::thread starter([&] {
+    std::this_thread::sleep_for(std::chrono::milliseconds(300));
+    server::ServerOptions so = server::testing::LoopbackOptions();
+    so.port = port;
+    server = std::make_unique<InProcessServer>(so);
+  });
+  auto info = client->GetServerInfo();
+  starter.join();
+  EXPECT_TRUE(info.ok()) << info.status();
+
+  o.max_attempts = 1;
+  o.target = "127.0.0.1:" + std::to_string(FreePort());
+  EXPECT_EQ(Client::Connect(o)->GetServerInfo().status().code(), absl::StatusCode::kUnavailable);
+}
+
+}  // namespace
+}  // namespace geomfit

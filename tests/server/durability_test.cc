@@ -1,0 +1,131 @@
+// The geomfit-server binary with its SQLite store: acknowledged uploads and updates
+// survive kill -9; a half-sent upload never appears; SIGTERM drains and exits 0.
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <thread>
+
+#include <gtest/gtest.h>
+
+#include "proto/wire.h"
+#include "tests/server/test_util.h"
+
+namespace geomfit::server {
+namespace {
+
+/// A geomfit-server child process on a free loopback port (--port=0; the port is
+/// read from its first stdout line). Killed on destruction.
+class ServerProcess {
+ public:
+  explicit ServerProcess(const std::string& data_dir) {
+    int out[2];
+    EXPECT_EQ(pipe(out), 0);
+    pid_ = fork();
+    if (pid_ == 0) {
+      dup2(out[1], STDOUT_FILENO);
+      close(out[0]);
+      const std::string dir = "--data-dir=" + data_dir;
+      execl(GEOMFIT_SERVER_BINARY, GEOMFIT_SERVER_BINARY, "--host=127.0.0.1", "--port=0", "--store=sqlite",
+            dir.c_str(), "--log-level=warn", "--drain-seconds=5", static_cast<char*>(nullptr));
+      _exit(127);
+    }
+    close(out[1]);
+    FILE* f = fdopen(out[0], "r");
+    char line[256] = {0};
+    if (f != nullptr && fgets(line, sizeof(line), f) != nullptr) sscanf(line, "geomfit-server listening on port %d", &port_);
+    if (f != nullptr) fclose(f);
+    EXPECT_GT(port_, 0) << "server did not report its port: '" << line << "'";
+    channel_ = testing::LoopbackChannel(port_);
+    stub_ = v1::GeomFit::NewStub(channel_);
+  }
+  ~ServerProcess() {
+    if (pid_ > 0) Signal(SIGKILL);
+  }
+  /// Sends `sig` and waits (at most 30 s); returns the exit status.
+  int Signal(int sig) {
+    kill(pid_, sig);
+    int status = -1;
+    for (int i = 0; i < 3000; ++i) {
+      if (waitpid(pid_, &status, WNOHANG) == pid_) break;
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    }
+    pid_ = -1;
+    return status;
+  }
+  v1::GeomFit::Stub& stub() { return *stub_; }
+  std::shared_ptr<grpc::Channel> channel() { return channel_; }
+
+ private:
+  pid_t pid_ = -1;
+  int port_ = 0;
+  std::shared_ptr<grpc::Channel> channel_;
+  std::unique_ptr<v1::GeomFit::Stub> stub_;
+};
+
+class DurabilityTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = (std::filesystem::temp_directory_path() / ("geomfit_durability_" + std::to_string(getpid()))).string();
+    std::filesystem::remove_all(dir_);
+  }
+  void TearDown() override { std::filesystem::remove_all(dir_); }
+  std::string dir_;
+};
+
+TEST_F(DurabilityTest, AcknowledgedWritesSurviveKill9) {
+  const Mesh mesh = testing::TestTorus(30);
+  std::string id;
+  Positions moved;
+  {
+    ServerProcess server(dir_);
+    auto info = testing::UploadMesh(server.stub(), mesh, "durable", 500);
+    ASSERT_TRUE(info.ok()) << info.status();
+    id = info->mesh_id();
+    moved = mesh.positions * 1.5;
+    moved(0, 0) = 0.123456789012345678;
+    v1::UpdateHeader h;
+    h.set_mesh_id(id);
+    h.set_expected_revision(1);
+    v1::MeshInfo updated;
+    ASSERT_TRUE(testing::SendUpdate(server.stub(), wire::UpdateChunks(moved, h, 500), &updated).ok());
+    ASSERT_EQ(updated.revision(), 2);
+
+    // A second upload, half sent when the server dies.
+    grpc::ClientContext ctx;
+    v1::MeshInfo never;
+    auto writer = server.stub().UploadMesh(&ctx, &never);
+    auto chunks = wire::UploadChunks(testing::TestSphere(10), v1::MeshHeader(), 100);
+    for (size_t i = 0; i < chunks.size() / 2; ++i) writer->Write(chunks[i]);
+    const int status = server.Signal(SIGKILL);  // right after the acknowledgement
+    EXPECT_TRUE(WIFSIGNALED(status));
+  }
+  ServerProcess restarted(dir_);
+  auto back = testing::Download(restarted.stub(), id);
+  ASSERT_TRUE(back.ok()) << back.status();
+  Mesh expected = mesh;
+  expected.positions = moved;
+  EXPECT_TRUE(testing::SameMesh(*back, expected)) << "the mesh is not bit-identical after kill -9";
+  grpc::ClientContext ctx;
+  v1::ListMeshesResponse list;
+  ASSERT_TRUE(restarted.stub().ListMeshes(&ctx, v1::ListMeshesRequest(), &list).ok());
+  ASSERT_EQ(list.meshes_size(), 1) << "a half-sent upload became visible";
+  EXPECT_EQ(list.meshes(0).revision(), 2);
+  EXPECT_EQ(list.meshes(0).name(), "durable");
+  EXPECT_EQ(testing::HealthCheck(restarted.channel()), "SERVING");
+}
+
+TEST_F(DurabilityTest, SigtermDrainsAndExitsCleanly) {
+  ServerProcess server(dir_);
+  ASSERT_TRUE(testing::UploadMesh(server.stub(), testing::TestSphere(), "x").ok());
+  const auto start = std::chrono::steady_clock::now();
+  const int status = server.Signal(SIGTERM);
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  ASSERT_TRUE(WIFEXITED(status)) << "status " << status;
+  EXPECT_EQ(WEXITSTATUS(status), 0);
+  EXPECT_LT(seconds, 3.0) << "an idle server should stop at once";
+}
+
+}  // namespace
+}  // namespace geomfit::server

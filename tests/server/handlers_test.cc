@@ -1,0 +1,251 @@
+// Handlers without a network: proto in, StatusOr<proto> out.
+#include "server/handlers.h"
+
+#include <gtest/gtest.h>
+
+#include "core/quantities/differentials.h"
+#include "proto/wire.h"
+#include "tests/server/test_util.h"
+
+namespace geomfit::server {
+namespace {
+
+using testing::TestSphere;
+using testing::TestTorus;
+
+class HandlersTest : public ::testing::Test {
+ protected:
+  HandlersTest() : store_(NewMemoryStore()), cache_(64 << 20), handlers_(store_.get(), &cache_, &stats_, Options()) {}
+
+  static HandlerOptions Options() {
+    HandlerOptions o;
+    o.threads = 1;
+    o.chunk_rows = 100;
+    return o;
+  }
+
+  absl::StatusOr<v1::MeshInfo> Upload(const Mesh& mesh, const std::string& name = "m") {
+    UploadAssembler a(1 << 20);
+    v1::MeshHeader header;
+    header.set_name(name);
+    for (const auto& r : wire::UploadChunks(mesh, header, 64)) {
+      absl::Status s = a.Add(r);
+      if (!s.ok()) return s;
+    }
+    return handlers_.UploadMesh(a);
+  }
+
+  absl::StatusOr<v1::MeshInfo> Update(const std::string& id, const Positions& p, std::optional<int64_t> expected) {
+    PositionsAssembler a(1 << 20);
+    v1::UpdateHeader header;
+    header.set_mesh_id(id);
+    if (expected) header.set_expected_revision(*expected);
+    for (const auto& r : wire::UpdateChunks(p, header, 50)) {
+      absl::Status s = a.Add(r);
+      if (!s.ok()) return s;
+    }
+    return handlers_.UpdatePositions(a);
+  }
+
+  absl::StatusOr<Differentials> Compute(const std::string& id, v1::FitSummary* summary, int degree = 2) {
+    v1::ComputeDifferentialsRequest request;
+    request.set_mesh_id(id);
+    request.mutable_options()->set_degree(degree);
+    request.set_diagnostics(true);
+    wire::AddQuantities(kAllQuantities, &request);
+    CancellationToken token;
+    auto chunks = handlers_.ComputeDifferentials(request, token);
+    if (!chunks.ok()) return chunks.status();
+    wire::DifferentialsReader reader;
+    for (const auto& c : *chunks) {
+      absl::Status s = reader.Add(c);
+      if (!s.ok()) return s;
+    }
+    *summary = reader.summary();
+    return reader.Finish();
+  }
+
+  std::unique_ptr<MeshStore> store_;
+  Cache cache_;
+  RequestStats stats_;
+  Handlers handlers_;
+};
+
+TEST_F(HandlersTest, UploadReturnsInfoAndIsIdempotent) {
+  const Mesh mesh = TestTorus();
+  auto info = Upload(mesh);
+  ASSERT_TRUE(info.ok()) << info.status();
+  EXPECT_EQ(info->revision(), 1);
+  EXPECT_EQ(info->num_vertices(), mesh.NumVertices());
+  EXPECT_EQ(info->num_faces(), mesh.NumFaces());
+  EXPECT_EQ(info->face_kind(), v1::FACE_KIND_TRIANGLE);
+  EXPECT_EQ(info->content_hash().size(), 32u);
+  EXPECT_EQ(info->bounding_box().max(0), mesh.positions.col(0).maxCoeff());
+  EXPECT_EQ(info->bounding_box().min(2), mesh.positions.col(2).minCoeff());
+  auto again = Upload(mesh);
+  ASSERT_TRUE(again.ok());
+  EXPECT_EQ(again->mesh_id(), info->mesh_id());
+  auto other = Upload(mesh, "another name");
+  ASSERT_TRUE(other.ok());
+  EXPECT_NE(other->mesh_id(), info->mesh_id());
+  EXPECT_EQ(store_->Stats().meshes, 2);
+}
+
+TEST_F(HandlersTest, CurvatureMatchesInProcessBitForBit) {
+  const Mesh mesh = TestSphere(12);
+  auto info = Upload(mesh);
+  ASSERT_TRUE(info.ok()) << info.status();
+  v1::FitSummary summary;
+  auto remote = Compute(info->mesh_id(), &summary);
+  ASSERT_TRUE(remote.ok()) << remote.status();
+  FitOptions options;
+  options.num_threads = 1;
+  auto local = ComputeDifferentials(mesh, options, kAllQuantities);
+  ASSERT_TRUE(local.ok()) << local.status();
+  EXPECT_EQ(remote->mean, local->mean);
+  EXPECT_EQ(remote->gaussian, local->gaussian);
+  EXPECT_EQ(remote->normals, local->normals);
+  EXPECT_EQ(remote->tensor, local->tensor);
+  // H = +1/R on the unit sphere, normals outward.
+  EXPECT_NEAR(remote->mean.mean(), 1.0, 0.05);
+  EXPECT_GT(remote->normals.row(0).dot(mesh.positions.row(0)), 0.9);
+  EXPECT_EQ(summary.num_vertices(), mesh.NumVertices());
+  EXPECT_EQ(summary.degree_requested(), 2);
+  EXPECT_FALSE(summary.fit_cache_hit());
+  ASSERT_EQ(remote->diagnostics.size(), static_cast<size_t>(mesh.NumVertices()));
+  EXPECT_GT(remote->diagnostics[0].points, 6);
+}
+
+TEST_F(HandlersTest, SecondRequestHitsTheFittingCache) {
+  auto info = Upload(TestTorus());
+  ASSERT_TRUE(info.ok());
+  v1::FitSummary first, second;
+  ASSERT_TRUE(Compute(info->mesh_id(), &first).ok());
+  ASSERT_TRUE(Compute(info->mesh_id(), &second).ok());
+  EXPECT_FALSE(first.fit_cache_hit());
+  EXPECT_TRUE(second.fit_cache_hit());
+  v1::FitSummary other_degree;
+  ASSERT_TRUE(Compute(info->mesh_id(), &other_degree, 3).ok());
+  EXPECT_FALSE(other_degree.fit_cache_hit());
+}
+
+TEST_F(HandlersTest, UpdatePositionsKeepsTopologyAndMakesNewRevision) {
+  const Mesh mesh = TestTorus();
+  auto info = Upload(mesh);
+  ASSERT_TRUE(info.ok());
+  v1::FitSummary s;
+  ASSERT_TRUE(Compute(info->mesh_id(), &s).ok());
+  const TierStats topo_before = cache_.Stats(Tier::kTopology);
+
+  const Positions scaled = 2.0 * mesh.positions;
+  auto updated = Update(info->mesh_id(), scaled, 1);
+  ASSERT_TRUE(updated.ok()) << updated.status();
+  EXPECT_EQ(updated->revision(), 2);
+  EXPECT_EQ(updated->bounding_box().max(0), scaled.col(0).maxCoeff());
+  auto d = Compute(info->mesh_id(), &s);
+  ASSERT_TRUE(d.ok());
+  EXPECT_EQ(s.revision(), 2);
+  EXPECT_FALSE(s.fit_cache_hit());
+  const TierStats topo_after = cache_.Stats(Tier::kTopology);
+  EXPECT_EQ(topo_after.misses, topo_before.misses) << "topology and neighbourhoods must survive UpdatePositions";
+  EXPECT_GT(topo_after.hits, topo_before.hits);
+
+  auto stale = Update(info->mesh_id(), mesh.positions, 1);
+  EXPECT_EQ(stale.status().code(), absl::StatusCode::kAborted) << stale.status();
+  EXPECT_NE(stale.status().message().find("revision 2"), std::string::npos) << stale.status();
+  auto unconditional = Update(info->mesh_id(), mesh.positions, std::nullopt);
+  ASSERT_TRUE(unconditional.ok());
+  EXPECT_EQ(unconditional->revision(), 3);
+}
+
+TEST_F(HandlersTest, UpdateWithNaNNamesTheVertexAndKeepsTheMesh) {
+  const Mesh mesh = TestTorus();
+  auto info = Upload(mesh);
+  ASSERT_TRUE(info.ok());
+  Positions bad = mesh.positions;
+  bad(17, 1) = std::nan("");
+  auto r = Update(info->mesh_id(), bad, std::nullopt);
+  EXPECT_EQ(r.status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(r.status().message().find("vertex 17"), std::string::npos) << r.status();
+  auto still = handlers_.GetMesh([&] { v1::GetMeshRequest q; q.set_mesh_id(info->mesh_id()); return q; }());
+  ASSERT_TRUE(still.ok());
+  EXPECT_EQ(still->revision(), 1);
+}
+
+TEST_F(HandlersTest, ListPagesAndDeleteForgets) {
+  std::vector<std::string> ids;
+  for (int i = 0; i < 5; ++i) {
+    auto info = Upload(TestTorus(), "mesh" + std::to_string(i));
+    ASSERT_TRUE(info.ok());
+    ids.push_back(info->mesh_id());
+  }
+  v1::ListMeshesRequest list;
+  list.set_page_size(2);
+  std::vector<std::string> seen;
+  for (int page = 0; page < 10; ++page) {
+    auto r = handlers_.ListMeshes(list);
+    ASSERT_TRUE(r.ok());
+    for (const auto& m : r->meshes()) seen.push_back(m.mesh_id());
+    if (r->next_page_token().empty()) break;
+    list.set_page_token(r->next_page_token());
+  }
+  std::sort(ids.begin(), ids.end());
+  EXPECT_EQ(seen, ids);
+
+  v1::DeleteMeshRequest del;
+  del.set_mesh_id(ids[0]);
+  ASSERT_TRUE(handlers_.DeleteMesh(del).ok());
+  EXPECT_EQ(handlers_.DeleteMesh(del).status().code(), absl::StatusCode::kNotFound);
+  v1::FitSummary s;
+  EXPECT_EQ(Compute(ids[0], &s).status().code(), absl::StatusCode::kNotFound);
+}
+
+TEST_F(HandlersTest, CancelledComputationReportsCancelled) {
+  auto info = Upload(TestTorus(24));
+  ASSERT_TRUE(info.ok());
+  v1::ComputeDifferentialsRequest request;
+  request.set_mesh_id(info->mesh_id());
+  CancellationToken token;
+  token.Cancel();
+  auto r = handlers_.ComputeDifferentials(request, token);
+  EXPECT_EQ(r.status().code(), absl::StatusCode::kCancelled) << r.status();
+  CancellationToken fresh;
+  EXPECT_TRUE(handlers_.ComputeDifferentials(request, fresh).ok()) << "a cancelled fit must not be cached";
+}
+
+TEST(HandlersBudgetTest, FittingThatCanNeverFitIsResourceExhausted) {
+  auto store = NewMemoryStore();
+  Cache cache(600 << 10);  // room for the mesh, not for a degree-6 LOP fitting
+  RequestStats stats;
+  Handlers handlers(store.get(), &cache, &stats, HandlerOptions());
+  UploadAssembler a(1 << 20);
+  for (const auto& r : wire::UploadChunks(TestTorus(20), v1::MeshHeader(), 1000)) ASSERT_TRUE(a.Add(r).ok());
+  auto info = handlers.UploadMesh(a);
+  ASSERT_TRUE(info.ok()) << info.status();
+  v1::ComputeDifferentialsRequest request;
+  request.set_mesh_id(info->mesh_id());
+  request.mutable_options()->set_degree(6);
+  request.mutable_options()->set_method(v1::FIT_METHOD_LOP);
+  CancellationToken token;
+  auto r = handlers.ComputeDifferentials(request, token);
+  EXPECT_EQ(r.status().code(), absl::StatusCode::kResourceExhausted) << r.status();
+  EXPECT_NE(r.status().message().find("--cache-bytes"), std::string::npos);
+}
+
+TEST_F(HandlersTest, ServerInfoAndStatistics) {
+  const v1::ServerInfo info = handlers_.GetServerInfo();
+  EXPECT_EQ(info.api_version(), "geomfit.v1");
+  EXPECT_EQ(info.store(), "memory");
+  EXPECT_GE(info.max_message_bytes(), 64 << 20);
+  stats_.Record("GetMesh", "OK", true, 1.5);
+  stats_.Record("GetMesh", "NOT_FOUND", false, 0.2);
+  const v1::Statistics s = handlers_.GetStatistics();
+  ASSERT_EQ(s.methods_size(), 1);
+  EXPECT_EQ(s.methods(0).count(), 2);
+  EXPECT_EQ(s.methods(0).errors(), 1);
+  EXPECT_EQ(s.methods(0).bucket_count(s.methods(0).bucket_count_size() - 1), 2);
+  EXPECT_EQ(s.caches_size(), 3);
+}
+
+}  // namespace
+}  // namespace geomfit::server

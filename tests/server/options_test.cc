@@ -1,0 +1,46 @@
+#include "server/options.h"
+
+#include <cstdlib>
+
+#include <gtest/gtest.h>
+
+namespace geomfit::server {
+namespace {
+
+TEST(OptionsTest, DefaultsFlagsAndEnvironment) {
+  auto d = ParseServerOptions({});
+  ASSERT_TRUE(d.ok());
+  EXPECT_EQ(d->max_message_bytes, 64 << 20);
+  EXPECT_EQ(d->store, "sqlite");
+
+  ::setenv("GEOMFIT_CACHE_BYTES", "32M", 1);
+  ::setenv("GEOMFIT_PORT", "7000", 1);
+  auto o = ParseServerOptions({"--port=7001", "--store", "memory", "--max-vertices=1000"});
+  ::unsetenv("GEOMFIT_CACHE_BYTES");
+  ::unsetenv("GEOMFIT_PORT");
+  ASSERT_TRUE(o.ok()) << o.status();
+  EXPECT_EQ(o->port, 7001) << "flags win over the environment";
+  EXPECT_EQ(o->cache_bytes, 32 << 20);
+  EXPECT_EQ(o->store, "memory");
+  EXPECT_EQ(o->max_vertices, 1000);
+}
+
+TEST(OptionsTest, BadValuesNameTheFlag) {
+  auto r = ParseServerOptions({"--store=postgres"});
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.status().message().find("--store=postgres"), std::string::npos) << r.status();
+  r = ParseServerOptions({"--port=70000"});
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.status().message().find("--port"), std::string::npos);
+  r = ParseServerOptions({"--frobnicate=1"});
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.status().message().find("--frobnicate"), std::string::npos);
+  ::setenv("GEOMFIT_WORKERS", "zero", 1);
+  r = ParseServerOptions({});
+  ::unsetenv("GEOMFIT_WORKERS");
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.status().message().find("GEOMFIT_WORKERS"), std::string::npos) << r.status();
+}
+
+}  // namespace
+}  // namespace geomfit::server

@@ -1,0 +1,227 @@
+// The service over a real loopback channel (in-process server).
+#include <thread>
+
+#include <gtest/gtest.h>
+
+#include "core/quantities/differentials.h"
+#include "proto/wire.h"
+#include "tests/server/test_util.h"
+
+namespace geomfit::server {
+namespace {
+
+using testing::Compute;
+using testing::HealthCheck;
+using testing::InProcessServer;
+
+absl::StatusOr<Differentials> Read(const std::vector<v1::ComputeDifferentialsResponse>& chunks,
+                                   v1::FitSummary* summary = nullptr) {
+  wire::DifferentialsReader reader;
+  for (const auto& c : chunks) {
+    absl::Status s = reader.Add(c);
+    if (!s.ok()) return s;
+  }
+  if (summary) *summary = reader.summary();
+  return reader.Finish();
+}
+
+TEST(ServiceTest, UploadComputeDownloadOverTheWire) {
+  InProcessServer server;
+  EXPECT_EQ(HealthCheck(server.channel()), "SERVING");
+  EXPECT_EQ(HealthCheck(server.channel(), "geomfit.v1.GeomFit"), "SERVING");
+  const Mesh mesh = testing::TestSphere(8);
+  auto info = testing::UploadMesh(server.stub(), mesh, "sphere", 97);
+  ASSERT_TRUE(info.ok()) << info.status();
+  EXPECT_EQ(info->revision(), 1);
+  EXPECT_EQ(info->name(), "sphere");
+
+  auto downloaded = testing::Download(server.stub(), info->mesh_id());
+  ASSERT_TRUE(downloaded.ok()) << downloaded.status();
+  EXPECT_TRUE(testing::SameMesh(*downloaded, mesh));
+
+  v1::ComputeDifferentialsRequest request;
+  request.set_mesh_id(info->mesh_id());
+  request.set_chunk_rows(50);
+  wire::AddQuantities(kAllQuantities, &request);
+  std::vector<v1::ComputeDifferentialsResponse> chunks;
+  ASSERT_TRUE(Compute(server.stub(), request, &chunks).ok());
+  EXPECT_EQ(chunks.size(), static_cast<size_t>((mesh.NumVertices() + 49) / 50));
+  v1::FitSummary summary;
+  auto remote = Read(chunks, &summary);
+  ASSERT_TRUE(remote.ok()) << remote.status();
+  FitOptions options;
+  auto local = ComputeDifferentials(mesh, options, kAllQuantities);
+  ASSERT_TRUE(local.ok());
+  EXPECT_EQ(remote->mean, local->mean);
+  EXPECT_EQ(remote->dir1, local->dir1);
+  EXPECT_EQ(remote->k1, local->k1);
+
+  grpc::ClientContext ctx;
+  v1::Statistics stats;
+  ASSERT_TRUE(server.stub().GetStatistics(&ctx, v1::GetStatisticsRequest(), &stats).ok());
+  std::map<std::string, int64_t> counts;
+  for (const auto& m : stats.methods()) counts[m.method()] = m.count();
+  EXPECT_EQ(counts["UploadMesh"], 1);
+  EXPECT_EQ(counts["DownloadMesh"], 1);
+  EXPECT_EQ(counts["ComputeDifferentials"], 1);
+  EXPECT_EQ(stats.stored_meshes(), 1);
+  EXPECT_GT(stats.cache_bytes(), 0);
+
+  grpc::ClientContext ctx2;
+  v1::ServerInfo server_info;
+  ASSERT_TRUE(server.stub().GetServerInfo(&ctx2, v1::GetServerInfoRequest(), &server_info).ok());
+  EXPECT_EQ(server_info.api_version(), "geomfit.v1");
+}
+
+TEST(ServiceTest, ConcurrentIdenticalRequestsFitOnce) {
+  InProcessServer server;
+  auto info = testing::UploadMesh(server.stub(), testing::TestTorus(40));
+  ASSERT_TRUE(info.ok());
+  v1::ComputeDifferentialsRequest request;
+  request.set_mesh_id(info->mesh_id());
+  request.mutable_options()->set_degree(4);
+  std::vector<std::thread> clients;
+  std::atomic<int> ok{0}, hits{0};
+  for (int i = 0; i < 4; ++i) {
+    clients.emplace_back([&] {
+      std::vector<v1::ComputeDifferentialsResponse> chunks;
+      if (Compute(server.stub(), request, &chunks).ok()) {
+        ++ok;
+        hits += chunks[0].summary().fit_cache_hit();
+      }
+    });
+  }
+  for (auto& t : clients) t.join();
+  EXPECT_EQ(ok.load(), 4);
+  EXPECT_EQ(hits.load(), 3);
+  grpc::ClientContext ctx;
+  v1::Statistics stats;
+  ASSERT_TRUE(server.stub().GetStatistics(&ctx, v1::GetStatisticsRequest(), &stats).ok());
+  EXPECT_EQ(stats.caches(2).tier(), "fitting");
+  EXPECT_EQ(stats.caches(2).misses(), 1);
+}
+
+/// Milliseconds until GetStatistics shows `n` finished ComputeDifferentials calls.
+double WaitForComputeRecords(v1::GeomFit::Stub& stub, int n, std::string* last_code) {
+  const auto start = std::chrono::steady_clock::now();
+  for (int i = 0; i < 500; ++i) {
+    grpc::ClientContext ctx;
+    v1::Statistics stats;
+    if (stub.GetStatistics(&ctx, v1::GetStatisticsRequest(), &stats).ok()) {
+      for (const auto& m : stats.methods()) {
+        if (m.method() == "ComputeDifferentials" && m.count() >= n) {
+          *last_code = m.errors() > 0 ? "error" : "ok";
+          return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+        }
+      }
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
+  return 1e9;
+}
+
+TEST(ServiceTest, DeadlineAndCancellationStopTheFit) {
+  InProcessServer server;
+  auto info = testing::UploadMesh(server.stub(), testing::TestTorus(120), "big", 20000);
+  ASSERT_TRUE(info.ok()) << info.status();
+  v1::ComputeDifferentialsRequest request;
+  request.set_mesh_id(info->mesh_id());
+  request.mutable_options()->set_degree(6);
+  request.mutable_options()->set_method(v1::FIT_METHOD_LOP);
+
+  // Full fit time, for comparison (cached afterwards, so use another degree below).
+  const auto t0 = std::chrono::steady_clock::now();
+  std::vector<v1::ComputeDifferentialsResponse> chunks;
+  ASSERT_TRUE(Compute(server.stub(), request, &chunks).ok());
+  const double full_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+  ASSERT_GT(full_ms, 200) << "the mesh is too small to observe cancellation";
+
+  request.mutable_options()->set_degree(5);
+  chunks.clear();
+  grpc::Status s = Compute(server.stub(), request, &chunks, 50);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::DEADLINE_EXCEEDED);
+  std::string code;
+  const double stop_ms = WaitForComputeRecords(server.stub(), 2, &code);
+  EXPECT_LT(stop_ms, full_ms / 2) << "the server kept fitting after the deadline";
+  EXPECT_EQ(code, "error");
+
+  {  // client cancellation
+    grpc::ClientContext ctx;
+    auto reader = server.stub().ComputeDifferentials(&ctx, request);
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+    ctx.TryCancel();
+    v1::ComputeDifferentialsResponse r;
+    while (reader->Read(&r)) {
+    }
+    EXPECT_EQ(reader->Finish().error_code(), grpc::StatusCode::CANCELLED);
+  }
+  EXPECT_LT(WaitForComputeRecords(server.stub(), 3, &code), full_ms / 2);
+
+  chunks.clear();
+  ASSERT_TRUE(Compute(server.stub(), request, &chunks).ok());
+  EXPECT_FALSE(chunks[0].summary().fit_cache_hit()) << "a cancelled fit must not be cached";
+  EXPECT_EQ(HealthCheck(server.channel()), "SERVING");
+}
+
+v1::ComputeDifferentialsRequest SlowRequest(v1::GeomFit::Stub& stub) {
+  auto info = testing::UploadMesh(stub, testing::TestTorus(120), "slow", 20000);
+  EXPECT_TRUE(info.ok()) << info.status();
+  v1::ComputeDifferentialsRequest request;
+  request.set_mesh_id(info.ok() ? info->mesh_id() : "");
+  request.mutable_options()->set_degree(6);
+  request.mutable_options()->set_method(v1::FIT_METHOD_LOP);
+  return request;
+}
+
+TEST(ServiceTest, DrainingFinishesInFlightCallsAndRefusesNewOnes) {
+  InProcessServer server;
+  const v1::ComputeDifferentialsRequest request = SlowRequest(server.stub());
+  grpc::Status in_flight;
+  std::thread client([&] {
+    std::vector<v1::ComputeDifferentialsResponse> chunks;
+    in_flight = Compute(server.stub(), request, &chunks);
+  });
+  std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  std::thread stopper([&] { server.server().Shutdown(30); });
+  std::string health;
+  for (int i = 0; i < 200 && (health = HealthCheck(server.channel())) == "SERVING"; ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  EXPECT_EQ(health, "NOT_SERVING");
+  grpc::ClientContext ctx;
+  v1::ServerInfo info;
+  EXPECT_EQ(server.stub().GetServerInfo(&ctx, v1::GetServerInfoRequest(), &info).error_code(),
+            grpc::StatusCode::UNAVAILABLE);
+  client.join();
+  stopper.join();
+  EXPECT_TRUE(in_flight.ok()) << in_flight.error_message();
+}
+
+TEST(ServiceTest, DrainDeadlineCancelsWhatIsLeft) {
+  InProcessServer server;
+  const v1::ComputeDifferentialsRequest request = SlowRequest(server.stub());
+  grpc::Status in_flight;
+  std::thread client([&] {
+    std::vector<v1::ComputeDifferentialsResponse> chunks;
+    in_flight = Compute(server.stub(), request, &chunks);
+  });
+  std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  const auto start = std::chrono::steady_clock::now();
+  server.server().Shutdown(0.1);
+  const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+  client.join();
+  EXPECT_FALSE(in_flight.ok());
+  EXPECT_LT(ms, 1000) << "shutdown did not respect its deadline";
+}
+
+TEST(ServiceTest, PortSharingIsOff) {
+  InProcessServer first;
+  ServerOptions o = testing::LoopbackOptions();
+  o.port = first.port();
+  auto second = Server::Start(o);
+  ASSERT_FALSE(second.ok()) << "two servers share port " << o.port;
+  EXPECT_EQ(second.status().code(), absl::StatusCode::kUnavailable);
+  EXPECT_NE(second.status().message().find(std::to_string(o.port)), std::string::npos) << second.status();
+}
+
+}  // namespace
+}  // namespace geomfit::server

@@ -1,0 +1,63 @@
+#pragma once
+// Shared helpers of the server tests: meshes, an in-process server on a loopback
+// port, raw stream helpers and a health probe that uses no generated code.
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <grpcpp/grpcpp.h>
+
+#include "absl/status/statusor.h"
+#include "core/mesh/mesh.h"
+#include "geomfit/v1/geomfit.grpc.pb.h"
+#include "server/options.h"
+#include "server/server.h"
+
+namespace geomfit::server::testing {
+
+Mesh TestTorus(int n = 8);
+Mesh TestSphere(int n = 6);
+
+/// Options for a throwaway loopback server (memory store, free port).
+ServerOptions LoopbackOptions();
+
+/// A server in this process and a channel to it. Stops the server on destruction.
+class InProcessServer {
+ public:
+  explicit InProcessServer(ServerOptions options = LoopbackOptions());
+  ~InProcessServer();
+  v1::GeomFit::Stub& stub() { return *stub_; }
+  std::shared_ptr<grpc::Channel> channel() { return channel_; }
+  Server& server() { return *server_; }
+  int port() const { return server_->port(); }
+
+ private:
+  std::unique_ptr<Server> server_;
+  std::shared_ptr<grpc::Channel> channel_;
+  std::unique_ptr<v1::GeomFit::Stub> stub_;
+};
+
+std::shared_ptr<grpc::Channel> LoopbackChannel(int port, int64_t max_message_bytes = 64 << 20);
+
+/// Sends `requests` as one UploadMesh stream; `finish_writes` false leaves the stream
+/// half-open until the context is cancelled.
+grpc::Status SendUpload(v1::GeomFit::Stub& stub, const std::vector<v1::UploadMeshRequest>& requests,
+                        v1::MeshInfo* info);
+grpc::Status SendUpdate(v1::GeomFit::Stub& stub, const std::vector<v1::UpdatePositionsRequest>& requests,
+                        v1::MeshInfo* info);
+absl::StatusOr<v1::MeshInfo> UploadMesh(v1::GeomFit::Stub& stub, const Mesh& mesh, const std::string& name = "",
+                                        int64_t chunk_rows = 1000);
+/// Reads a whole ComputeDifferentials stream.
+grpc::Status Compute(v1::GeomFit::Stub& stub, const v1::ComputeDifferentialsRequest& request,
+                     std::vector<v1::ComputeDifferentialsResponse>* chunks, int deadline_ms = 60000);
+/// Downloads a mesh and reassembles it.
+absl::StatusOr<Mesh> Download(v1::GeomFit::Stub& stub, const std::string& mesh_id);
+
+/// grpc.health.v1 Check for `service` ("" = server), sent as raw bytes so it relies
+/// on nothing but the wire format: "SERVING", "NOT_SERVING", or the error.
+std::string HealthCheck(const std::shared_ptr<grpc::Channel>& channel, const std::string& service = "");
+
+/// Bitwise equality of two meshes.
+bool SameMesh(const Mesh& a, const Mesh& b);
+
+}  // namespace geomfit::server::testing
