@@ -16,6 +16,7 @@ inline void HouseholderQRInPlace(double* a, int ld, int m, int n, int nrhs, doub
   for (int j = 0; j < steps; ++j) {
     double* x = a + j * ld;
     double sigma = 0;
+#pragma omp simd reduction(+ : sigma)
     for (int i = j + 1; i < m; ++i) sigma += x[i] * x[i];
     const double alpha = x[j];
     if (sigma == 0) {  // already upper triangular in this column: H = I
@@ -31,6 +32,7 @@ inline void HouseholderQRInPlace(double* a, int ld, int m, int n, int nrhs, doub
     for (int c = j + 1; c < n + nrhs; ++c) {  // apply H_j = I - tau v v^T to the rest
       double* y = a + c * ld;
       double w = y[j];
+#pragma omp simd reduction(+ : w)
       for (int i = j + 1; i < m; ++i) w += x[i] * y[i];
       w *= tau[j];
       y[j] -= w;
@@ -45,6 +47,7 @@ inline void ApplyQ(const double* a, int ld, int m, int k, const double* tau, dou
     if (tau[j] == 0) continue;
     const double* x = a + j * ld;
     double w = y[j];
+#pragma omp simd reduction(+ : w)
     for (int i = j + 1; i < m; ++i) w += x[i] * y[i];
     w *= tau[j];
     y[j] -= w;
@@ -52,18 +55,22 @@ inline void ApplyQ(const double* a, int ld, int m, int k, const double* tau, dou
   }
 }
 
-/// Inverse of the upper-triangular k x k R (column-major, leading dimension ld) into
-/// `inv` (leading dimension k); returns false on a zero pivot.
+/// Inverse of the upper-triangular k x k R (k <= 64; column-major, leading dimension
+/// ld) into `inv` (leading dimension k); returns false on a zero pivot.
 inline bool InvertUpper(const double* r, int ld, int k, double* inv) {
+  double inv_diag[64];
+  for (int c = 0; c < k; ++c) {
+    if (r[c * ld + c] == 0) return false;
+    inv_diag[c] = 1 / r[c * ld + c];
+  }
   for (int c = 0; c < k; ++c) {
     double* x = inv + c * k;
     for (int i = c + 1; i < k; ++i) x[i] = 0;
-    if (r[c * ld + c] == 0) return false;
-    x[c] = 1 / r[c * ld + c];
+    x[c] = inv_diag[c];
     for (int i = c - 1; i >= 0; --i) {
       double s = 0;
       for (int l = i + 1; l <= c; ++l) s += r[l * ld + i] * x[l];
-      x[i] = -s / r[i * ld + i];
+      x[i] = -s * inv_diag[i];
     }
   }
   return true;

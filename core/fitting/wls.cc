@@ -65,6 +65,12 @@ WlsSolution SolveWls(const WlsProblem& P, const WlsSettings& S, double* coeffici
   double a[kMaxStencil * (kMaxCoef + 3)];
   double weight[kMaxStencil];
   double* B = a + cols * ld;
+  double inv_fact[kMaxCoef];  // 1 / (j! k!) per column, in column order
+  {
+    int c = 0;
+    for (int p = first_col; p <= S.degree; ++p)
+      for (int k = 0; k <= p; ++k) inv_fact[c++] = 1.0 / (kFactorial[p - k] * kFactorial[k]);
+  }
   for (int i = 0; i < rows; ++i) {
     const int r = keep[i];
     const double u = P.u[r] / h, v = P.v[r] / h;
@@ -77,13 +83,14 @@ WlsSolution SolveWls(const WlsProblem& P, const WlsSettings& S, double* coeffici
     for (int e = 1; e <= S.degree; ++e) up[e] = up[e - 1] * u, vp[e] = vp[e - 1] * v;
     int c = 0;
     for (int p = first_col; p <= S.degree; ++p)
-      for (int k = 0; k <= p; ++k) a[(c++) * ld + i] = w * up[p - k] * vp[k] / (kFactorial[p - k] * kFactorial[k]);
+      for (int k = 0; k <= p; ++k, ++c) a[c * ld + i] = w * inv_fact[c] * up[p - k] * vp[k];
     for (int d = 0; d < dims; ++d) B[d * ld + i] = w * P.rhs[d][r];
   }
   // Column scaling by 2-norms (2.6.6).
   double scale[kMaxCoef];
   for (int c = 0; c < cols; ++c) {
     double norm2 = 0;
+#pragma omp simd reduction(+ : norm2)
     for (int i = 0; i < rows; ++i) norm2 += a[c * ld + i] * a[c * ld + i];
     scale[c] = norm2 > 0 ? 1 / std::sqrt(norm2) : 1.0;
     for (int i = 0; i < rows; ++i) a[c * ld + i] *= scale[c];
