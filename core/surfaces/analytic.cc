@@ -369,8 +369,9 @@ absl::StatusOr<Mesh> GenerateNamedMesh(const std::string& name, const GeneratorO
   if (name == "ellipsoid") return GenerateEllipsoidMesh(o, 1.0, 0.8, 0.6);
   if (name == "bump") return GenerateBumpMesh(o);
   if (name == "quadtorus") return q.quads = true, GenerateTorusMesh(q);
+  if (name == "cylinder") return GenerateCylinderMesh(o.n);
   return absl::InvalidArgumentError(
-      absl::StrCat("unknown surface '", name, "' (sphere, torus, ellipsoid, bump, quadtorus)"));
+      absl::StrCat("unknown surface '", name, "' (sphere, torus, ellipsoid, bump, quadtorus, cylinder)"));
 }
 
 absl::StatusOr<std::unique_ptr<AnalyticSurface>> NamedSurface(const std::string& name) {

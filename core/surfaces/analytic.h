@@ -56,7 +56,8 @@ Mesh GenerateCylinderMesh(int n);
 /// Distance from p to that closed cylinder.
 double CylinderDistance(const Eigen::Vector3d& p);
 
-/// Generates by name: sphere, torus, ellipsoid (axes 1, 0.8, 0.6), bump, quadtorus.
+/// Generates by name: sphere, torus, ellipsoid (axes 1, 0.8, 0.6), bump, quadtorus,
+/// cylinder (sharp rims; no jitter).
 absl::StatusOr<Mesh> GenerateNamedMesh(const std::string& name, const GeneratorOptions& o);
 /// The analytic surface of a named mesh (same names).
 absl::StatusOr<std::unique_ptr<AnalyticSurface>> NamedSurface(const std::string& name);

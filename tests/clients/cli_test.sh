@@ -159,4 +159,20 @@ expect_error 1 "shape 2 x 1" integrate s.obj --scalar short.txt
 expect_error 2 "factor" refine s.obj --factor 1 --output r.obj
 expect_error 2 "walf, cmf or linear" refine s.obj --method spline --output r.obj
 
+# Sharp features: the refined cylinder keeps its rims and flat caps.
+run_ok generate cylinder --level 6 --output cyl.obj
+run_ok refine cyl.obj --factor 2 --feature-angle 45 --output cyl2.obj
+/usr/bin/python3 - cyl2.obj <<'PY' || fail "refined cylinder left the cylinder"
+import math, sys
+worst = 0
+for line in open(sys.argv[1]):
+    if not line.startswith("v "): continue
+    x, y, z = map(float, line.split()[1:4]); r = math.hypot(x, y)
+    rim = math.hypot(r - 1, abs(z) - 1)
+    side = abs(r - 1) if abs(z) <= 1 else rim
+    cap = abs(abs(z) - 1) if r <= 1 else rim
+    worst = max(worst, min(side, cap))
+assert worst < 2e-3, worst
+PY
+
 echo "cli_test: $checks checks passed"

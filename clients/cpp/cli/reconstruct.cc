@@ -9,6 +9,7 @@
 #include "clients/cpp/cli/cli.h"
 #include "core/integration/integrate.h"
 #include "core/mesh/topology.h"
+#include "core/reconstruction/features.h"
 #include "core/reconstruction/meshing.h"
 #include "core/reconstruction/projection.h"
 #include "core/util/status_macros.h"
@@ -19,8 +20,9 @@ namespace {
 
 // Options every reconstruction command shares.
 struct SurfaceArgs {
-  std::string mesh, method = "walf", output;
+  std::string mesh, method = "walf", output, feature_edges;
   int degree = 3, threads = 0;
+  double feature_angle = 0;
   bool no_safeguard = false, verbose = false;
 };
 
@@ -29,6 +31,8 @@ void AddSurfaceOptions(ArgParser* p, SurfaceArgs* a) {
       .String("method", &a->method, "reconstruction: walf, cmf or linear", "M")
       .Int("degree", &a->degree, "fitting degree 1..6")
       .Flag("no-safeguard", &a->no_safeguard, "turn the oscillation safeguard (4.1.3) off")
+      .Double("feature-angle", &a->feature_angle, "keep sharp edges whose dihedral angle exceeds DEG (0 = off)")
+      .String("feature-edges", &a->feature_edges, "file of user-marked feature edges 'a b' (vertex ids)", "FILE")
       .Int("threads", &a->threads, "threads (0 = all cores)")
       .String("output", &a->output, "output file", "FILE")
       .Flag("verbose", &a->verbose, "print timings to stderr");
@@ -39,34 +43,6 @@ absl::StatusOr<ReconstructionMethod> ParseMethod(const std::string& m) {
   if (m == "cmf") return ReconstructionMethod::kCmf;
   if (m == "linear") return ReconstructionMethod::kLinear;
   return UsageError(absl::StrCat("--method '", m, "': expected walf, cmf or linear"));
-}
-
-// A mesh, its topology, fits and reconstructed surface (the mesh outlives the surface).
-struct Loaded {
-  Mesh mesh;
-  Topology topo;
-  std::shared_ptr<const SurfaceFits> fits;
-  std::unique_ptr<ReconstructedSurface> surface;
-};
-
-absl::Status Load(const SurfaceArgs& a, bool stencils, Loaded* out) {
-  GF_ASSIGN_OR_RETURN(const ReconstructionMethod method, ParseMethod(a.method));
-  FitOptions o;
-  o.degree = a.degree;
-  o.oscillation_safeguard = !a.no_safeguard;
-  o.num_threads = a.threads;
-  if (absl::Status s = ValidateFitOptions(o); !s.ok()) return UsageError(s.message());
-  Stopwatch t;
-  GF_ASSIGN_OR_RETURN(out->mesh, ReadMesh(a.mesh));
-  absl::StatusOr<Topology> topo = ValidateMesh(out->mesh);
-  if (!topo.ok()) return absl::InvalidArgumentError(absl::StrCat(a.mesh, ": ", topo.status().message()));
-  out->topo = *std::move(topo);
-  GF_ASSIGN_OR_RETURN(out->fits, FitSurface(out->mesh, out->topo, o, nullptr, FitRequest{.stencils = stencils}));
-  out->surface = MakeSurface(method, out->mesh, out->fits);
-  if (a.verbose)
-    std::fprintf(stderr, "geomfit: read and fitted %s (%d vertices, degree %d) in %.3f s\n", a.mesh.c_str(),
-                 out->mesh.NumVertices(), a.degree, t.Seconds());
-  return absl::OkStatus();
 }
 
 // A whitespace-separated numeric table with `cols` columns ('#' comments, blank lines).
@@ -90,6 +66,54 @@ absl::StatusOr<RowMajorMatrixXd> ReadTable(const std::string& path, int cols) {
     ++rows;
   }
   return RowMajorMatrixXd(Eigen::Map<RowMajorMatrixXd>(values.data(), rows, cols));
+}
+
+// A mesh, its topology, fits and reconstructed surface (the mesh outlives the surface).
+struct Loaded {
+  Mesh mesh;
+  Topology topo;
+  std::shared_ptr<const Features> features;  // with sharp features: fits are of features->split
+  Topology split_topo;
+  std::shared_ptr<const SurfaceFits> fits;
+  std::unique_ptr<ReconstructedSurface> surface;
+};
+
+absl::Status Load(const SurfaceArgs& a, bool stencils, Loaded* out) {
+  GF_ASSIGN_OR_RETURN(const ReconstructionMethod method, ParseMethod(a.method));
+  FitOptions o;
+  o.degree = a.degree;
+  o.oscillation_safeguard = !a.no_safeguard;
+  o.num_threads = a.threads;
+  if (absl::Status s = ValidateFitOptions(o); !s.ok()) return UsageError(s.message());
+  Stopwatch t;
+  GF_ASSIGN_OR_RETURN(out->mesh, ReadMesh(a.mesh));
+  absl::StatusOr<Topology> topo = ValidateMesh(out->mesh);
+  if (!topo.ok()) return absl::InvalidArgumentError(absl::StrCat(a.mesh, ": ", topo.status().message()));
+  out->topo = *std::move(topo);
+  if (a.feature_angle > 0 || !a.feature_edges.empty()) {  // sharp features (4.1.4)
+    FeatureOptions fo;
+    if (a.feature_angle > 0) fo.angle_deg = a.feature_angle;
+    else fo.angle_deg = 180;  // only the marked edges
+    if (!a.feature_edges.empty()) {
+      GF_ASSIGN_OR_RETURN(const RowMajorMatrixXd e, ReadTable(a.feature_edges, 2));
+      for (int i = 0; i < e.rows(); ++i) fo.marked.emplace_back(static_cast<int32_t>(e(i, 0)), static_cast<int32_t>(e(i, 1)));
+    }
+    GF_ASSIGN_OR_RETURN(Features f, DetectFeatures(out->mesh, out->topo, fo));
+    auto features = std::make_shared<const Features>(std::move(f));
+    GF_ASSIGN_OR_RETURN(out->split_topo, BuildTopology(features->split));
+    GF_ASSIGN_OR_RETURN(out->fits, FitSurface(features->split, out->split_topo, o, nullptr, FitRequest{.stencils = stencils}));
+    out->features = features;
+    out->surface = std::make_unique<FeatureSurface>(out->mesh, features, MakeSurface(method, features->split, out->fits), a.degree);
+    if (a.verbose)
+      std::fprintf(stderr, "geomfit: %zu feature edges in %zu ridge curves\n", features->edges.size(), features->curves.size());
+  } else {
+    GF_ASSIGN_OR_RETURN(out->fits, FitSurface(out->mesh, out->topo, o, nullptr, FitRequest{.stencils = stencils}));
+    out->surface = MakeSurface(method, out->mesh, out->fits);
+  }
+  if (a.verbose)
+    std::fprintf(stderr, "geomfit: read and fitted %s (%d vertices, degree %d) in %.3f s\n", a.mesh.c_str(),
+                 out->mesh.NumVertices(), a.degree, t.Seconds());
+  return absl::OkStatus();
 }
 
 absl::Status WriteText(const std::string& path, const std::string& text) {
