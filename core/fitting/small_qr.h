@@ -4,6 +4,16 @@
 
 namespace geomfit {
 
+/// y <- (I - tau v v^T) y for the reflector v = (1, x[j+1..m)) acting on rows j..m-1.
+inline void ApplyReflector(const double* x, double tau, int j, int m, double* y) {
+  double w = y[j];
+#pragma omp simd reduction(+ : w)
+  for (int i = j + 1; i < m; ++i) w += x[i] * y[i];
+  w *= tau;
+  y[j] -= w;
+  for (int i = j + 1; i < m; ++i) y[i] -= w * x[i];
+}
+
 /// Householder QR of a small column-major matrix stored in place with leading
 /// dimension `ld`, written for the per-vertex fits (2.4): no allocation, and the
 /// reflectors are applied to trailing right-hand-side columns during the
@@ -29,29 +39,14 @@ inline void HouseholderQRInPlace(double* a, int ld, int m, int n, int nrhs, doub
     for (int i = j + 1; i < m; ++i) x[i] *= inv;
     tau[j] = (beta - alpha) / beta;
     x[j] = beta;
-    for (int c = j + 1; c < n + nrhs; ++c) {  // apply H_j = I - tau v v^T to the rest
-      double* y = a + c * ld;
-      double w = y[j];
-#pragma omp simd reduction(+ : w)
-      for (int i = j + 1; i < m; ++i) w += x[i] * y[i];
-      w *= tau[j];
-      y[j] -= w;
-      for (int i = j + 1; i < m; ++i) y[i] -= w * x[i];
-    }
+    for (int c = j + 1; c < n + nrhs; ++c) ApplyReflector(x, tau[j], j, m, a + c * ld);  // H_j to the rest
   }
 }
 
 /// y <- Q y for the reflectors stored by HouseholderQRInPlace (first `k` of them).
 inline void ApplyQ(const double* a, int ld, int m, int k, const double* tau, double* y) {
   for (int j = k - 1; j >= 0; --j) {
-    if (tau[j] == 0) continue;
-    const double* x = a + j * ld;
-    double w = y[j];
-#pragma omp simd reduction(+ : w)
-    for (int i = j + 1; i < m; ++i) w += x[i] * y[i];
-    w *= tau[j];
-    y[j] -= w;
-    for (int i = j + 1; i < m; ++i) y[i] -= w * x[i];
+    if (tau[j] != 0) ApplyReflector(a + j * ld, tau[j], j, m, y);
   }
 }
 
