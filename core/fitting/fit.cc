@@ -135,12 +135,14 @@ SurfaceFits::LocalPoint SurfaceFits::Evaluate(int v, const Eigen::Vector3d& x) c
   if (dims() == 1) {  // x = origin + u t1 + v t2 + f(u, v) m (Table 3.1)
     double f, fu, fv;
     EvalTaylor(c, deg, u, w, &f, &fu, &fv);
-    p.position = fr.origin + u * fr.t1 + w * fr.t2 + f * fr.normal;
+    p.position = x + (f - d.dot(fr.normal)) * fr.normal;
     p.du = fr.t1 + fu * fr.normal;
     p.dv = fr.t2 + fv * fr.normal;
+    p.normal = (fr.normal - fu * fr.t1 - fv * fr.t2) * (1 / std::sqrt(1 + fu * fu + fv * fv));
   } else {  // x = origin + (X(u, v), Y(u, v), Z(u, v))
     for (int k = 0; k < 3; ++k) EvalTaylor(c + k * n, deg, u, w, &p.position(k), &p.du(k), &p.dv(k));
     p.position += fr.origin;
+    p.normal = p.du.cross(p.dv).normalized();
   }
   return p;
 }

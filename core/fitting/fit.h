@@ -68,6 +68,7 @@ class SurfaceFits {
   /// tangent plane: the point of the fitted surface and its (u, v) derivatives.
   struct LocalPoint {
     Eigen::Vector3d position, du, dv;
+    Eigen::Vector3d normal;  ///< unit, du x dv / |du x dv|
   };
   LocalPoint Evaluate(int v, const Eigen::Vector3d& x) const;
   /// Stencil operators (if requested): coefficient i of vertex v's fit of any nodal

@@ -23,15 +23,29 @@ void BackSubstitute(const double* R, int ld, int k, const double* qtb, double* y
 
 }  // namespace
 
-void EvalTaylor(const double* c, int degree, double u, double v, double* value, double* du,
-                double* dv) {
-  double up[kMaxDegree + 1] = {1}, vp[kMaxDegree + 1] = {1};
-  for (int e = 1; e <= degree; ++e) up[e] = up[e - 1] * u, vp[e] = vp[e - 1] * v;
+namespace {
+
+// 1 / (j! k!) by total degree p and k (j = p - k), in TaylorIndex order.
+constexpr double kInvFactorials[kMaxCoef] = {
+    1,                                                             // p = 0
+    1, 1,                                                          // p = 1
+    1.0 / 2, 1, 1.0 / 2,                                           // p = 2
+    1.0 / 6, 1.0 / 2, 1.0 / 2, 1.0 / 6,                            // p = 3
+    1.0 / 24, 1.0 / 6, 1.0 / 4, 1.0 / 6, 1.0 / 24,                 // p = 4
+    1.0 / 120, 1.0 / 24, 1.0 / 12, 1.0 / 12, 1.0 / 24, 1.0 / 120,  // p = 5
+    1.0 / 720, 1.0 / 120, 1.0 / 48, 1.0 / 36, 1.0 / 48, 1.0 / 120, 1.0 / 720};  // p = 6
+
+// The degree as a template parameter lets the compiler unroll the (hot) evaluation.
+template <int D>
+void EvalTaylorFixed(const double* c, double u, double v, double* value, double* du, double* dv) {
+  double up[D + 1] = {1}, vp[D + 1] = {1};
+  for (int e = 1; e <= D; ++e) up[e] = up[e - 1] * u, vp[e] = vp[e - 1] * v;
   double f = 0, fu = 0, fv = 0;
-  for (int p = 0; p <= degree; ++p)
-    for (int k = 0; k <= p; ++k) {
+  int i = 0;
+  for (int p = 0; p <= D; ++p)
+    for (int k = 0; k <= p; ++k, ++i) {
       const int j = p - k;
-      const double a = c[TaylorIdx(j, k)] / (kFactorial[j] * kFactorial[k]);
+      const double a = c[i] * kInvFactorials[i];
       f += a * up[j] * vp[k];
       if (j > 0) fu += a * j * up[j - 1] * vp[k];
       if (k > 0) fv += a * k * up[j] * vp[k - 1];
@@ -39,6 +53,21 @@ void EvalTaylor(const double* c, int degree, double u, double v, double* value, 
   if (value) *value = f;
   if (du) *du = fu;
   if (dv) *dv = fv;
+}
+
+}  // namespace
+
+void EvalTaylor(const double* c, int degree, double u, double v, double* value, double* du,
+                double* dv) {
+  switch (degree) {
+    case 0: return EvalTaylorFixed<0>(c, u, v, value, du, dv);
+    case 1: return EvalTaylorFixed<1>(c, u, v, value, du, dv);
+    case 2: return EvalTaylorFixed<2>(c, u, v, value, du, dv);
+    case 3: return EvalTaylorFixed<3>(c, u, v, value, du, dv);
+    case 4: return EvalTaylorFixed<4>(c, u, v, value, du, dv);
+    case 5: return EvalTaylorFixed<5>(c, u, v, value, du, dv);
+    default: return EvalTaylorFixed<6>(c, u, v, value, du, dv);
+  }
 }
 
 WlsSolution SolveWls(const WlsProblem& P, const WlsSettings& S, double* coefficients, double* op) {

@@ -93,9 +93,9 @@ SurfacePoint WalfSurface::Evaluate(const FacePoint& p) const {
     const Vector3d dqdeta = q.du * fr.t1.dot(l.deta) + q.dv * fr.t2.dot(l.deta);
     s.jacobian.col(0) += l.dNdxi[i] * q.position + l.N[i] * dqdxi;
     s.jacobian.col(1) += l.dNdeta[i] * q.position + l.N[i] * dqdeta;
-    normal += l.N[i] * q.du.cross(q.dv).normalized();  // (4.3.12)
+    normal += l.N[i] * q.normal;  // (4.3.12)
   }
-  s.normal = normal.normalized();
+  s.normal = normal * (1 / std::sqrt(normal.squaredNorm()));
   return s;
 }
 
