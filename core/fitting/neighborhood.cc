@@ -21,11 +21,10 @@ RingSpec RingSpecFor(const FitOptions& o) {
 
 namespace {
 
-// Grows one vertex's stencil ring by ring (2.1). `level_[x]` is the half-step (2 x ring)
-// at which x joined; `mark_[x] == stamp_` says x is in the current stencil.
+// Grows one vertex's stencil ring by ring (2.1).
 class RingGrower {
  public:
-  RingGrower(const Topology& t, const Mesh& m) : t_(t), m_(m), mark_(t.num_vertices, 0), level_(t.num_vertices, 0) {}
+  RingGrower(const Topology& t, const Mesh& m) : t_(t), m_(m), mark_(t.num_vertices) {}
 
   // Fills `out` with v's stencil; returns the ring reached.
   float Grow(int v, const RingSpec& spec, std::vector<int32_t>& out) {
@@ -60,11 +59,11 @@ class RingGrower {
 
  private:
   void Add(int32_t x, int level) {
-    mark_[x] = stamp_;
-    level_[x] = level;
+    mark_[x] = {stamp_, level};
     out_->push_back(x);
   }
-  bool In(int32_t x, int max_level) const { return mark_[x] == stamp_ && level_[x] <= max_level; }
+  bool Marked(int32_t x) const { return mark_[x].stamp == stamp_; }
+  bool In(int32_t x, int max_level) const { return Marked(x) && mark_[x].level <= max_level; }
 
   void Step() {
     const int k2 = half_steps_ - half_steps_ % 2;  // 2k for the current integer ring k
@@ -79,7 +78,7 @@ class RingGrower {
           while (m_.faces(f, c) != a) ++c;
           if (!In(m_.faces(f, (c + 1) % n), k2) && !In(m_.faces(f, (c + n - 1) % n), k2)) continue;
           for (int q = 0; q < n; ++q)
-            if (mark_[m_.faces(f, q)] != stamp_) Add(m_.faces(f, q), k2 + 1);
+            if (!Marked(m_.faces(f, q))) Add(m_.faces(f, q), k2 + 1);
         }
       }
     } else {
@@ -89,7 +88,7 @@ class RingGrower {
         const int32_t a = out[i];
         for (int j = 0; j < t_.NumNeighbors(a); ++j) {
           const int32_t b = t_.Neighbors(a)[j];
-          if (mark_[b] != stamp_) Add(b, k2 + 2);
+          if (!Marked(b)) Add(b, k2 + 2);
         }
       }
       layer_begin_ = k_ring_end;
@@ -100,8 +99,11 @@ class RingGrower {
 
   const Topology& t_;
   const Mesh& m_;
-  std::vector<uint32_t> mark_;
-  std::vector<int32_t> level_;
+  struct Mark {
+    uint32_t stamp = 0;  // == stamp_: in the current stencil
+    int32_t level = 0;   // half-step (2 x ring) at which it joined
+  };
+  std::vector<Mark> mark_;
   std::vector<int32_t>* out_ = nullptr;
   uint32_t stamp_ = 0;
   size_t layer_begin_ = 0, layer_end_ = 0;
