@@ -153,20 +153,24 @@ absl::Status ValidateGeometry(const Mesh& mesh) {
       if (!std::isfinite(mesh.positions(v, c)))
         return absl::InvalidArgumentError(absl::StrFormat(
             "vertex %d: coordinate %c is not finite (%g)", v, "xyz"[c], mesh.positions(v, c)));
-  // Zero-area relative to the mesh scale (bounding-box diagonal squared).
-  const Eigen::Vector3d lo = mesh.positions.colwise().minCoeff(), hi = mesh.positions.colwise().maxCoeff();
-  const double tiny = 1e-14 * std::max((hi - lo).squaredNorm(), 1e-300);
+  // Zero area means degenerate: collinear or coincident corners, judged against the
+  // face's own longest edge (tiny but well-shaped faces, as marching cubes makes near
+  // grid samples, are fine).
   for (int f = 0; f < mesh.NumFaces(); ++f) {
     const int n = mesh.FaceSize(f);
     Eigen::Vector3d area2 = Eigen::Vector3d::Zero();
+    double longest2 = 0;
     for (int i = 0; i < n; ++i) {
       const int a = mesh.faces(f, i), b = mesh.faces(f, (i + 1) % n);
       if (a < 0 || a >= nv || b < 0 || b >= nv)
         return absl::InvalidArgumentError(absl::StrFormat("face %d: vertex index out of range", f));
-      area2 += mesh.positions.row(a).transpose().cross(mesh.positions.row(b).transpose());
+      const Eigen::Vector3d pa = mesh.positions.row(a).transpose(), pb = mesh.positions.row(b).transpose();
+      area2 += pa.cross(pb);
+      longest2 = std::max(longest2, (pb - pa).squaredNorm());
     }
-    if (area2.norm() <= tiny)
-      return absl::InvalidArgumentError(absl::StrFormat("face %d has zero area", f));
+    if (!(area2.norm() > 1e-12 * longest2))
+      return absl::InvalidArgumentError(absl::StrFormat(
+          "face %d has zero area (its corners are collinear or coincide)", f));
   }
   return absl::OkStatus();
 }

@@ -218,5 +218,16 @@ TEST(TopologyErrorTest, ZeroAreaFace) {
   ExpectInvalid(ValidateMesh(m).status(), {"face 1", "zero area"});
 }
 
+TEST(TopologyErrorTest, TinyWellShapedFacesAreNotZeroArea) {
+  // Marching cubes makes faces with edges ~1e-7 in meshes of size ~1: valid.
+  const double e = 2e-7;
+  const Mesh m = MakeMesh({{0, 0, 0}, {3, 0, 0}, {0, 3, 0}, {1, 1, 0}, {1 + e, 1, 0}, {1, 1 + e, 0}},
+                          {{3, 4, 5}, {0, 1, 2}});
+  EXPECT_TRUE(ValidateGeometry(m).ok()) << ValidateGeometry(m);
+  // ... but coincident corners are.
+  const Mesh d = MakeMesh({{0, 0, 0}, {1, 0, 0}, {1, 0, 0}}, {{0, 1, 2}});
+  ExpectInvalid(ValidateGeometry(d), {"face 0", "zero area"});
+}
+
 }  // namespace
 }  // namespace geomfit
