@@ -12,7 +12,7 @@ RingSpec RingSpecFor(const FitOptions& o) {
   const int n = NumCoefficients(o.degree);
   s.rings = o.StartRings();
   s.adaptive = o.adaptive;
-  s.min_points = static_cast<int>(std::ceil(o.min_points_factor * n));
+  s.min_points = static_cast<int>(std::ceil(o.MinPointsFactor() * n));
   s.min_points_boundary = static_cast<int>(std::ceil(o.boundary_points_factor * n));
   s.max_rings = std::max(o.max_rings, s.rings);
   s.max_points = o.max_points;

@@ -18,8 +18,8 @@ absl::Status ValidateFitOptions(const FitOptions& o) {
                " must be 0 (automatic) or a multiple of 0.5 in [1, 10]");
   if (!(o.max_rings >= o.StartRings() && o.max_rings <= 10))
     return bad("fit option max_rings = ", o.max_rings, " must be in [rings, 10]");
-  if (!(o.min_points_factor >= 1 && o.min_points_factor <= 10))
-    return bad("fit option min_points_factor = ", o.min_points_factor, " must be in [1, 10]");
+  if (!(o.min_points_factor == 0 || (o.min_points_factor >= 1 && o.min_points_factor <= 10)))
+    return bad("fit option min_points_factor = ", o.min_points_factor, " must be 0 (automatic) or in [1, 10]");
   if (!(o.boundary_points_factor >= 1 && o.boundary_points_factor <= 10))
     return bad("fit option boundary_points_factor = ", o.boundary_points_factor,
                " must be in [1, 10]");
@@ -41,7 +41,7 @@ absl::Status ValidateFitOptions(const FitOptions& o) {
 std::string FitOptionsKey(const FitOptions& o) {
   std::string key = absl::StrFormat(
       "d%d r%g a%d f%g b%g mr%g mp%d %s s%g i%d t%d w%d e%g o%d", o.degree, o.StartRings(),
-      o.adaptive, o.min_points_factor, o.boundary_points_factor, o.max_rings, o.max_points,
+      o.adaptive, o.MinPointsFactor(), o.boundary_points_factor, o.max_rings, o.max_points,
       FitMethodName(o.method), o.safeguard_angle_deg, o.interpolate, o.two_pass,
       static_cast<int>(o.frame_normals), o.weight_epsilon, o.oscillation_safeguard);
   for (int d = 1; d <= kMaxDegree; ++d) absl::StrAppendFormat(&key, " c%g", o.cond_threshold[d]);

@@ -28,7 +28,10 @@ struct FitOptions {
   int degree = 2;              ///< 1..6
   double rings = 0;            ///< k-ring size in half steps (1, 1.5, 2, ...); 0 = (degree+1)/2
   bool adaptive = true;        ///< grow by half rings until enough points (2.1)
-  double min_points_factor = 1.5;       ///< interior: >= factor x #coefficients points
+  /// Interior vertices grow to >= factor x #coefficients points; 0 = automatic: 1.5 as in
+  /// (2.1), but 2.0 for degrees <= 2, whose 1.5-rings at valence-4 vertices (common in
+  /// marching-cubes meshes) hold barely enough, often clustered, points.
+  double min_points_factor = 0;
   double boundary_points_factor = 2.0;  ///< boundary vertices grow further
   double max_rings = 8;        ///< adaptive growth stops here (corners of open meshes need it)
   int max_points = 120;        ///< and never beyond this many points (<= kMaxStencil)
@@ -46,6 +49,8 @@ struct FitOptions {
 
   /// The ring size actually used as the starting ring.
   double StartRings() const { return rings > 0 ? rings : (degree + 1) / 2.0; }
+  /// The interior growth factor actually used.
+  double MinPointsFactor() const { return min_points_factor > 0 ? min_points_factor : (degree <= 2 ? 2.0 : 1.5); }
 };
 
 /// OK, or INVALID_ARGUMENT naming the field and its valid range.

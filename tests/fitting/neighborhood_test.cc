@@ -83,7 +83,7 @@ TEST(NeighborhoodTest, AdaptiveGrowthReachesMinimumAndBoundaryGrowsFurther) {
     FitOptions o;
     o.degree = d;
     const RingSpec spec = RingSpecFor(o);
-    EXPECT_EQ(spec.min_points, static_cast<int>(std::ceil(1.5 * NumCoefficients(d))));
+    EXPECT_EQ(spec.min_points, static_cast<int>(std::ceil((d <= 2 ? 2.0 : 1.5) * NumCoefficients(d))));
     const Neighborhoods nb = BuildNeighborhoods(t, m, spec, 1);
     for (int v = 0; v < m.NumVertices(); ++v) {
       const int want = t.is_boundary[v] ? spec.min_points_boundary : spec.min_points;
