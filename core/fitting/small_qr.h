@@ -50,22 +50,20 @@ inline void ApplyQ(const double* a, int ld, int m, int k, const double* tau, dou
   }
 }
 
-/// Inverse of the upper-triangular k x k R (k <= 64; column-major, leading dimension
-/// ld) into `inv` (leading dimension k); returns false on a zero pivot.
+/// Inverse of the upper-triangular k x k R (column-major, leading dimension ld) into `inv` (leading dimension k); returns false on a zero pivot.
 inline bool InvertUpper(const double* r, int ld, int k, double* inv) {
-  double inv_diag[64];
-  for (int c = 0; c < k; ++c) {
+  for (int c = 0; c < k; ++c)
     if (r[c * ld + c] == 0) return false;
-    inv_diag[c] = 1 / r[c * ld + c];
-  }
+  // Column c of inv solves R x = e_c; backward column sweeps (axpy on R's contiguous
+  // columns) instead of strided row dot products.
   for (int c = 0; c < k; ++c) {
     double* x = inv + c * k;
-    for (int i = c + 1; i < k; ++i) x[i] = 0;
-    x[c] = inv_diag[c];
-    for (int i = c - 1; i >= 0; --i) {
-      double s = 0;
-      for (int l = i + 1; l <= c; ++l) s += r[l * ld + i] * x[l];
-      x[i] = -s * inv_diag[i];
+    for (int i = 0; i < k; ++i) x[i] = 0;
+    x[c] = 1;
+    for (int i = c; i >= 0; --i) {
+      const double* ri = r + i * ld;
+      const double xi = x[i] /= ri[i];
+      for (int l = 0; l < i; ++l) x[l] -= xi * ri[l];
     }
   }
   return true;

@@ -1,6 +1,10 @@
 // Handlers without a network: proto in, StatusOr<proto> out.
 #include "server/handlers.h"
 
+#include <mutex>
+#include <set>
+#include <thread>
+
 #include <gtest/gtest.h>
 
 #include "core/quantities/differentials.h"
@@ -123,7 +127,10 @@ TEST_F(HandlersTest, SecondRequestHitsTheFittingCache) {
   ASSERT_TRUE(Compute(info->mesh_id(), &first).ok());
   ASSERT_TRUE(Compute(info->mesh_id(), &second).ok());
   EXPECT_FALSE(first.fit_cache_hit());
+  EXPECT_FALSE(first.quantities_cache_hit());
   EXPECT_TRUE(second.fit_cache_hit());
+  EXPECT_TRUE(second.quantities_cache_hit());
+  EXPECT_EQ(second.evaluate_ms(), 0);
   v1::FitSummary other_degree;
   ASSERT_TRUE(Compute(info->mesh_id(), &other_degree, 3).ok());
   EXPECT_FALSE(other_degree.fit_cache_hit());
@@ -156,6 +163,25 @@ TEST_F(HandlersTest, UpdatePositionsKeepsTopologyAndMakesNewRevision) {
   auto unconditional = Update(info->mesh_id(), mesh.positions, std::nullopt);
   ASSERT_TRUE(unconditional.ok());
   EXPECT_EQ(unconditional->revision(), 3);
+}
+
+TEST_F(HandlersTest, ConcurrentUnconditionalUpdatesAllApply) {
+  const Mesh mesh = TestTorus();
+  auto info = Upload(mesh);
+  ASSERT_TRUE(info.ok());
+  std::vector<std::thread> threads;
+  std::mutex mu;
+  std::set<int64_t> revisions;
+  for (int i = 0; i < 4; ++i) {
+    threads.emplace_back([&, i] {
+      auto r = Update(info->mesh_id(), mesh.positions * (1.0 + i), std::nullopt);
+      ASSERT_TRUE(r.ok()) << r.status();
+      std::lock_guard<std::mutex> lock(mu);
+      revisions.insert(r->revision());
+    });
+  }
+  for (auto& t : threads) t.join();
+  EXPECT_EQ(revisions, (std::set<int64_t>{2, 3, 4, 5}));
 }
 
 TEST_F(HandlersTest, UpdateWithNaNNamesTheVertexAndKeepsTheMesh) {

@@ -66,7 +66,7 @@ TEST(MetricsTest, ExposesRequestsCacheAndStore) {
         "geomfit_requests_total{method=\"GetMesh\",code=\"NOT_FOUND\"} 1",
         "geomfit_request_duration_seconds_count{method=\"ComputeDifferentials\"} 1",
         "geomfit_request_duration_seconds_bucket{method=\"ComputeDifferentials\",le=\"+Inf\"} 1",
-        "geomfit_cache_misses_total{tier=\"fitting\"} 1", "geomfit_cache_bytes{tier=\"geometry\"}",
+        "geomfit_cache_misses_total{tier=\"fitting\"} 2", "geomfit_cache_bytes{tier=\"geometry\"}",
         "geomfit_cache_evictions_total{tier=\"fitting\"} 0", "geomfit_store_meshes 1"}) {
     EXPECT_NE(body.find(want), std::string::npos) << "missing '" << want << "' in:\n" << body;
   }

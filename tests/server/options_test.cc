@@ -32,6 +32,9 @@ TEST(OptionsTest, BadValuesNameTheFlag) {
   r = ParseServerOptions({"--port=70000"});
   ASSERT_FALSE(r.ok());
   EXPECT_NE(r.status().message().find("--port"), std::string::npos);
+  r = ParseServerOptions({"--log-level=loud"});
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.status().message().find("--log-level=loud"), std::string::npos);
   r = ParseServerOptions({"--frobnicate=1"});
   ASSERT_FALSE(r.ok());
   EXPECT_NE(r.status().message().find("--frobnicate"), std::string::npos);

@@ -7,7 +7,6 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_join.h"
-#include "absl/strings/str_join.h"
 #include "absl/strings/str_replace.h"
 #include "clients/cpp/cli/cli.h"
 
@@ -69,18 +68,6 @@ absl::Status Dispatch(const std::string& name, const std::vector<std::string>& a
 
 }  // namespace
 
-#ifdef GEOMFIT_WITH_CLIENT
-// Placeholders so the tool links before remote.cc exists; remote.cc's (strong)
-// definitions replace these weak ones at link time.
-__attribute__((weak)) absl::Status RunCurvatureRemote(const CurvatureArgs&) {
-  return absl::UnimplementedError("the service mode of geomfit curvature is not implemented yet");
-}
-__attribute__((weak)) absl::Status RunRemoteCommand(const std::string& command,
-                                                    const std::vector<std::string>&) {
-  return absl::UnimplementedError(
-      absl::StrCat("the service command '", command, "' is not implemented yet"));
-}
-#endif
 
 int Main(int argc, char** argv) {
   const std::vector<std::string> args(argv + 1, argv + argc);

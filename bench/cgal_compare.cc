@@ -1,0 +1,205 @@
+// Accuracy side by side at equal degree: geomfit (LHF, default FitOptions) against CGAL's
+// Jet_fitting_3 (CGAL::Monge_via_jet_fitting, d_fitting = d, d_monge = 2), both fed the
+// SAME per-vertex stencils (BuildNeighborhoods(RingSpecFor(options))), errors measured
+// with MeasureErrors (core/surfaces/errors.h) against the exact surface.
+//
+// Usage: cgal_compare [dmin=2] [dmax=4] [surfaces=torus,bump] [n list=16,32,64]
+//
+// CGAL's Monge form z = (k1 x^2 + k2 y^2)/2 + ... lives in the direct frame (d1, d2, n)
+// whose normal n is oriented by its PCA. We orient it like our fitted normal
+// (Monge_form::comply_wrt_given_normal, which also swaps/negates the coefficients) and
+// convert to the project's convention (H = +1/R on a sphere with outward normals): a
+// surface bending away from n has negative Monge curvatures, so k1 = -k2_cgal,
+// k2 = -k1_cgal, H = (k1 + k2)/2, K = k1 k2.
+#include <algorithm>
+#include <cstdio>
+#include <cstdlib>
+#include <memory>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include <omp.h>
+
+#include <CGAL/Monge_via_jet_fitting.h>
+#include <CGAL/Simple_cartesian.h>
+
+#include "core/fitting/fit.h"
+#include "core/fitting/neighborhood.h"
+#include "core/mesh/topology.h"
+#include "core/quantities/differentials.h"
+#include "core/surfaces/analytic.h"
+#include "core/surfaces/errors.h"
+#include "core/util/timer.h"
+
+using namespace geomfit;
+
+using Kernel = CGAL::Simple_cartesian<double>;
+using MongeVia = CGAL::Monge_via_jet_fitting<Kernel>;
+
+namespace {
+
+Differentials CgalDifferentials(const Mesh& mesh, const Neighborhoods& nb, int degree,
+                                const Positions& orient, int* too_few) {
+  const int nv = mesh.NumVertices();
+  Differentials d;
+  d.normals.resize(nv, 3);
+  d.mean.resize(nv), d.gaussian.resize(nv), d.k1.resize(nv), d.k2.resize(nv);
+  int few = 0;
+#pragma omp parallel reduction(+ : few)
+  {
+    MongeVia fitter;
+    std::vector<Kernel::Point_3> pts;
+#pragma omp for schedule(dynamic, 64)
+    for (int v = 0; v < nv; ++v) {
+      pts.clear();
+      for (int i = 0; i < nb.Size(v); ++i) {
+        const auto p = mesh.positions.row(nb.Points(v)[i]);
+        pts.emplace_back(p(0), p(1), p(2));
+      }
+      if (static_cast<int>(pts.size()) < NumCoefficients(degree)) {  // CGAL precondition
+        ++few;
+        d.normals.row(v).setConstant(NAN);
+        d.mean(v) = d.gaussian(v) = d.k1(v) = d.k2(v) = NAN;
+        continue;
+      }
+      MongeVia::Monge_form m = fitter(pts.begin(), pts.end(), degree, 2);
+      m.comply_wrt_given_normal(Kernel::Vector_3(orient(v, 0), orient(v, 1), orient(v, 2)));
+      const auto n = m.normal_direction();
+      d.normals.row(v) << n.x(), n.y(), n.z();
+      d.normals.row(v).normalize();
+      const double c1 = m.principal_curvatures(0), c2 = m.principal_curvatures(1);
+      d.k1(v) = std::max(-c1, -c2);
+      d.k2(v) = std::min(-c1, -c2);
+      d.mean(v) = 0.5 * (d.k1(v) + d.k2(v));
+      d.gaussian(v) = d.k1(v) * d.k2(v);
+    }
+  }
+  *too_few = few;
+  return d;
+}
+
+struct Row {
+  std::string surface;
+  int n, degree, nv;
+  double h;
+  DifferentialErrors ours, cgal;
+  double ours_s, cgal_s;
+  int downgraded, cgal_too_few;
+  double stencil;
+};
+
+void PrintErr(const char* who, const DifferentialErrors& e, double secs) {
+  std::printf("  %-7s %9.2e %9.2e %9.2e %9.2e %9.2e %9.2e", who, e.normal.l2, e.normal.linf, e.mean.l2,
+              e.mean.linf, e.gaussian.l2, e.gaussian.linf);
+  if (secs >= 0) std::printf(" %8.3f", secs);
+  std::printf("\n");
+}
+
+// The six norms in print order.
+std::vector<double> Norms(const DifferentialErrors& e) {
+  return {e.normal.l2, e.normal.linf, e.mean.l2, e.mean.linf, e.gaussian.l2, e.gaussian.linf};
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  const int dmin = argc > 1 ? std::atoi(argv[1]) : 2;
+  const int dmax = argc > 2 ? std::atoi(argv[2]) : 4;
+  std::vector<std::string> surfaces;
+  {
+    std::stringstream ss(argc > 3 ? argv[3] : "torus,bump");
+    for (std::string s; std::getline(ss, s, ',');) surfaces.push_back(s);
+  }
+  std::vector<int> ns;
+  {
+    std::stringstream ss(argc > 4 ? argv[4] : "16,32,64");
+    for (std::string s; std::getline(ss, s, ',');) ns.push_back(std::atoi(s.c_str()));
+  }
+  std::printf("geomfit (LHF, default FitOptions) vs CGAL Monge_via_jet_fitting(d, 2) on the same stencils\n"
+              "errors as core/surfaces/errors.h: normals L2 = sqrt(mean |dn|^2), Linf = max |dn|;\n"
+              "H and K relative: L2 = |dk|_2/|k|_2, Linf = max|dk|/max|k|. time = wall seconds "
+              "(fit+quantities / CGAL loop), %d OpenMP threads\n\n",
+              omp_get_max_threads());
+  std::vector<Row> rows;
+  for (const std::string& name : surfaces) {
+    auto surface = NamedSurface(name).value();
+    for (int d = dmin; d <= dmax; ++d) {
+      std::printf("%s, degree %d\n    n     #V   stencil  h         downgr  CGAL<ncoef\n", name.c_str(), d);
+      std::printf("  %-7s %9s %9s %9s %9s %9s %9s %8s\n", "", "nrmL2", "nrmLinf", "HL2", "HLinf", "KL2",
+                  "KLinf", "time_s");
+      for (int n : ns) {
+        GeneratorOptions g;
+        g.n = n;
+        Mesh mesh = GenerateNamedMesh(name, g).value();
+        Topology topo = BuildTopology(mesh).value();
+        FitOptions o;
+        o.degree = d;
+        auto nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, mesh, RingSpecFor(o)));
+        Row r;
+        r.surface = name, r.n = n, r.degree = d, r.nv = mesh.NumVertices();
+        r.stencil = double(nb->indices.size()) / mesh.NumVertices();
+        Stopwatch t;
+        auto fits = FitSurface(mesh, topo, o, nb).value();
+        Differentials ours = ComputeDifferentials(*fits);
+        r.ours_s = t.Seconds();
+        r.downgraded = 0;
+        for (auto& dg : ours.diagnostics) r.downgraded += (dg.flags & kFlagDowngraded) != 0;
+        Stopwatch tc;
+        Differentials cgal = CgalDifferentials(mesh, *nb, d, ours.normals, &r.cgal_too_few);
+        r.cgal_s = tc.Seconds();
+        r.ours = MeasureErrors(mesh, *surface, ours);
+        r.cgal = MeasureErrors(mesh, *surface, cgal);
+        r.h = r.ours.h;
+        std::printf("  %4d %7d %6.1f  %.3e  %6d  %6d\n", n, r.nv, r.stencil, r.h, r.downgraded, r.cgal_too_few);
+        PrintErr("geomfit", r.ours, r.ours_s);
+        PrintErr("CGAL", r.cgal, r.cgal_s);
+        if (!topo.num_boundary_edges) {
+          rows.push_back(r);
+          continue;
+        }
+        std::vector<uint8_t> interior(mesh.NumVertices());
+        for (int v = 0; v < mesh.NumVertices(); ++v) interior[v] = !topo.is_boundary[v];
+        std::printf("  interior vertices only (%d boundary vertices excluded):\n",
+                    mesh.NumVertices() - static_cast<int>(std::count(interior.begin(), interior.end(), 1)));
+        PrintErr("geomfit", MeasureErrors(mesh, *surface, ours, interior), -1);
+        PrintErr("CGAL", MeasureErrors(mesh, *surface, cgal, interior), -1);
+        rows.push_back(r);
+      }
+      // Observed orders over the three meshes (least-squares slope of log err vs log h).
+      std::vector<double> hs;
+      std::vector<std::vector<double>> eo(6), ec(6);
+      for (const Row& r : rows) {
+        if (r.surface != name || r.degree != d) continue;
+        hs.push_back(r.h);
+        auto a = Norms(r.ours), b = Norms(r.cgal);
+        for (int i = 0; i < 6; ++i) eo[i].push_back(a[i]), ec[i].push_back(b[i]);
+      }
+      std::printf("  order geomfit");
+      for (int i = 0; i < 6; ++i) std::printf(" %9.2f", ConvergenceOrder(hs, eo[i]));
+      std::printf("\n  order CGAL   ");
+      for (int i = 0; i < 6; ++i) std::printf(" %9.2f", ConvergenceOrder(hs, ec[i]));
+      std::printf("\n\n");
+    }
+  }
+  // Summary: in how many (surface, n, degree, norm) cells is geomfit's error <= CGAL's?
+  const char* names[6] = {"nrmL2", "nrmLinf", "HL2", "HLinf", "KL2", "KLinf"};
+  int le = 0, total = 0;
+  double worst = 0;
+  std::string worst_at;
+  for (const Row& r : rows) {
+    auto a = Norms(r.ours), b = Norms(r.cgal);
+    for (int i = 0; i < 6; ++i) {
+      ++total;
+      if (a[i] <= b[i]) ++le;
+      if (a[i] / b[i] > worst) {
+        worst = a[i] / b[i];
+        worst_at = r.surface + " n=" + std::to_string(r.n) + " d=" + std::to_string(r.degree) + " " + names[i];
+      }
+    }
+  }
+  std::printf("summary: geomfit error <= CGAL error in %d of %d cells (all vertices); "
+              "largest ratio geomfit/CGAL = %.3f at %s\n",
+              le, total, worst, worst_at.c_str());
+  return 0;
+}

@@ -1,0 +1,196 @@
+// Throughput of per-vertex WLS fitting on the n = 168 torus (84,672 vertices, 169,344
+// triangles; the dissertation's Table 3.3 uses an 85,208-vertex torus), against CGAL's
+// Jet_fitting_3 (CGAL::Monge_via_jet_fitting) fed the very same stencils.
+//
+//   BM_Pipeline/<degree>/<threads>      BuildNeighborhoods + FitSurface + ComputeDifferentials(all)
+//   BM_FitQuantities/<degree>/<threads> FitSurface + ComputeDifferentials(all), stencils precomputed
+//   BM_Neighborhoods/<degree>/<threads> BuildNeighborhoods alone (for the breakdown)
+//   BM_Topology                         BuildTopology alone (not part of the pipeline above)
+//   BM_CgalJet/<degree>/<threads>       CGAL Monge_via_jet_fitting(d_fitting = degree, d_monge = 2)
+//                                       on our stencils; threads = 2 runs an OpenMP loop over
+//                                       vertices with one fitter per thread (CGAL itself is serial)
+//
+// Rates: items_per_second and the "tri/s" counter are triangles per second of wall time.
+// See bench/README.md.
+#include <cstdio>
+#include <memory>
+#include <vector>
+
+#include <benchmark/benchmark.h>
+#include <omp.h>
+
+#include <CGAL/Monge_via_jet_fitting.h>
+#include <CGAL/Simple_cartesian.h>
+
+#include "core/fitting/fit.h"
+#include "core/fitting/frames.h"
+#include "core/fitting/neighborhood.h"
+#include "core/mesh/topology.h"
+#include "core/quantities/differentials.h"
+#include "core/surfaces/analytic.h"
+
+namespace {
+
+using namespace geomfit;
+
+using Kernel = CGAL::Simple_cartesian<double>;
+using CgalPoint = Kernel::Point_3;
+using MongeVia = CGAL::Monge_via_jet_fitting<Kernel>;
+
+constexpr int kTorusN = 168;
+
+struct Fixture {
+  Mesh mesh;
+  Topology topo;
+  Positions normals;  // approximate vertex normals (CGAL orientation only)
+  std::shared_ptr<const Neighborhoods> nb[kMaxDegree + 1];
+  double avg_stencil[kMaxDegree + 1] = {};
+
+  Fixture() {
+    GeneratorOptions g;
+    g.n = kTorusN;
+    mesh = GenerateTorusMesh(g);
+    topo = BuildTopology(mesh).value();
+    normals = ApproximateVertexNormals(mesh, topo, NormalWeighting::kArea, 0);
+    for (int d = 1; d <= kMaxDegree; ++d) {
+      FitOptions o;
+      o.degree = d;
+      nb[d] = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, mesh, RingSpecFor(o), 0));
+      avg_stencil[d] = double(nb[d]->indices.size()) / mesh.NumVertices();
+    }
+  }
+  int NumTriangles() const { return mesh.NumFaces(); }
+};
+
+const Fixture& F() {
+  static const Fixture* f = new Fixture();
+  return *f;
+}
+
+void SetRates(benchmark::State& state, int degree) {
+  const Fixture& f = F();
+  state.SetItemsProcessed(state.iterations() * f.NumTriangles());
+  state.counters["tri/s"] = benchmark::Counter(f.NumTriangles(), benchmark::Counter::kIsIterationInvariantRate);
+  state.counters["verts"] = f.mesh.NumVertices();
+  state.counters["stencil"] = f.avg_stencil[degree];
+}
+
+FitOptions Options(int degree, int threads) {
+  FitOptions o;
+  o.degree = degree;
+  o.num_threads = threads;
+  return o;
+}
+
+void BM_Pipeline(benchmark::State& state) {
+  const Fixture& f = F();
+  const FitOptions o = Options(static_cast<int>(state.range(0)), static_cast<int>(state.range(1)));
+  for (auto _ : state) {
+    auto nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(f.topo, f.mesh, RingSpecFor(o), o.num_threads));
+    auto fits = FitSurface(f.mesh, f.topo, o, std::move(nb)).value();
+    Differentials d = ComputeDifferentials(*fits, kAllQuantities, o.num_threads);
+    benchmark::DoNotOptimize(d.mean.data());
+    benchmark::ClobberMemory();
+  }
+  SetRates(state, o.degree);
+}
+
+void BM_FitQuantities(benchmark::State& state) {
+  const Fixture& f = F();
+  const FitOptions o = Options(static_cast<int>(state.range(0)), static_cast<int>(state.range(1)));
+  for (auto _ : state) {
+    auto fits = FitSurface(f.mesh, f.topo, o, f.nb[o.degree]).value();
+    Differentials d = ComputeDifferentials(*fits, kAllQuantities, o.num_threads);
+    benchmark::DoNotOptimize(d.mean.data());
+    benchmark::ClobberMemory();
+  }
+  SetRates(state, o.degree);
+}
+
+void BM_Neighborhoods(benchmark::State& state) {
+  const Fixture& f = F();
+  const FitOptions o = Options(static_cast<int>(state.range(0)), static_cast<int>(state.range(1)));
+  for (auto _ : state) {
+    Neighborhoods nb = BuildNeighborhoods(f.topo, f.mesh, RingSpecFor(o), o.num_threads);
+    benchmark::DoNotOptimize(nb.indices.data());
+    benchmark::ClobberMemory();
+  }
+  SetRates(state, o.degree);
+}
+
+void BM_Topology(benchmark::State& state) {
+  const Fixture& f = F();
+  for (auto _ : state) {
+    Topology t = BuildTopology(f.mesh).value();
+    benchmark::DoNotOptimize(t.vv.data());
+    benchmark::ClobberMemory();
+  }
+  SetRates(state, 2);
+}
+
+// CGAL on our stencils: gather the stencil's points (vertex first, as CGAL's Monge origin
+// is the fit above the first point), fit, orient the Monge normal like our vertex normal,
+// store normal and principal curvatures.
+void BM_CgalJet(benchmark::State& state) {
+  const Fixture& f = F();
+  const int degree = static_cast<int>(state.range(0));
+  const int threads = static_cast<int>(state.range(1));
+  const Neighborhoods& nb = *f.nb[degree];
+  const int nv = f.mesh.NumVertices();
+  std::vector<double> k1(nv), k2(nv);
+  Positions normal(nv, 3);
+  for (auto _ : state) {
+#pragma omp parallel num_threads(threads)
+    {
+      MongeVia fitter;
+      std::vector<CgalPoint> pts;
+      pts.reserve(kMaxStencil);
+#pragma omp for schedule(dynamic, 256)
+      for (int v = 0; v < nv; ++v) {
+        pts.clear();
+        const int32_t* idx = nb.Points(v);
+        for (int i = 0; i < nb.Size(v); ++i) {
+          const auto p = f.mesh.positions.row(idx[i]);
+          pts.emplace_back(p(0), p(1), p(2));
+        }
+        MongeVia::Monge_form m = fitter(pts.begin(), pts.end(), degree, 2);
+        m.comply_wrt_given_normal(Kernel::Vector_3(f.normals(v, 0), f.normals(v, 1), f.normals(v, 2)));
+        const auto n = m.normal_direction();
+        normal.row(v) << n.x(), n.y(), n.z();
+        k1[v] = m.principal_curvatures(0);
+        k2[v] = m.principal_curvatures(1);
+      }
+    }
+    benchmark::DoNotOptimize(k1.data());
+    benchmark::DoNotOptimize(k2.data());
+    benchmark::DoNotOptimize(normal.data());
+    benchmark::ClobberMemory();
+  }
+  SetRates(state, degree);
+}
+
+void Args(benchmark::internal::Benchmark* b) {
+  for (int threads : {1, 2})
+    for (int d : {2, 4, 6}) b->Args({d, threads});
+  b->ArgNames({"deg", "threads"})->Unit(benchmark::kMillisecond)->UseRealTime();
+}
+
+BENCHMARK(BM_Pipeline)->Apply(Args);
+BENCHMARK(BM_FitQuantities)->Apply(Args);
+BENCHMARK(BM_Neighborhoods)->Apply(Args);
+BENCHMARK(BM_Topology)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_CgalJet)->Apply(Args);
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  benchmark::Initialize(&argc, argv);
+  if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
+  const Fixture& f = F();  // build the torus and stencils before any timing
+  std::fprintf(stderr, "torus n=%d: %d vertices, %d triangles; mean stencil size d2 %.1f d4 %.1f d6 %.1f\n",
+               kTorusN, f.mesh.NumVertices(), f.NumTriangles(), f.avg_stencil[2], f.avg_stencil[4],
+               f.avg_stencil[6]);
+  benchmark::RunSpecifiedBenchmarks();
+  benchmark::Shutdown();
+  return 0;
+}

@@ -1,0 +1,179 @@
+// RPC time vs in-process compute at 1k, 10k and 100k vertices, and an FSI-style loop
+// (UpdatePositions + ComputeDifferentials per step), against an in-process server on
+// a loopback port through geomfit::Client. Store: --store via GEOMFIT_BENCH_STORE
+// (memory | sqlite; default memory). Numeric threads: GEOMFIT_BENCH_THREADS (0 = all).
+// Rows per response chunk: GEOMFIT_BENCH_CHUNK_ROWS (server default otherwise).
+#include <cstdlib>
+#include <filesystem>
+#include <map>
+#include <memory>
+
+#include <benchmark/benchmark.h>
+#include <spdlog/spdlog.h>
+
+#include "clients/cpp/client/client.h"
+#include "core/fitting/fit.h"
+#include "core/fitting/neighborhood.h"
+#include "core/mesh/topology.h"
+#include "core/quantities/differentials.h"
+#include "core/surfaces/analytic.h"
+#include "core/util/timer.h"
+#include "server/server.h"
+
+namespace geomfit {
+namespace {
+
+constexpr uint32_t kQuantities = kNormals | kMeanCurvature | kGaussianCurvature | kPrincipalCurvatures;
+
+int Threads() {
+  const char* t = std::getenv("GEOMFIT_BENCH_THREADS");
+  return t ? std::atoi(t) : 0;
+}
+
+/// Torus with about `vertices` vertices (3 n^2).
+const Mesh& TorusWith(int vertices) {
+  static std::map<int, Mesh> meshes;
+  auto it = meshes.find(vertices);
+  if (it == meshes.end()) {
+    GeneratorOptions o;
+    o.n = std::max(4, static_cast<int>(std::lround(std::sqrt(vertices / 3.0))));
+    it = meshes.emplace(vertices, GenerateTorusMesh(o)).first;
+  }
+  return it->second;
+}
+
+/// One server + client for the whole run.
+struct Service {
+  Service() {
+    spdlog::set_level(spdlog::level::warn);
+    server::ServerOptions o;
+    o.host = "127.0.0.1";
+    o.port = 0;
+    const char* store = std::getenv("GEOMFIT_BENCH_STORE");
+    o.store = store ? store : "memory";
+    data_dir = std::filesystem::temp_directory_path() / ("geomfit_bench_" + std::to_string(getpid()));
+    o.data_dir = data_dir.string();
+    o.threads = Threads();
+    if (const char* rows = std::getenv("GEOMFIT_BENCH_CHUNK_ROWS")) o.chunk_rows = std::atoll(rows);
+    o.cache_bytes = int64_t{4} << 30;
+    server = std::move(server::Server::Start(o)).value();
+    ClientOptions c;
+    c.target = "127.0.0.1:" + std::to_string(server->port());
+    client = Client::Connect(c);
+  }
+  ~Service() {
+    server->Shutdown(1);
+    std::filesystem::remove_all(data_dir);
+  }
+  std::filesystem::path data_dir;
+  std::unique_ptr<server::Server> server;
+  std::unique_ptr<Client> client;
+};
+
+Service& TheService() {
+  static auto* s = new Service();
+  return *s;
+}
+
+FitOptions Options() {
+  FitOptions o;
+  o.num_threads = Threads();
+  return o;
+}
+
+void BM_InProcessEvaluateCachedFits(benchmark::State& state) {
+  const Mesh& mesh = TorusWith(static_cast<int>(state.range(0)));
+  const Topology topo = ValidateMesh(mesh).value();
+  const auto fits = FitSurface(mesh, topo, Options()).value();
+  for (auto _ : state) benchmark::DoNotOptimize(ComputeDifferentials(*fits, kQuantities, Threads()));
+  state.counters["vertices"] = mesh.NumVertices();
+}
+
+void BM_RpcCurvatureCachedFits(benchmark::State& state) {
+  const Mesh& mesh = TorusWith(static_cast<int>(state.range(0)));
+  Client& client = *TheService().client;
+  const std::string id = client.Upload(mesh, "bench").value().mesh_id;
+  (void)client.ComputeDifferentials(id, Options(), kQuantities).value();  // fill the cache
+  for (auto _ : state) {
+    auto d = client.ComputeDifferentials(id, Options(), kQuantities);
+    if (!d.ok() || !d->summary.fit_cache_hit) state.SkipWithError("expected a cached fit");
+    benchmark::DoNotOptimize(d);
+  }
+  state.counters["vertices"] = mesh.NumVertices();
+}
+
+void BM_InProcessFitAndEvaluate(benchmark::State& state) {
+  const Mesh& mesh = TorusWith(static_cast<int>(state.range(0)));
+  const Topology topo = ValidateMesh(mesh).value();
+  for (auto _ : state) {
+    const auto fits = FitSurface(mesh, topo, Options()).value();
+    benchmark::DoNotOptimize(ComputeDifferentials(*fits, kQuantities, Threads()));
+  }
+  state.counters["vertices"] = mesh.NumVertices();
+}
+
+/// What the server computes per FSI step: the fit with cached neighbourhoods, then
+/// the quantities (the "compute" an FSI step's overhead is measured against).
+void BM_InProcessFsiCompute(benchmark::State& state) {
+  const Mesh& mesh = TorusWith(static_cast<int>(state.range(0)));
+  const Topology topo = ValidateMesh(mesh).value();
+  const FitOptions options = Options();
+  auto nbhd = std::make_shared<const Neighborhoods>(BuildNeighborhoods(topo, mesh, RingSpecFor(options), Threads()));
+  for (auto _ : state) {
+    const auto fits = FitSurface(mesh, topo, options, nbhd).value();
+    benchmark::DoNotOptimize(ComputeDifferentials(*fits, kQuantities, Threads()));
+  }
+  state.counters["vertices"] = mesh.NumVertices();
+}
+
+/// FSI step: new positions (a small rigid shift per step), then curvature.
+void BM_FsiStep(benchmark::State& state) {
+  const Mesh& mesh = TorusWith(static_cast<int>(state.range(0)));
+  Client& client = *TheService().client;
+  const std::string id = client.Upload(mesh, "fsi").value().mesh_id;
+  Positions p = mesh.positions;
+  int step = 0;
+  double server_ms = 0, update_ms = 0;
+  for (auto _ : state) {
+    p.col(0).array() += 1e-4 * (++step % 2 ? 1 : -1);
+    const Stopwatch update_watch;
+    auto info = client.UpdatePositions(id, p);
+    update_ms += update_watch.Millis();
+    auto d = client.ComputeDifferentials(id, Options(), kQuantities, info.ok() ? info->revision : 0);
+    if (!info.ok() || !d.ok()) {
+      state.SkipWithError("FSI step failed");
+      break;
+    }
+    server_ms += d->summary.fit_ms + d->summary.evaluate_ms;
+  }
+  state.counters["vertices"] = mesh.NumVertices();
+  state.counters["server_compute_ms"] = server_ms / std::max<int64_t>(1, state.iterations());
+  state.counters["update_ms"] = update_ms / std::max<int64_t>(1, state.iterations());
+}
+
+/// The transport + store part of an FSI step alone.
+void BM_FsiUpdatePositionsOnly(benchmark::State& state) {
+  const Mesh& mesh = TorusWith(static_cast<int>(state.range(0)));
+  Client& client = *TheService().client;
+  const std::string id = client.Upload(mesh, "fsi-update").value().mesh_id;
+  Positions p = mesh.positions;
+  int step = 0;
+  for (auto _ : state) {
+    p.col(0).array() += 1e-4 * (++step % 2 ? 1 : -1);
+    if (!client.UpdatePositions(id, p).ok()) state.SkipWithError("update failed");
+  }
+  state.counters["vertices"] = mesh.NumVertices();
+}
+
+#define SIZES Arg(1000)->Arg(10000)->Arg(100000)->Unit(benchmark::kMillisecond)->UseRealTime()
+BENCHMARK(BM_InProcessEvaluateCachedFits)->SIZES;
+BENCHMARK(BM_RpcCurvatureCachedFits)->SIZES;
+BENCHMARK(BM_InProcessFitAndEvaluate)->SIZES;
+BENCHMARK(BM_InProcessFsiCompute)->Arg(1000)->Arg(10000)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_FsiStep)->Arg(1000)->Arg(10000)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_FsiUpdatePositionsOnly)->Arg(1000)->Arg(10000)->Arg(100000)->Unit(benchmark::kMillisecond)->UseRealTime();
+
+}  // namespace
+}  // namespace geomfit
+
+BENCHMARK_MAIN();

@@ -1,0 +1,159 @@
+// Service mode of the `geomfit` tool (--server HOST:PORT): upload, update, info,
+// list, delete, and curvature on a geomfit server, with the local output formats.
+#include <cstdio>
+#include <filesystem>
+
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "absl/strings/str_split.h"
+#include "clients/cpp/cli/cli.h"
+#include "clients/cpp/client/client.h"
+#include "core/util/status_macros.h"
+
+namespace geomfit::cli {
+namespace {
+
+std::unique_ptr<Client> ConnectTo(const std::string& server) {
+  ClientOptions o;
+  o.target = server;
+  return Client::Connect(o);
+}
+
+/// One tab-separated line per mesh, under a header line.
+std::string MeshTable(const std::vector<RemoteMesh>& meshes) {
+  std::string out = "mesh_id\trevision\tvertices\tfaces\tname\tcontent_hash\tbbox_min\tbbox_max\n";
+  for (const RemoteMesh& m : meshes) {
+    absl::StrAppendFormat(&out, "%s\t%d\t%d\t%d\t%s\t%s\t%.17g,%.17g,%.17g\t%.17g,%.17g,%.17g\n", m.mesh_id,
+                          m.revision, m.num_vertices, m.num_faces, m.name, m.content_hash, m.bbox_min.x(),
+                          m.bbox_min.y(), m.bbox_min.z(), m.bbox_max.x(), m.bbox_max.y(), m.bbox_max.z());
+  }
+  return out;
+}
+
+absl::Status Print(const std::vector<RemoteMesh>& meshes) {
+  std::fputs(MeshTable(meshes).c_str(), stdout);
+  return absl::OkStatus();
+}
+
+/// Parses a subcommand that takes --server and positionals; false with OK = --help.
+absl::StatusOr<bool> ParseRemote(ArgParser& p, const std::vector<std::string>& args, const std::string& server) {
+  GF_RETURN_IF_ERROR(p.Parse(args));
+  if (p.help_requested()) {
+    std::fputs(p.Usage().c_str(), stdout);
+    return false;
+  }
+  if (server.empty()) return UsageError("this command needs --server HOST:PORT");
+  return true;
+}
+
+absl::StatusOr<std::map<std::string, std::string>> ParseLabels(const std::string& text) {
+  std::map<std::string, std::string> labels;
+  if (text.empty()) return labels;
+  for (absl::string_view kv : absl::StrSplit(text, ',')) {
+    std::pair<std::string, std::string> p = absl::StrSplit(kv, absl::MaxSplits('=', 1));
+    if (p.first.empty()) return UsageError(absl::StrCat("--labels: '", kv, "' is not KEY=VALUE"));
+    labels[p.first] = p.second;
+  }
+  return labels;
+}
+
+absl::Status Upload(const std::vector<std::string>& args) {
+  std::string server, path, name, labels_text;
+  ArgParser p("geomfit upload", "--server HOST:PORT MESH [--name NAME] [--labels K=V,...]",
+              "Uploads a mesh file; prints its id and info (idempotent for identical content).");
+  p.String("server", &server, "geomfit server", "HOST:PORT")
+      .Positional("MESH", &path, "mesh file (.obj .off .ply .stl)")
+      .String("name", &name, "mesh name (default: the file name)", "NAME")
+      .String("labels", &labels_text, "comma-separated KEY=VALUE labels", "LABELS");
+  GF_ASSIGN_OR_RETURN(bool run, ParseRemote(p, args, server));
+  if (!run) return absl::OkStatus();
+  GF_ASSIGN_OR_RETURN(auto labels, ParseLabels(labels_text));
+  GF_ASSIGN_OR_RETURN(const Mesh mesh, ReadMesh(path));
+  if (name.empty()) name = std::filesystem::path(path).filename().string();
+  GF_ASSIGN_OR_RETURN(RemoteMesh info, ConnectTo(server)->Upload(mesh, name, labels));
+  return Print({info});
+}
+
+absl::Status Update(const std::vector<std::string>& args) {
+  std::string server, id, path;
+  int expected = 0;
+  ArgParser p("geomfit update", "--server HOST:PORT MESH_ID MESH [--expected-revision R]",
+              "Replaces the positions of a stored mesh by those of a mesh file with the same\n"
+              "connectivity; prints the new revision.");
+  p.String("server", &server, "geomfit server", "HOST:PORT")
+      .Positional("MESH_ID", &id, "id of the stored mesh")
+      .Positional("MESH", &path, "mesh file with the new positions")
+      .Int("expected-revision", &expected, "fail (ABORTED) unless the mesh is at this revision; 0 = any");
+  GF_ASSIGN_OR_RETURN(bool run, ParseRemote(p, args, server));
+  if (!run) return absl::OkStatus();
+  GF_ASSIGN_OR_RETURN(const Mesh mesh, ReadMesh(path));
+  std::optional<int64_t> want;
+  if (expected > 0) want = expected;
+  GF_ASSIGN_OR_RETURN(RemoteMesh info, ConnectTo(server)->UpdatePositions(id, mesh.positions, want));
+  return Print({info});
+}
+
+absl::Status Info(const std::vector<std::string>& args) {
+  std::string server, id;
+  ArgParser p("geomfit info", "--server HOST:PORT MESH_ID", "Prints what the server stores about a mesh.");
+  p.String("server", &server, "geomfit server", "HOST:PORT").Positional("MESH_ID", &id, "id of the stored mesh");
+  GF_ASSIGN_OR_RETURN(bool run, ParseRemote(p, args, server));
+  if (!run) return absl::OkStatus();
+  GF_ASSIGN_OR_RETURN(RemoteMesh info, ConnectTo(server)->GetMesh(id));
+  return Print({info});
+}
+
+absl::Status List(const std::vector<std::string>& args) {
+  std::string server;
+  ArgParser p("geomfit list", "--server HOST:PORT", "Lists the stored meshes.");
+  p.String("server", &server, "geomfit server", "HOST:PORT");
+  GF_ASSIGN_OR_RETURN(bool run, ParseRemote(p, args, server));
+  if (!run) return absl::OkStatus();
+  GF_ASSIGN_OR_RETURN(std::vector<RemoteMesh> meshes, ConnectTo(server)->ListMeshes());
+  return Print(meshes);
+}
+
+absl::Status Delete(const std::vector<std::string>& args) {
+  std::string server, id;
+  ArgParser p("geomfit delete", "--server HOST:PORT MESH_ID", "Deletes a stored mesh.");
+  p.String("server", &server, "geomfit server", "HOST:PORT").Positional("MESH_ID", &id, "id of the stored mesh");
+  GF_ASSIGN_OR_RETURN(bool run, ParseRemote(p, args, server));
+  if (!run) return absl::OkStatus();
+  return ConnectTo(server)->DeleteMesh(id);
+}
+
+}  // namespace
+
+absl::Status RunCurvatureRemote(const CurvatureArgs& a) {
+  std::unique_ptr<Client> client = ConnectTo(a.server);
+  // MESH is a file (uploaded first; idempotent) or the id of a stored mesh.
+  Mesh mesh;
+  std::string id = a.mesh;
+  if (std::filesystem::exists(a.mesh)) {
+    GF_ASSIGN_OR_RETURN(mesh, ReadMesh(a.mesh));
+    GF_ASSIGN_OR_RETURN(RemoteMesh info,
+                        client->Upload(mesh, std::filesystem::path(a.mesh).filename().string()));
+    id = info.mesh_id;
+    if (a.verbose) std::fprintf(stderr, "geomfit: uploaded %s as %s\n", a.mesh.c_str(), id.c_str());
+  } else if (a.output.empty() || OutputKindFromPath(a.output).value_or(OutputKind::kTsv) == OutputKind::kVtp) {
+    GF_ASSIGN_OR_RETURN(mesh, client->Download(id));  // VTP needs the mesh
+  }
+  GF_ASSIGN_OR_RETURN(RemoteDifferentials d, client->ComputeDifferentials(id, a.fit, kAllQuantities, 0, true));
+  if (a.verbose) {
+    std::fprintf(stderr, "geomfit: revision %lld, degree %d (min used %d), fit %s %.3f ms, evaluate %.3f ms\n",
+                 static_cast<long long>(d.summary.revision), d.summary.degree_requested, d.summary.min_degree_used,
+                 d.summary.fit_cache_hit ? "cached" : "computed", d.summary.fit_ms, d.summary.evaluate_ms);
+  }
+  return WriteDifferentials(a.output, mesh, d.values);
+}
+
+absl::Status RunRemoteCommand(const std::string& command, const std::vector<std::string>& args) {
+  if (command == "upload") return Upload(args);
+  if (command == "update") return Update(args);
+  if (command == "info") return Info(args);
+  if (command == "list") return List(args);
+  if (command == "delete") return Delete(args);
+  return UsageError(absl::StrCat("unknown service command '", command, "'"));
+}
+
+}  // namespace geomfit::cli

@@ -1,0 +1,290 @@
+#include "clients/cpp/client/client.h"
+
+#include <thread>
+
+#include <grpcpp/grpcpp.h>
+
+#include "absl/strings/str_cat.h"
+#include "core/util/status_macros.h"
+#include "geomfit/v1/geomfit.grpc.pb.h"
+#include "proto/wire.h"
+
+namespace geomfit {
+namespace {
+
+absl::Status ToAbsl(const grpc::Status& s) {
+  if (s.ok()) return absl::OkStatus();
+  return absl::Status(static_cast<absl::StatusCode>(s.error_code()), s.error_message());
+}
+
+RemoteMesh FromProto(const v1::MeshInfo& p) {
+  RemoteMesh m;
+  m.mesh_id = p.mesh_id();
+  m.revision = p.revision();
+  m.num_vertices = p.num_vertices();
+  m.num_faces = p.num_faces();
+  m.name = p.name();
+  m.content_hash = p.content_hash();
+  m.labels.insert(p.labels().begin(), p.labels().end());
+  if (p.bounding_box().min_size() == 3 && p.bounding_box().max_size() == 3) {
+    for (int i = 0; i < 3; ++i) {
+      m.bbox_min[i] = p.bounding_box().min(i);
+      m.bbox_max[i] = p.bounding_box().max(i);
+    }
+  }
+  m.num_boundary_edges = p.num_boundary_edges();
+  m.num_isolated_vertices = p.num_isolated_vertices();
+  return m;
+}
+
+FitSummary FromProto(const v1::FitSummary& p) {
+  FitSummary s;
+  s.revision = p.revision();
+  s.degree_requested = p.degree_requested();
+  s.min_degree_used = p.min_degree_used();
+  s.num_downgraded = p.num_downgraded();
+  s.num_too_few_points = p.num_too_few_points();
+  s.num_boundary = p.num_boundary();
+  s.num_isolated = p.num_isolated();
+  s.fit_cache_hit = p.fit_cache_hit();
+  s.fit_ms = p.fit_ms();
+  s.evaluate_ms = p.evaluate_ms();
+  return s;
+}
+
+}  // namespace
+
+struct Client::Impl {
+  /// What was uploaded through this client, for re-upload after NOT_FOUND.
+  struct Kept {
+    Mesh mesh;
+    std::string name;
+    std::map<std::string, std::string> labels;
+    std::string remote_id;
+  };
+
+  ClientOptions options;
+  std::shared_ptr<grpc::Channel> channel;
+  std::unique_ptr<v1::GeomFit::Stub> stub;
+  mutable std::mutex mu;
+  std::map<std::string, Kept> kept;
+
+  /// Runs one call (a fresh context with the deadline per attempt), retrying
+  /// UNAVAILABLE with exponential backoff.
+  absl::Status Call(const std::function<grpc::Status(grpc::ClientContext&)>& fn) const {
+    auto backoff = options.initial_backoff;
+    grpc::Status s;
+    for (int attempt = 1; attempt <= std::max(1, options.max_attempts); ++attempt) {
+      grpc::ClientContext ctx;
+      ctx.set_deadline(std::chrono::system_clock::now() + options.deadline);
+      s = fn(ctx);
+      if (s.error_code() != grpc::StatusCode::UNAVAILABLE || attempt == options.max_attempts) break;
+      std::this_thread::sleep_for(backoff);
+      backoff = std::min(options.max_backoff, backoff * 2);
+    }
+    return ToAbsl(s);
+  }
+
+  absl::StatusOr<v1::MeshInfo> SendUpload(const Mesh& mesh, const std::string& name,
+                                          const std::map<std::string, std::string>& labels) const {
+    v1::MeshHeader header;
+    header.set_name(name);
+    header.mutable_labels()->insert(labels.begin(), labels.end());
+    const std::vector<v1::UploadMeshRequest> chunks = wire::UploadChunks(mesh, header, options.chunk_rows);
+    v1::MeshInfo info;
+    GF_RETURN_IF_ERROR(Call([&](grpc::ClientContext& ctx) {
+      auto writer = stub->UploadMesh(&ctx, &info);
+      for (const auto& c : chunks)
+        if (!writer->Write(c)) break;
+      writer->WritesDone();
+      return writer->Finish();
+    }));
+    return info;
+  }
+};
+
+Client::Client(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+Client::~Client() = default;
+
+std::unique_ptr<Client> Client::Connect(const ClientOptions& options) {
+  auto impl = std::make_unique<Impl>();
+  impl->options = options;
+  grpc::ChannelArguments args;
+  args.SetMaxReceiveMessageSize(static_cast<int>(options.max_message_bytes));
+  args.SetMaxSendMessageSize(static_cast<int>(options.max_message_bytes));
+  impl->channel = grpc::CreateCustomChannel(options.target, grpc::InsecureChannelCredentials(), args);
+  impl->stub = v1::GeomFit::NewStub(impl->channel);
+  return std::unique_ptr<Client>(new Client(std::move(impl)));
+}
+
+std::string Client::ResolveId(const std::string& mesh_id) const {
+  std::lock_guard<std::mutex> lock(impl_->mu);
+  auto it = impl_->kept.find(mesh_id);
+  return it == impl_->kept.end() ? mesh_id : it->second.remote_id;
+}
+
+template <typename T, typename Fn>
+absl::StatusOr<T> Client::WithMesh(const std::string& mesh_id, Fn fn) {
+  absl::StatusOr<T> r = fn(ResolveId(mesh_id));
+  if (!absl::IsNotFound(r.status()) || !impl_->options.reupload_on_not_found) return r;
+  Impl::Kept kept;
+  {
+    std::lock_guard<std::mutex> lock(impl_->mu);
+    auto it = impl_->kept.find(mesh_id);
+    if (it == impl_->kept.end()) return r;
+    kept = it->second;
+  }
+  GF_ASSIGN_OR_RETURN(v1::MeshInfo info, impl_->SendUpload(kept.mesh, kept.name, kept.labels));
+  {
+    std::lock_guard<std::mutex> lock(impl_->mu);
+    impl_->kept[mesh_id].remote_id = info.mesh_id();
+  }
+  return fn(info.mesh_id());
+}
+
+absl::StatusOr<RemoteMesh> Client::Upload(const Mesh& mesh, const std::string& name,
+                                          const std::map<std::string, std::string>& labels) {
+  GF_ASSIGN_OR_RETURN(v1::MeshInfo info, impl_->SendUpload(mesh, name, labels));
+  if (impl_->options.reupload_on_not_found) {
+    std::lock_guard<std::mutex> lock(impl_->mu);
+    impl_->kept[info.mesh_id()] = Impl::Kept{mesh, name, labels, info.mesh_id()};
+  }
+  return FromProto(info);
+}
+
+absl::StatusOr<RemoteMesh> Client::UpdatePositions(const std::string& mesh_id, const Positions& positions,
+                                                   std::optional<int64_t> expected_revision) {
+  GF_ASSIGN_OR_RETURN(RemoteMesh out, (WithMesh<RemoteMesh>(mesh_id, [&](const std::string& id) -> absl::StatusOr<RemoteMesh> {
+    v1::UpdateHeader header;
+    header.set_mesh_id(id);
+    if (expected_revision) header.set_expected_revision(*expected_revision);
+    const auto chunks = wire::UpdateChunks(positions, header, impl_->options.chunk_rows);
+    v1::MeshInfo info;
+    GF_RETURN_IF_ERROR(impl_->Call([&](grpc::ClientContext& ctx) {
+      auto writer = impl_->stub->UpdatePositions(&ctx, &info);
+      for (const auto& c : chunks)
+        if (!writer->Write(c)) break;
+      writer->WritesDone();
+      return writer->Finish();
+    }));
+    return FromProto(info);
+  })));
+  std::lock_guard<std::mutex> lock(impl_->mu);
+  if (auto it = impl_->kept.find(mesh_id); it != impl_->kept.end()) it->second.mesh.positions = positions;
+  return out;
+}
+
+absl::StatusOr<RemoteMesh> Client::GetMesh(const std::string& mesh_id) {
+  v1::GetMeshRequest request;
+  request.set_mesh_id(ResolveId(mesh_id));
+  v1::MeshInfo info;
+  GF_RETURN_IF_ERROR(impl_->Call([&](grpc::ClientContext& ctx) { return impl_->stub->GetMesh(&ctx, request, &info); }));
+  return FromProto(info);
+}
+
+absl::StatusOr<Mesh> Client::Download(const std::string& mesh_id, RemoteMesh* info_out) {
+  v1::DownloadMeshRequest request;
+  request.set_mesh_id(ResolveId(mesh_id));
+  Mesh mesh;
+  v1::MeshInfo info;
+  absl::Status decode = absl::OkStatus();
+  GF_RETURN_IF_ERROR(impl_->Call([&](grpc::ClientContext& ctx) {
+    auto reader = impl_->stub->DownloadMesh(&ctx, request);
+    v1::DownloadMeshResponse r;
+    decode = absl::OkStatus();
+    while (reader->Read(&r)) {
+      if (r.has_info()) {
+        info = r.info();
+        mesh.positions.resize(info.num_vertices(), 3);
+        mesh.faces.resize(info.num_faces(), 4);
+      } else if (r.has_positions() && decode.ok()) {
+        auto m = wire::DecodeDoubles(r.positions().positions(), "positions", {3});
+        const int64_t off = r.positions().vertex_offset();
+        if (!m.ok()) decode = m.status();
+        else if (off < 0 || off + m->rows() > mesh.positions.rows()) decode = absl::DataLossError("positions chunk out of range");
+        else mesh.positions.middleRows(off, m->rows()) = *m;
+      } else if (r.has_faces() && decode.ok()) {
+        auto m = wire::DecodeInts(r.faces().faces(), "faces", {4});
+        const int64_t off = r.faces().face_offset();
+        if (!m.ok()) decode = m.status();
+        else if (off < 0 || off + m->rows() > mesh.faces.rows()) decode = absl::DataLossError("faces chunk out of range");
+        else mesh.faces.middleRows(off, m->rows()) = *m;
+      }
+    }
+    return reader->Finish();
+  }));
+  GF_RETURN_IF_ERROR(decode);
+  if (info_out) *info_out = FromProto(info);
+  return mesh;
+}
+
+absl::StatusOr<std::vector<RemoteMesh>> Client::ListMeshes() {
+  std::vector<RemoteMesh> out;
+  v1::ListMeshesRequest request;
+  request.set_page_size(1000);
+  for (int page = 0; page < 1'000'000; ++page) {
+    v1::ListMeshesResponse response;
+    GF_RETURN_IF_ERROR(
+        impl_->Call([&](grpc::ClientContext& ctx) { return impl_->stub->ListMeshes(&ctx, request, &response); }));
+    for (const auto& m : response.meshes()) out.push_back(FromProto(m));
+    if (response.next_page_token().empty()) break;
+    request.set_page_token(response.next_page_token());
+  }
+  return out;
+}
+
+absl::Status Client::DeleteMesh(const std::string& mesh_id) {
+  v1::DeleteMeshRequest request;
+  request.set_mesh_id(ResolveId(mesh_id));
+  v1::DeleteMeshResponse response;
+  GF_RETURN_IF_ERROR(
+      impl_->Call([&](grpc::ClientContext& ctx) { return impl_->stub->DeleteMesh(&ctx, request, &response); }));
+  std::lock_guard<std::mutex> lock(impl_->mu);
+  impl_->kept.erase(mesh_id);
+  return absl::OkStatus();
+}
+
+absl::StatusOr<RemoteDifferentials> Client::ComputeDifferentials(const std::string& mesh_id,
+                                                                 const FitOptions& options, uint32_t quantities,
+                                                                 int64_t revision, bool diagnostics) {
+  return WithMesh<RemoteDifferentials>(mesh_id, [&](const std::string& id) -> absl::StatusOr<RemoteDifferentials> {
+    v1::ComputeDifferentialsRequest request;
+    request.set_mesh_id(id);
+    request.set_revision(revision);
+    *request.mutable_options() = wire::ToProto(options);
+    wire::AddQuantities(quantities, &request);
+    request.set_diagnostics(diagnostics);
+    std::optional<wire::DifferentialsReader> reader;
+    absl::Status decode;
+    GF_RETURN_IF_ERROR(impl_->Call([&](grpc::ClientContext& ctx) {
+      reader.emplace();
+      decode = absl::OkStatus();
+      auto stream = impl_->stub->ComputeDifferentials(&ctx, request);
+      v1::ComputeDifferentialsResponse chunk;
+      while (stream->Read(&chunk))
+        if (decode.ok()) decode = reader->Add(chunk);
+      return stream->Finish();
+    }));
+    GF_RETURN_IF_ERROR(decode);
+    RemoteDifferentials out;
+    GF_ASSIGN_OR_RETURN(out.values, reader->Finish());
+    out.summary = FromProto(reader->summary());
+    return out;
+  });
+}
+
+absl::StatusOr<v1::ServerInfo> Client::GetServerInfo() {
+  v1::ServerInfo info;
+  GF_RETURN_IF_ERROR(impl_->Call(
+      [&](grpc::ClientContext& ctx) { return impl_->stub->GetServerInfo(&ctx, v1::GetServerInfoRequest(), &info); }));
+  return info;
+}
+
+absl::StatusOr<v1::Statistics> Client::GetStatistics() {
+  v1::Statistics stats;
+  GF_RETURN_IF_ERROR(impl_->Call(
+      [&](grpc::ClientContext& ctx) { return impl_->stub->GetStatistics(&ctx, v1::GetStatisticsRequest(), &stats); }));
+  return stats;
+}
+
+}  // namespace geomfit

@@ -1,0 +1,101 @@
+#pragma once
+// geomfit::Client: the C++ client of the geomfit.v1 service, over core Eigen types.
+// Every call has a deadline; UNAVAILABLE is retried with exponential backoff; with
+// reupload_on_not_found the client keeps a copy of what it uploaded and re-uploads
+// it (with the latest positions it sent) when the server has lost the mesh.
+#include <chrono>
+#include <cstdint>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "absl/status/statusor.h"
+#include "core/fitting/options.h"
+#include "core/mesh/mesh.h"
+#include "core/quantities/differentials.h"
+
+namespace geomfit {
+
+namespace v1 {
+class ServerInfo;
+class Statistics;
+}  // namespace v1
+
+struct ClientOptions {
+  std::string target = "127.0.0.1:50051";  ///< host:port
+  std::chrono::milliseconds deadline{120'000};  ///< per call (per attempt)
+  int max_attempts = 4;                     ///< attempts on UNAVAILABLE
+  std::chrono::milliseconds initial_backoff{100};
+  std::chrono::milliseconds max_backoff{2'000};
+  bool reupload_on_not_found = false;
+  int64_t chunk_rows = 16384;               ///< rows per upload chunk (384 KiB of positions)
+  int64_t max_message_bytes = int64_t{64} << 20;
+};
+
+/// What the server knows about a stored mesh.
+struct RemoteMesh {
+  std::string mesh_id;
+  int64_t revision = 0;
+  int64_t num_vertices = 0, num_faces = 0;
+  std::string name, content_hash;
+  std::map<std::string, std::string> labels;
+  Eigen::Vector3d bbox_min = Eigen::Vector3d::Zero(), bbox_max = Eigen::Vector3d::Zero();
+  int64_t num_boundary_edges = 0, num_isolated_vertices = 0;
+};
+
+/// Per-request diagnostics of a ComputeDifferentials call.
+struct FitSummary {
+  int64_t revision = 0;
+  int degree_requested = 0, min_degree_used = 0;
+  int64_t num_downgraded = 0, num_too_few_points = 0, num_boundary = 0, num_isolated = 0;
+  bool fit_cache_hit = false;
+  double fit_ms = 0, evaluate_ms = 0;
+};
+
+struct RemoteDifferentials {
+  Differentials values;  ///< arrays not requested are empty
+  FitSummary summary;
+};
+
+class Client {
+ public:
+  /// Creates the channel (does not wait for the server).
+  static std::unique_ptr<Client> Connect(const ClientOptions& options);
+  ~Client();
+
+  absl::StatusOr<RemoteMesh> Upload(const Mesh& mesh, const std::string& name = "",
+                                    const std::map<std::string, std::string>& labels = {});
+  /// New positions for the same faces; ABORTED if expected_revision is set and stale.
+  absl::StatusOr<RemoteMesh> UpdatePositions(const std::string& mesh_id, const Positions& positions,
+                                             std::optional<int64_t> expected_revision = std::nullopt);
+  absl::StatusOr<RemoteMesh> GetMesh(const std::string& mesh_id);
+  absl::StatusOr<Mesh> Download(const std::string& mesh_id, RemoteMesh* info = nullptr);
+  /// Every stored mesh (all pages).
+  absl::StatusOr<std::vector<RemoteMesh>> ListMeshes();
+  absl::Status DeleteMesh(const std::string& mesh_id);
+  /// `quantities` is a mask of core Quantity bits; revision 0 = latest.
+  absl::StatusOr<RemoteDifferentials> ComputeDifferentials(const std::string& mesh_id, const FitOptions& options,
+                                                           uint32_t quantities = kAllQuantities,
+                                                           int64_t revision = 0, bool diagnostics = false);
+  absl::StatusOr<v1::ServerInfo> GetServerInfo();
+  absl::StatusOr<v1::Statistics> GetStatistics();
+
+  /// The server-side id currently standing for `mesh_id` (differs after a re-upload).
+  std::string ResolveId(const std::string& mesh_id) const;
+
+ private:
+  struct Impl;
+  explicit Client(std::unique_ptr<Impl> impl);
+  /// Runs `fn` on the remote id of `mesh_id`; on NOT_FOUND re-uploads once if allowed.
+  template <typename T, typename Fn>
+  absl::StatusOr<T> WithMesh(const std::string& mesh_id, Fn fn);
+
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace geomfit

@@ -1,0 +1,359 @@
+"""The geomfit Client: numpy arrays in and out over the geomfit.v1 gRPC API."""
+import dataclasses
+import time
+from typing import Dict, Iterable, List, Optional, Tuple
+
+import grpc
+import numpy as np
+
+from geomfit.v1 import geomfit_pb2 as pb
+from geomfit.v1 import geomfit_pb2_grpc as pb_grpc
+
+QUANTITIES = {
+    "normals": pb.QUANTITY_NORMALS,
+    "mean": pb.QUANTITY_MEAN_CURVATURE,
+    "gaussian": pb.QUANTITY_GAUSSIAN_CURVATURE,
+    "principal": pb.QUANTITY_PRINCIPAL_CURVATURES,   # k1, k2
+    "directions": pb.QUANTITY_PRINCIPAL_DIRECTIONS,  # dir1, dir2
+    "tensor": pb.QUANTITY_CURVATURE_TENSOR,
+}
+_METHODS = {"lhf": pb.FIT_METHOD_LHF, "lop": pb.FIT_METHOD_LOP}
+_ARRAYS = ("normals", "mean", "gaussian", "k1", "k2", "dir1", "dir2", "tensor")
+
+
+class GeomfitError(Exception):
+    """A failed call: `code` is the grpc.StatusCode, `details` the server's message."""
+
+    def __init__(self, code: grpc.StatusCode, details: str):
+        super().__init__("%s: %s" % (code.name, details))
+        self.code = code
+        self.details = details
+
+
+@dataclasses.dataclass
+class Differentials:
+    """Per-vertex arrays (None when not requested) and the fit summary.
+
+    Conventions: normals outward for counter-clockwise faces; H = +1/R on a sphere;
+    k1 >= k2; tensor is #V x 9 (row-major 3 x 3).
+    """
+    summary: "pb.FitSummary"
+    normals: Optional[np.ndarray] = None
+    mean: Optional[np.ndarray] = None
+    gaussian: Optional[np.ndarray] = None
+    k1: Optional[np.ndarray] = None
+    k2: Optional[np.ndarray] = None
+    dir1: Optional[np.ndarray] = None
+    dir2: Optional[np.ndarray] = None
+    tensor: Optional[np.ndarray] = None
+    diagnostics: Optional[Dict[str, np.ndarray]] = None
+
+
+def _encode(array: np.ndarray, dtype: str, out) -> None:
+    a = np.ascontiguousarray(array, dtype=dtype)
+    out.data = a.tobytes()
+    out.shape[:] = list(a.shape)
+
+
+def _decode(array, dtype: str) -> np.ndarray:
+    return np.frombuffer(array.data, dtype=dtype).reshape(tuple(array.shape))
+
+
+# ---------------------------------------------------------------- wire parsing
+# Minimal protobuf wire-format reader for ComputeDifferentialsResponse: numpy views
+# straight into the received bytes. Unknown fields are skipped, so additive changes
+# to the .proto keep working.
+_RESPONSE_ARRAYS = {4: "normals", 5: "mean", 6: "gaussian", 7: "k1", 8: "k2", 9: "dir1", 10: "dir2",
+                    11: "tensor"}
+_DIAGNOSTIC_ARRAYS = {1: ("points", "<i4"), 2: ("degree_used", "<i4"), 3: ("flags", "<i4"),
+                      4: ("condition", "<f8")}
+
+
+def _varint(buf, i):
+    result = shift = 0
+    while True:
+        b = buf[i]
+        i += 1
+        result |= (b & 0x7F) << shift
+        if b < 0x80:
+            return result, i
+        shift += 7
+
+
+def _fields(buf, start, end):
+    """Yields (field number, value): an int for varints, a (begin, end) range for
+    length-delimited fields; fixed-width fields are skipped."""
+    i = start
+    while i < end:
+        key, i = _varint(buf, i)
+        number, wire = key >> 3, key & 7
+        if wire == 0:
+            value, i = _varint(buf, i)
+            yield number, value
+        elif wire == 2:
+            n, i = _varint(buf, i)
+            yield number, (i, i + n)
+            i += n
+        elif wire in (1, 5):
+            i += 8 if wire == 1 else 4
+        else:
+            raise GeomfitError(grpc.StatusCode.DATA_LOSS, "malformed response (wire type %d)" % wire)
+
+
+def _array(buf, span, dtype):
+    """A DoubleArray / Int32Array message as a numpy view of `buf`."""
+    data, shape = (0, 0), []
+    for number, value in _fields(buf, *span):
+        if number == 1:
+            data = value
+        elif number == 2 and isinstance(value, tuple):  # packed shape
+            i = value[0]
+            while i < value[1]:
+                dim, i = _varint(buf, i)
+                shape.append(dim)
+        elif number == 2:
+            shape.append(value)
+    a = np.frombuffer(buf[data[0]:data[1]], dtype=dtype)
+    if a.size != int(np.prod(shape)):
+        raise GeomfitError(grpc.StatusCode.DATA_LOSS, "array of %d values, shape %s" % (a.size, shape))
+    return a.reshape(shape)
+
+
+def _parse_chunk(raw: bytes) -> dict:
+    buf = memoryview(raw)
+    out = {"summary": None, "arrays": {}, "diagnostics": {}}
+    for number, value in _fields(buf, 0, len(buf)):
+        if number == 1:
+            out["summary"] = bytes(buf[value[0]:value[1]])
+        elif number == 2:
+            out["vertex_offset"] = value
+        elif number in _RESPONSE_ARRAYS:
+            out["arrays"][_RESPONSE_ARRAYS[number]] = _array(buf, value, "<f8")
+        elif number == 12:
+            for n, v in _fields(buf, *value):
+                if n in _DIAGNOSTIC_ARRAYS:
+                    name, dtype = _DIAGNOSTIC_ARRAYS[n]
+                    out["diagnostics"][name] = _array(buf, v, dtype)
+    return out
+
+
+def read_mesh_file(path: str) -> Tuple[np.ndarray, np.ndarray]:
+    """Reads an ASCII OBJ or OFF mesh: (positions #V x 3 float64, faces #F x 3|4 int32).
+
+    Faces with more than 4 vertices are rejected; mixed meshes pad triangles with -1.
+    Other formats: convert them with `geomfit convert` first.
+    """
+    lower = path.lower()
+    with open(path, "r", encoding="utf-8", errors="replace") as f:
+        lines = f.read().splitlines()
+    verts: List[List[float]] = []
+    faces: List[List[int]] = []
+    if lower.endswith(".obj"):
+        for n, line in enumerate(lines, 1):
+            parts = line.split()
+            if not parts:
+                continue
+            if parts[0] == "v":
+                verts.append([float(x) for x in parts[1:4]])
+            elif parts[0] == "f":
+                idx = [int(p.split("/")[0]) for p in parts[1:]]
+                faces.append([i - 1 if i > 0 else len(verts) + i for i in idx])
+                if len(idx) not in (3, 4):
+                    raise ValueError("%s:%d: face with %d vertices (3 or 4 supported)" % (path, n, len(idx)))
+    elif lower.endswith(".off"):
+        tokens = [ln.split("#")[0].split() for ln in lines]
+        tokens = [t for t in tokens if t]
+        header = tokens[0]
+        if header[0] != "OFF":
+            raise ValueError("%s: not an OFF file" % path)
+        counts = header[1:] if len(header) > 1 else tokens[1]
+        start = 1 if len(header) > 1 else 2
+        nv, nf = int(counts[0]), int(counts[1])
+        verts = [[float(x) for x in t[:3]] for t in tokens[start:start + nv]]
+        for t in tokens[start + nv:start + nv + nf]:
+            k = int(t[0])
+            if k not in (3, 4):
+                raise ValueError("%s: face with %d vertices (3 or 4 supported)" % (path, k))
+            faces.append([int(x) for x in t[1:1 + k]])
+    else:
+        raise ValueError("%s: only .obj and .off are read in Python; use `geomfit convert` "
+                         "or `geomfit upload` for other formats" % path)
+    positions = np.asarray(verts, dtype=np.float64).reshape(-1, 3)
+    if all(len(f) == 3 for f in faces):
+        return positions, np.asarray(faces, dtype=np.int32).reshape(-1, 3)
+    padded = np.full((len(faces), 4), -1, dtype=np.int32)
+    for i, f in enumerate(faces):
+        padded[i, :len(f)] = f
+    return positions, padded
+
+
+class Client:
+    """Client of a geomfit server. Every call has a deadline (`timeout` seconds);
+    UNAVAILABLE is retried `max_attempts` times with exponential backoff. Errors
+    raise GeomfitError. Use as a context manager to close the channel."""
+
+    def __init__(self, target: str = "127.0.0.1:50051", timeout: float = 120.0, max_attempts: int = 4,
+                 backoff: float = 0.1, chunk_rows: int = 16384, max_message_bytes: int = 64 << 20):
+        self.target = target
+        self.timeout = timeout
+        self.max_attempts = max(1, max_attempts)
+        self.backoff = backoff
+        self.chunk_rows = max(1, chunk_rows)
+        self._channel = grpc.insecure_channel(target, options=[
+            ("grpc.max_receive_message_length", max_message_bytes),
+            ("grpc.max_send_message_length", max_message_bytes),
+        ])
+        self._stub = pb_grpc.GeomFitStub(self._channel)
+        # ComputeDifferentials responses are read as raw bytes and their arrays viewed
+        # in place (_parse_chunk): the generated parser would copy every array twice.
+        self._compute = self._channel.unary_stream(
+            "/geomfit.v1.GeomFit/ComputeDifferentials",
+            request_serializer=pb.ComputeDifferentialsRequest.SerializeToString, response_deserializer=None)
+
+    def close(self) -> None:
+        self._channel.close()
+
+    def __enter__(self) -> "Client":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ plumbing
+    def _call(self, fn):
+        delay = self.backoff
+        for attempt in range(1, self.max_attempts + 1):
+            try:
+                return fn()
+            except grpc.RpcError as e:  # grpc.Call carries code() and details()
+                code = e.code()
+                if code == grpc.StatusCode.UNAVAILABLE and attempt < self.max_attempts:
+                    time.sleep(delay)
+                    delay = min(2.0, delay * 2)
+                    continue
+                raise GeomfitError(code, e.details() or "") from None
+        raise AssertionError("unreachable")
+
+    def _position_chunks(self, positions: np.ndarray) -> Iterable["pb.PositionsChunk"]:
+        p = np.ascontiguousarray(positions, dtype="<f8")
+        if p.ndim != 2 or p.shape[1] != 3:
+            raise ValueError("positions must be #V x 3, got shape %s" % (p.shape,))
+        for b in range(0, p.shape[0], self.chunk_rows):
+            c = pb.PositionsChunk(vertex_offset=b)
+            _encode(p[b:b + self.chunk_rows], "<f8", c.positions)
+            yield c
+
+    # ------------------------------------------------------------------ meshes
+    def upload(self, positions: np.ndarray, faces: np.ndarray, name: str = "",
+               labels: Optional[Dict[str, str]] = None) -> "pb.MeshInfo":
+        """Uploads a mesh (faces #F x 3, or #F x 4 with -1 padding triangles); returns
+        MeshInfo. Identical content returns the same mesh_id."""
+        f = np.ascontiguousarray(faces, dtype="<i4")
+        if f.ndim != 2 or f.shape[1] not in (3, 4):
+            raise ValueError("faces must be #F x 3 or #F x 4, got shape %s" % (f.shape,))
+        header = pb.MeshHeader(num_vertices=len(positions), num_faces=f.shape[0], name=name,
+                               labels=labels or {})
+        requests = [pb.UploadMeshRequest(header=header)]
+        requests += [pb.UploadMeshRequest(positions=c) for c in self._position_chunks(positions)]
+        for b in range(0, f.shape[0], self.chunk_rows):
+            c = pb.FacesChunk(face_offset=b)
+            _encode(f[b:b + self.chunk_rows], "<i4", c.faces)
+            requests.append(pb.UploadMeshRequest(faces=c))
+        return self._call(lambda: self._stub.UploadMesh(iter(requests), timeout=self.timeout))
+
+    def upload_file(self, path: str, name: Optional[str] = None,
+                    labels: Optional[Dict[str, str]] = None) -> "pb.MeshInfo":
+        """Reads an OBJ or OFF file (read_mesh_file) and uploads it."""
+        import os
+        positions, faces = read_mesh_file(path)
+        return self.upload(positions, faces, name=os.path.basename(path) if name is None else name, labels=labels)
+
+    def update_positions(self, mesh_id: str, positions: np.ndarray,
+                         expected_revision: Optional[int] = None) -> "pb.MeshInfo":
+        """New positions for the same faces; ABORTED if expected_revision is stale."""
+        header = pb.UpdateHeader(mesh_id=mesh_id)
+        if expected_revision is not None:
+            header.expected_revision = expected_revision
+        requests = [pb.UpdatePositionsRequest(header=header)]
+        requests += [pb.UpdatePositionsRequest(positions=c) for c in self._position_chunks(positions)]
+        return self._call(lambda: self._stub.UpdatePositions(iter(requests), timeout=self.timeout))
+
+    def get_mesh(self, mesh_id: str) -> "pb.MeshInfo":
+        return self._call(lambda: self._stub.GetMesh(pb.GetMeshRequest(mesh_id=mesh_id), timeout=self.timeout))
+
+    def download(self, mesh_id: str) -> Tuple[np.ndarray, np.ndarray, "pb.MeshInfo"]:
+        """(positions #V x 3, faces #F x 4 with -1 padding, MeshInfo)."""
+        def run():
+            info, positions, faces = None, None, None
+            for r in self._stub.DownloadMesh(pb.DownloadMeshRequest(mesh_id=mesh_id), timeout=self.timeout):
+                which = r.WhichOneof("chunk")
+                if which == "info":
+                    info = r.info
+                    positions = np.empty((info.num_vertices, 3), dtype=np.float64)
+                    faces = np.empty((info.num_faces, 4), dtype=np.int32)
+                elif which == "positions":
+                    a = _decode(r.positions.positions, "<f8")
+                    positions[r.positions.vertex_offset:r.positions.vertex_offset + len(a)] = a
+                elif which == "faces":
+                    a = _decode(r.faces.faces, "<i4")
+                    faces[r.faces.face_offset:r.faces.face_offset + len(a)] = a
+            return positions, faces, info
+        return self._call(run)
+
+    def list_meshes(self) -> List["pb.MeshInfo"]:
+        out, token = [], ""
+        while True:
+            r = self._call(lambda: self._stub.ListMeshes(
+                pb.ListMeshesRequest(page_size=1000, page_token=token), timeout=self.timeout))
+            out.extend(r.meshes)
+            if not r.next_page_token:
+                return out
+            token = r.next_page_token
+
+    def delete_mesh(self, mesh_id: str) -> None:
+        self._call(lambda: self._stub.DeleteMesh(pb.DeleteMeshRequest(mesh_id=mesh_id), timeout=self.timeout))
+
+    # ------------------------------------------------------------------ geometry
+    def curvature(self, mesh_id: str, degree: int = 0, method: str = "lhf",
+                  quantities: Iterable[str] = ("normals", "mean", "gaussian", "principal"),
+                  revision: int = 0, diagnostics: bool = False, **options) -> Differentials:
+        """Differential quantities per vertex. `options` are further FitOptions fields
+        (rings, adaptive, safeguard_angle_deg, interpolate, two_pass, ...); unset ones
+        take the server defaults (degree 0 = 2)."""
+        if method.lower() not in _METHODS:
+            raise ValueError("method must be 'lhf' or 'lop', got %r" % method)
+        unknown = [q for q in quantities if q not in QUANTITIES]
+        if unknown:
+            raise ValueError("unknown quantities %s; choose from %s" % (unknown, sorted(QUANTITIES)))
+        request = pb.ComputeDifferentialsRequest(
+            mesh_id=mesh_id, revision=revision, diagnostics=diagnostics,
+            options=pb.FitOptions(degree=degree, method=_METHODS[method.lower()], **options),
+            quantities=[QUANTITIES[q] for q in quantities])
+
+        def run():
+            out = None
+            for raw in self._compute(request, timeout=self.timeout):
+                chunk = _parse_chunk(raw)
+                if out is None:
+                    out = Differentials(summary=pb.FitSummary.FromString(chunk["summary"]))
+                total = out.summary.num_vertices
+                lo = chunk.get("vertex_offset", 0)
+                for name, a in chunk["arrays"].items():
+                    if getattr(out, name) is None:
+                        setattr(out, name, np.empty((total,) + a.shape[1:], dtype=np.float64))
+                    getattr(out, name)[lo:lo + len(a)] = a
+                if chunk["diagnostics"]:
+                    if out.diagnostics is None:
+                        out.diagnostics = {k: np.empty(total, dtype=a.dtype)
+                                           for k, a in chunk["diagnostics"].items()}
+                    for k, a in chunk["diagnostics"].items():
+                        out.diagnostics[k][lo:lo + len(a)] = a
+            return out
+        return self._call(run)
+
+    # ------------------------------------------------------------------ server
+    def server_info(self) -> "pb.ServerInfo":
+        return self._call(lambda: self._stub.GetServerInfo(pb.GetServerInfoRequest(), timeout=self.timeout))
+
+    def statistics(self) -> "pb.Statistics":
+        return self._call(lambda: self._stub.GetStatistics(pb.GetStatisticsRequest(), timeout=self.timeout))

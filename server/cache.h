@@ -1,0 +1,101 @@
+#pragma once
+#include <condition_variable>
+#include <cstdint>
+#include <functional>
+#include <list>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <utility>
+
+#include "absl/status/statusor.h"
+#include "core/util/cancel.h"
+
+namespace geomfit::server {
+
+/// Cache tiers of DESIGN.md, in eviction order from last to first: fittings are
+/// evicted before geometry, geometry before topology.
+enum class Tier { kTopology = 0, kGeometry = 1, kFitting = 2 };
+inline constexpr int kNumTiers = 3;
+const char* TierName(Tier tier);
+
+struct TierStats {
+  int64_t entries = 0, bytes = 0, hits = 0, misses = 0, evictions = 0;
+};
+
+/// A byte-bounded LRU cache of immutable values with single-flight computation:
+/// concurrent requests for a missing key wait for one computation. Keys are
+/// "<mesh_id>/..." so one mesh's entries can be dropped together. Thread-safe.
+class Cache {
+ public:
+  using Value = std::shared_ptr<const void>;
+  struct Computed {
+    Value value;
+    int64_t bytes = 0;
+  };
+  using ComputeFn = std::function<absl::StatusOr<Computed>()>;
+
+  explicit Cache(int64_t budget_bytes) : budget_(budget_bytes) {}
+
+  /// The value of `key`, computing it (once across concurrent callers) if missing.
+  /// Waiters give up with the token's status; a leader that was cancelled does not
+  /// fail its waiters (one of them computes instead). `hit` (optional) reports
+  /// whether the value was already cached. A value larger than the whole budget is
+  /// returned but not kept.
+  absl::StatusOr<Value> GetOrCompute(Tier tier, const std::string& key, const ComputeFn& compute,
+                                     const CancellationToken* cancel = nullptr, bool* hit = nullptr);
+
+  template <typename T>
+  absl::StatusOr<std::shared_ptr<const T>> Get(
+      Tier tier, const std::string& key,
+      const std::function<absl::StatusOr<std::pair<std::shared_ptr<const T>, int64_t>>()>& compute,
+      const CancellationToken* cancel = nullptr, bool* hit = nullptr) {
+    auto r = GetOrCompute(
+        tier, key,
+        [&]() -> absl::StatusOr<Computed> {
+          auto v = compute();
+          if (!v.ok()) return v.status();
+          return Computed{std::move(v->first), v->second};
+        },
+        cancel, hit);
+    if (!r.ok()) return r.status();
+    return std::static_pointer_cast<const T>(*r);
+  }
+
+  /// Inserts (or replaces) a value computed elsewhere.
+  void Put(Tier tier, const std::string& key, Value value, int64_t bytes);
+  /// Drops every entry whose key starts with `prefix`.
+  void ErasePrefix(const std::string& prefix);
+
+  TierStats Stats(Tier tier) const;
+  int64_t bytes() const;
+  int64_t budget() const { return budget_; }
+
+ private:
+  struct Entry {
+    Value value;
+    int64_t bytes = 0;
+    Tier tier = Tier::kFitting;
+    std::list<std::string>::iterator lru;  ///< position in lru_[tier] (front = newest)
+  };
+  struct Flight {
+    bool done = false;
+    absl::StatusOr<Value> result;
+  };
+
+  void InsertLocked(Tier tier, const std::string& key, Value value, int64_t bytes);
+  void EraseLocked(std::map<std::string, Entry>::iterator it);
+  void EvictLocked(const std::string& keep);
+
+  const int64_t budget_;
+  mutable std::mutex mu_;
+  std::condition_variable flight_done_;
+  std::map<std::string, Entry> entries_;
+  std::map<std::string, std::shared_ptr<Flight>> flights_;
+  std::list<std::string> lru_[kNumTiers];
+  TierStats stats_[kNumTiers];
+  int64_t bytes_ = 0;
+};
+
+}  // namespace geomfit::server

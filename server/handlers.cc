@@ -1,0 +1,431 @@
+#include "server/handlers.h"
+
+#include <algorithm>
+#include <limits>
+#include <map>
+#include <optional>
+
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "core/fitting/neighborhood.h"
+#include "core/quantities/differentials.h"
+#include "core/util/status_macros.h"
+#include "core/util/timer.h"
+#include "proto/wire.h"
+#include "server/content_hash.h"
+
+namespace geomfit::server {
+namespace {
+
+constexpr const char* kVersion = "0.1.0";
+
+int64_t MeshBytes(const Mesh& m) {
+  return static_cast<int64_t>(sizeof(double) * m.positions.size() + sizeof(int32_t) * m.faces.size());
+}
+
+absl::Status RequireId(const std::string& id) {
+  if (id.empty()) return absl::InvalidArgumentError("mesh_id: empty");
+  return absl::OkStatus();
+}
+
+/// Identity of an upload: faces, positions, name and (sorted) labels.
+std::string HashUpload(const Mesh& mesh, const v1::MeshHeader& header) {
+  ContentHash h;
+  const int64_t counts[2] = {mesh.NumVertices(), mesh.NumFaces()};
+  h.Add(counts, sizeof(counts));
+  h.Add(mesh.faces.data(), sizeof(int32_t) * mesh.faces.size());
+  h.Add(mesh.positions.data(), sizeof(double) * mesh.positions.size());
+  h.AddString(header.name());
+  const std::map<std::string, std::string> labels(header.labels().begin(), header.labels().end());
+  for (const auto& [k, v] : labels) {
+    h.AddString(k);
+    h.AddString(v);
+  }
+  return h.Hex();
+}
+
+std::string GeometryKey(const std::string& id, int64_t revision) {
+  return absl::StrCat(id, "/r", revision, "/geom");
+}
+
+std::string RingSpecKey(const RingSpec& s) {
+  return absl::StrFormat("%g/%d/%d/%d/%g/%d", s.rings, s.adaptive, s.min_points, s.min_points_boundary,
+                         s.max_rings, s.max_points);
+}
+
+/// Bytes a fitting of `n` vertices needs at least (frames, coefficients, diagnostics).
+int64_t EstimateFitBytes(int64_t n, const FitOptions& o) {
+  const int dims = o.method == FitMethod::kLHF ? 1 : 3;
+  return n * static_cast<int64_t>(sizeof(LocalFrame) + sizeof(VertexDiagnostics) +
+                                  sizeof(double) * dims * NumCoefficients(o.degree));
+}
+
+int64_t DifferentialsBytes(const Differentials& d) {
+  const size_t doubles = d.normals.size() + d.mean.size() + d.gaussian.size() + d.k1.size() + d.k2.size() +
+                         d.dir1.size() + d.dir2.size() + d.tensor.size();
+  return static_cast<int64_t>(sizeof(double) * doubles + sizeof(VertexDiagnostics) * d.diagnostics.size());
+}
+
+template <typename Array>
+void EncodeRows(const Array& a, int64_t begin, int64_t rows, v1::DoubleArray* out) {
+  const int64_t cols = Array::ColsAtCompileTime == 1 ? 0 : a.cols();
+  wire::EncodeDoubles(a.data() + begin * std::max<int64_t>(cols, 1), rows, cols, out);
+}
+
+void EncodeDiagnostics(const std::vector<VertexDiagnostics>& d, int64_t begin, int64_t rows,
+                       v1::VertexDiagnostics* out) {
+  std::vector<int32_t> points(rows), degree(rows), flags(rows);
+  std::vector<double> condition(rows);
+  for (int64_t i = 0; i < rows; ++i) {
+    const VertexDiagnostics& v = d[begin + i];
+    points[i] = v.points;
+    degree[i] = v.degree_used;
+    flags[i] = v.flags;
+    condition[i] = v.condition;
+  }
+  wire::EncodeInts(points.data(), rows, 0, out->mutable_points());
+  wire::EncodeInts(degree.data(), rows, 0, out->mutable_degree_used());
+  wire::EncodeInts(flags.data(), rows, 0, out->mutable_flags());
+  wire::EncodeDoubles(condition.data(), rows, 0, out->mutable_condition());
+}
+
+/// Chunks of `rows` of the `n` vertices; the first carries the summary (filled by
+/// the caller).
+std::vector<v1::ComputeDifferentialsResponse> EncodeDifferentials(const Differentials& d, int64_t n, uint32_t mask,
+                                                                  bool diagnostics, int64_t rows) {
+  std::vector<v1::ComputeDifferentialsResponse> out;
+  out.reserve(static_cast<size_t>(std::max<int64_t>(1, (n + rows - 1) / rows)));
+  for (int64_t b = 0; b == 0 || b < n; b += rows) {
+    const int64_t m = std::min<int64_t>(rows, n - b);
+    v1::ComputeDifferentialsResponse& r = out.emplace_back();
+    r.set_vertex_offset(b);
+    r.set_num_vertices(m);
+    if (mask & kNormals) EncodeRows(d.normals, b, m, r.mutable_normals());
+    if (mask & kMeanCurvature) EncodeRows(d.mean, b, m, r.mutable_mean());
+    if (mask & kGaussianCurvature) EncodeRows(d.gaussian, b, m, r.mutable_gaussian());
+    if (mask & kPrincipalCurvatures) {
+      EncodeRows(d.k1, b, m, r.mutable_k1());
+      EncodeRows(d.k2, b, m, r.mutable_k2());
+    }
+    if (mask & kPrincipalDirections) {
+      EncodeRows(d.dir1, b, m, r.mutable_dir1());
+      EncodeRows(d.dir2, b, m, r.mutable_dir2());
+    }
+    if (mask & kCurvatureTensor) EncodeRows(d.tensor, b, m, r.mutable_tensor());
+    if (diagnostics) EncodeDiagnostics(d.diagnostics, b, m, r.mutable_diagnostics());
+  }
+  return out;
+}
+
+v1::FitSummary Summarize(const SurfaceFits& fits, const FitOptions& options) {
+  v1::FitSummary s;
+  s.set_num_vertices(fits.num_vertices());
+  s.set_degree_requested(options.degree);
+  int min_degree = options.degree;
+  for (const VertexDiagnostics& d : fits.diagnostics()) {
+    if (d.flags & kFlagIsolated) {
+      s.set_num_isolated(s.num_isolated() + 1);
+      continue;
+    }
+    min_degree = std::min<int>(min_degree, d.degree_used);
+    if (d.flags & kFlagDowngraded) s.set_num_downgraded(s.num_downgraded() + 1);
+    if (d.flags & kFlagTooFewPoints) s.set_num_too_few_points(s.num_too_few_points() + 1);
+    if (d.flags & kFlagBoundary) s.set_num_boundary(s.num_boundary() + 1);
+  }
+  s.set_min_degree_used(min_degree);
+  s.set_options_key(FitOptionsKey(options));
+  return s;
+}
+
+}  // namespace
+
+Handlers::Handlers(MeshStore* store, Cache* cache, const RequestStats* stats, HandlerOptions options)
+    : store_(store), cache_(cache), stats_(stats), options_(options) {}
+
+absl::StatusOr<v1::MeshInfo> Handlers::UploadMesh(const UploadAssembler& upload) {
+  GF_ASSIGN_OR_RETURN(Mesh mesh, upload.Finish());
+  GF_ASSIGN_OR_RETURN(Topology topo, ValidateMesh(mesh));
+  const int64_t bytes = MeshBytes(mesh) + static_cast<int64_t>(topo.Bytes());
+  if (bytes > cache_->budget()) {
+    return absl::ResourceExhaustedError(absl::StrCat("mesh needs ", bytes, " bytes of cache, the budget is ",
+                                                     cache_->budget(), " (--cache-bytes)"));
+  }
+  const v1::MeshHeader& header = upload.header();
+  v1::MeshInfo info;
+  info.set_content_hash(HashUpload(mesh, header));
+  info.set_mesh_id("m-" + info.content_hash().substr(0, 20));
+  info.set_num_vertices(mesh.NumVertices());
+  info.set_num_faces(mesh.NumFaces());
+  info.set_face_kind(wire::KindOf(mesh));
+  info.set_name(header.name());
+  *info.mutable_labels() = header.labels();
+  info.set_num_boundary_edges(topo.num_boundary_edges);
+  info.set_num_isolated_vertices(topo.num_isolated);
+  AmendForPositions(mesh.positions, 1, &info);
+  info.set_created_unix_ms(info.updated_unix_ms());
+  GF_ASSIGN_OR_RETURN(v1::MeshInfo stored, store_->Insert(info, mesh));
+  if (stored.revision() == 1) {
+    const int64_t topo_bytes = static_cast<int64_t>(topo.Bytes());
+    cache_->Put(Tier::kTopology, stored.mesh_id() + "/topo", std::make_shared<const Topology>(std::move(topo)),
+                topo_bytes);
+    const int64_t mesh_bytes = MeshBytes(mesh);
+    cache_->Put(Tier::kGeometry, GeometryKey(stored.mesh_id(), 1), std::make_shared<const Mesh>(std::move(mesh)),
+                mesh_bytes);
+  }
+  return stored;
+}
+
+absl::StatusOr<v1::MeshInfo> Handlers::UpdatePositions(const PositionsAssembler& update) {
+  if (!update.has_header()) return absl::InvalidArgumentError("update stream ended without a header");
+  const v1::UpdateHeader& header = update.header();
+  int64_t revision = 0;
+  GF_ASSIGN_OR_RETURN(std::shared_ptr<const Mesh> old, Geometry(header.mesh_id(), 0, &revision));
+  if (header.has_expected_revision() && header.expected_revision() != revision) {
+    return StaleRevision(header.mesh_id(), header.expected_revision(), revision);
+  }
+  auto mesh = std::make_shared<Mesh>();
+  GF_ASSIGN_OR_RETURN(mesh->positions, update.Finish(old->NumVertices()));
+  mesh->faces = old->faces;
+  GF_RETURN_IF_ERROR(ValidateGeometry(*mesh));
+  std::optional<int64_t> expected;  // the store checks again under its lock
+  if (header.has_expected_revision()) expected = header.expected_revision();
+  GF_ASSIGN_OR_RETURN(v1::MeshInfo info, store_->UpdatePositions(header.mesh_id(), expected, mesh->positions));
+  // Requests holding the previous revision finish on it; the cache lets it go.
+  cache_->ErasePrefix(absl::StrCat(header.mesh_id(), "/r", info.revision() - 1, "/"));
+  cache_->Put(Tier::kGeometry, GeometryKey(info.mesh_id(), info.revision()), mesh, MeshBytes(*mesh));
+  return info;
+}
+
+absl::StatusOr<v1::MeshInfo> Handlers::GetMesh(const v1::GetMeshRequest& request) {
+  GF_RETURN_IF_ERROR(RequireId(request.mesh_id()));
+  return store_->GetInfo(request.mesh_id());
+}
+
+absl::StatusOr<std::vector<v1::DownloadMeshResponse>> Handlers::DownloadMesh(
+    const v1::DownloadMeshRequest& request) {
+  GF_RETURN_IF_ERROR(RequireId(request.mesh_id()));
+  if (request.revision() < 0 || request.chunk_rows() < 0) {
+    return absl::InvalidArgumentError("revision and chunk_rows must not be negative");
+  }
+  GF_ASSIGN_OR_RETURN(StoredMesh stored, store_->Get(request.mesh_id()));
+  if (request.revision() != 0 && request.revision() != stored.info.revision()) {
+    return absl::NotFoundError(absl::StrCat("mesh '", request.mesh_id(), "' revision ", request.revision(),
+                                            " is not kept (latest is ", stored.info.revision(), ")"));
+  }
+  const Mesh& mesh = *stored.mesh;
+  std::vector<v1::DownloadMeshResponse> out(1);
+  *out[0].mutable_info() = stored.info;
+  const int64_t rows = ChunkRows(request.chunk_rows(), 24);
+  for (int64_t b = 0; b < mesh.NumVertices(); b += rows) {
+    const int64_t n = std::min<int64_t>(rows, mesh.NumVertices() - b);
+    v1::PositionsChunk* c = out.emplace_back().mutable_positions();
+    c->set_vertex_offset(b);
+    wire::EncodeDoubles(mesh.positions.data() + 3 * b, n, 3, c->mutable_positions());
+  }
+  for (int64_t b = 0; b < mesh.NumFaces(); b += rows) {
+    const int64_t n = std::min<int64_t>(rows, mesh.NumFaces() - b);
+    v1::FacesChunk* c = out.emplace_back().mutable_faces();
+    c->set_face_offset(b);
+    wire::EncodeInts(mesh.faces.data() + 4 * b, n, 4, c->mutable_faces());
+  }
+  return out;
+}
+
+absl::StatusOr<v1::ListMeshesResponse> Handlers::ListMeshes(const v1::ListMeshesRequest& request) {
+  if (request.page_size() < 0 || request.page_size() > 1000) {
+    return absl::InvalidArgumentError(absl::StrCat("page_size: ", request.page_size(), ", expected 0..1000"));
+  }
+  const int page = request.page_size() == 0 ? 100 : request.page_size();
+  GF_ASSIGN_OR_RETURN(std::vector<v1::MeshInfo> meshes, store_->List(request.page_token(), page + 1));
+  v1::ListMeshesResponse response;
+  for (int i = 0; i < static_cast<int>(meshes.size()) && i < page; ++i) *response.add_meshes() = std::move(meshes[i]);
+  if (static_cast<int>(meshes.size()) > page) response.set_next_page_token(response.meshes(page - 1).mesh_id());
+  return response;
+}
+
+absl::StatusOr<v1::DeleteMeshResponse> Handlers::DeleteMesh(const v1::DeleteMeshRequest& request) {
+  GF_RETURN_IF_ERROR(RequireId(request.mesh_id()));
+  GF_RETURN_IF_ERROR(store_->Delete(request.mesh_id()));
+  cache_->ErasePrefix(request.mesh_id() + "/");
+  return v1::DeleteMeshResponse();
+}
+
+absl::StatusOr<Handlers::Fitted> Handlers::Fit(const std::string& id, int64_t revision, const FitOptions& options,
+                                               const CancellationToken& cancel) {
+  Fitted f;
+  GF_ASSIGN_OR_RETURN(std::shared_ptr<const Mesh> mesh, Geometry(id, revision, &f.revision));
+  GF_ASSIGN_OR_RETURN(std::shared_ptr<const Topology> topo, TopologyOf(id, *mesh));
+  if (const int64_t need = EstimateFitBytes(mesh->NumVertices(), options); need > cache_->budget()) {
+    return absl::ResourceExhaustedError(absl::StrCat("fitting ", mesh->NumVertices(), " vertices at degree ",
+                                                     options.degree, " needs about ", need,
+                                                     " bytes; the cache budget is ", cache_->budget(),
+                                                     " (--cache-bytes)"));
+  }
+  const RingSpec spec = RingSpecFor(options);
+  GF_ASSIGN_OR_RETURN(
+      std::shared_ptr<const Neighborhoods> nbhd,
+      cache_->Get<Neighborhoods>(
+          Tier::kTopology, absl::StrCat(id, "/nbhd/", RingSpecKey(spec)),
+          [&]() -> absl::StatusOr<std::pair<std::shared_ptr<const Neighborhoods>, int64_t>> {
+            auto n = std::make_shared<const Neighborhoods>(BuildNeighborhoods(*topo, *mesh, spec, options_.threads));
+            return std::make_pair(n, static_cast<int64_t>(n->Bytes()));
+          },
+          &cancel));
+  f.key = absl::StrCat(id, "/r", f.revision, "/fit/", FitOptionsKey(options));
+  Stopwatch watch;
+  GF_ASSIGN_OR_RETURN(
+      f.fits, cache_->Get<SurfaceFits>(
+                  Tier::kFitting, f.key,
+                  [&]() -> absl::StatusOr<std::pair<std::shared_ptr<const SurfaceFits>, int64_t>> {
+                    FitRequest fit_request;
+                    fit_request.cancel = &cancel;
+                    GF_ASSIGN_OR_RETURN(auto fits, FitSurface(*mesh, *topo, options, nbhd, fit_request));
+                    return std::make_pair(fits, static_cast<int64_t>(fits->Bytes()));
+                  },
+                  &cancel, &f.hit));
+  f.ms = f.hit ? 0 : watch.Millis();
+  GF_RETURN_IF_ERROR(cancel.Check());
+  return f;
+}
+
+absl::StatusOr<std::vector<v1::ComputeDifferentialsResponse>> Handlers::ComputeDifferentials(
+    const v1::ComputeDifferentialsRequest& request, const CancellationToken& cancel) {
+  GF_RETURN_IF_ERROR(RequireId(request.mesh_id()));
+  if (request.revision() < 0 || request.chunk_rows() < 0) {
+    return absl::InvalidArgumentError("revision and chunk_rows must not be negative");
+  }
+  absl::StatusOr<FitOptions> parsed = wire::FromProto(request.options());
+  if (!parsed.ok()) return absl::InvalidArgumentError(absl::StrCat("options: ", parsed.status().message()));
+  FitOptions options = *parsed;
+  options.num_threads = options_.threads;
+  GF_ASSIGN_OR_RETURN(const uint32_t mask, wire::QuantityMask(request.quantities()));
+  GF_ASSIGN_OR_RETURN(const Fitted fitted, Fit(request.mesh_id(), request.revision(), options, cancel));
+
+  // Derived quantities belong to the fitting tier too: a repeated request only
+  // serializes.
+  bool eval_hit = false;
+  Stopwatch eval_watch;
+  GF_ASSIGN_OR_RETURN(
+      std::shared_ptr<const Differentials> d,
+      cache_->Get<Differentials>(
+          Tier::kFitting, absl::StrCat(fitted.key, "/q", mask),
+          [&]() -> absl::StatusOr<std::pair<std::shared_ptr<const Differentials>, int64_t>> {
+            auto e = std::make_shared<const Differentials>(
+                geomfit::ComputeDifferentials(*fitted.fits, mask, options_.threads));
+            return std::make_pair(e, DifferentialsBytes(*e));
+          },
+          &cancel, &eval_hit));
+  const double eval_ms = eval_hit ? 0 : eval_watch.Millis();
+
+  std::vector<v1::ComputeDifferentialsResponse> out =
+      EncodeDifferentials(*d, fitted.fits->num_vertices(), mask, request.diagnostics(),
+                          ChunkRows(request.chunk_rows(), 8 * 24 + 20));
+  v1::FitSummary* summary = out[0].mutable_summary();
+  *summary = Summarize(*fitted.fits, options);
+  summary->set_mesh_id(request.mesh_id());
+  summary->set_revision(fitted.revision);
+  summary->set_fit_cache_hit(fitted.hit);
+  summary->set_fit_ms(fitted.ms);
+  summary->set_evaluate_ms(eval_ms);
+  summary->set_quantities_cache_hit(eval_hit);
+  return out;
+}
+
+v1::ServerInfo Handlers::GetServerInfo() const {
+  v1::ServerInfo info;
+  info.set_version(kVersion);
+  info.set_api_version("geomfit.v1");
+  info.set_max_message_bytes(options_.max_message_bytes);
+  info.set_max_vertices(options_.max_vertices);
+  info.set_cache_bytes(cache_->budget());
+  info.set_store(store_->Kind());
+  info.set_max_degree(kMaxDegree);
+  info.set_compute_workers(options_.workers);
+  info.set_default_chunk_rows(options_.chunk_rows);
+  for (const char* c : {"UploadMesh", "UpdatePositions", "GetMesh", "DownloadMesh", "ListMeshes", "DeleteMesh",
+                        "ComputeDifferentials", "GetServerInfo", "GetStatistics", "fit_method:LHF",
+                        "fit_method:LOP", "faces:triangle", "faces:quad", "faces:mixed"}) {
+    info.add_capabilities(c);
+  }
+  return info;
+}
+
+v1::Statistics Handlers::GetStatistics() const {
+  v1::Statistics s;
+  for (const auto& [name, m] : stats_->Snapshot()) {
+    v1::MethodStatistics* ms = s.add_methods();
+    ms->set_method(name);
+    ms->set_count(m.count);
+    ms->set_errors(m.errors);
+    ms->set_total_ms(m.total_ms);
+    ms->set_max_ms(m.max_ms);
+    int64_t cumulative = 0;
+    for (size_t i = 0; i < m.buckets.size(); ++i) {
+      cumulative += m.buckets[i];
+      const auto& bounds = RequestStats::BucketsMs();
+      ms->add_bucket_upper_ms(i < bounds.size() ? bounds[i] : std::numeric_limits<double>::infinity());
+      ms->add_bucket_count(cumulative);
+    }
+  }
+  for (Tier tier : {Tier::kTopology, Tier::kGeometry, Tier::kFitting}) {
+    const TierStats t = cache_->Stats(tier);
+    v1::CacheStatistics* c = s.add_caches();
+    c->set_tier(TierName(tier));
+    c->set_entries(t.entries);
+    c->set_bytes(t.bytes);
+    c->set_hits(t.hits);
+    c->set_misses(t.misses);
+    c->set_evictions(t.evictions);
+  }
+  s.set_cache_bytes(cache_->bytes());
+  s.set_cache_budget_bytes(cache_->budget());
+  const StoreStats store = store_->Stats();
+  s.set_stored_meshes(store.meshes);
+  s.set_stored_bytes(store.bytes);
+  s.set_uptime_seconds(std::chrono::duration<double>(std::chrono::steady_clock::now() - started_).count());
+  return s;
+}
+
+absl::StatusOr<std::shared_ptr<const Mesh>> Handlers::Geometry(const std::string& id, int64_t revision,
+                                                               int64_t* resolved_revision) {
+  GF_RETURN_IF_ERROR(RequireId(id));
+  const bool latest = revision == 0;
+  // "Latest" can move on between reading the revision and fetching it (a concurrent
+  // UpdatePositions): then fetch the newer one, a few times at most.
+  for (int attempt = 0;; ++attempt) {
+    if (latest) {
+      GF_ASSIGN_OR_RETURN(v1::MeshInfo info, store_->GetInfo(id));
+      revision = info.revision();
+    }
+    *resolved_revision = revision;
+    bool moved_on = false;
+    auto mesh = cache_->Get<Mesh>(Tier::kGeometry, GeometryKey(id, revision),
+                                  [&]() -> absl::StatusOr<std::pair<std::shared_ptr<const Mesh>, int64_t>> {
+                                    GF_ASSIGN_OR_RETURN(StoredMesh stored, store_->Get(id));
+                                    if (stored.info.revision() != revision) {
+                                      moved_on = true;
+                                      return absl::NotFoundError(absl::StrCat(
+                                          "mesh '", id, "' revision ", revision, " is not kept (latest is ",
+                                          stored.info.revision(), ")"));
+                                    }
+                                    return std::make_pair(stored.mesh, MeshBytes(*stored.mesh));
+                                  });
+    if (mesh.ok() || !latest || !moved_on || attempt == 3) return mesh;
+  }
+}
+
+absl::StatusOr<std::shared_ptr<const Topology>> Handlers::TopologyOf(const std::string& id, const Mesh& mesh) {
+  return cache_->Get<Topology>(Tier::kTopology, id + "/topo",
+                               [&]() -> absl::StatusOr<std::pair<std::shared_ptr<const Topology>, int64_t>> {
+                                 GF_ASSIGN_OR_RETURN(Topology t, BuildTopology(mesh));
+                                 const int64_t bytes = static_cast<int64_t>(t.Bytes());
+                                 return std::make_pair(std::make_shared<const Topology>(std::move(t)), bytes);
+                               });
+}
+
+int64_t Handlers::ChunkRows(int64_t requested, int64_t bytes_per_row) const {
+  const int64_t by_size = std::max<int64_t>(1, options_.max_message_bytes / 2 / bytes_per_row);
+  return std::min(requested > 0 ? requested : options_.chunk_rows, by_size);
+}
+
+}  // namespace geomfit::server

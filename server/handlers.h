@@ -1,0 +1,71 @@
+#pragma once
+// The RPC logic: proto in -> absl::StatusOr<proto> out. No gRPC types here, so every
+// handler is testable without a network; service.cc adapts them to the callback API.
+#include <chrono>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "absl/status/statusor.h"
+#include "core/fitting/fit.h"
+#include "core/mesh/topology.h"
+#include "core/util/cancel.h"
+#include "geomfit/v1/geomfit.pb.h"
+#include "server/assembly.h"
+#include "server/cache.h"
+#include "server/mesh_store.h"
+#include "server/request_stats.h"
+
+namespace geomfit::server {
+
+struct HandlerOptions {
+  int64_t max_vertices = 20'000'000;
+  int64_t max_message_bytes = int64_t{64} << 20;
+  int64_t chunk_rows = 16384;  ///< default rows per streamed chunk
+  int threads = 0;             ///< numeric threads per computation
+  int workers = 2;             ///< reported by GetServerInfo
+};
+
+class Handlers {
+ public:
+  Handlers(MeshStore* store, Cache* cache, const RequestStats* stats, HandlerOptions options);
+
+  absl::StatusOr<v1::MeshInfo> UploadMesh(const UploadAssembler& upload);
+  absl::StatusOr<v1::MeshInfo> UpdatePositions(const PositionsAssembler& update);
+  absl::StatusOr<v1::MeshInfo> GetMesh(const v1::GetMeshRequest& request);
+  absl::StatusOr<std::vector<v1::DownloadMeshResponse>> DownloadMesh(const v1::DownloadMeshRequest& request);
+  absl::StatusOr<v1::ListMeshesResponse> ListMeshes(const v1::ListMeshesRequest& request);
+  absl::StatusOr<v1::DeleteMeshResponse> DeleteMesh(const v1::DeleteMeshRequest& request);
+  /// Fits (or reuses cached fits) and evaluates; polls `cancel` during the fit.
+  absl::StatusOr<std::vector<v1::ComputeDifferentialsResponse>> ComputeDifferentials(
+      const v1::ComputeDifferentialsRequest& request, const CancellationToken& cancel);
+  v1::ServerInfo GetServerInfo() const;
+  v1::Statistics GetStatistics() const;
+
+  const HandlerOptions& options() const { return options_; }
+
+ private:
+  /// The fits of a request, from the fitting tier or computed (single-flight).
+  struct Fitted {
+    std::shared_ptr<const SurfaceFits> fits;
+    int64_t revision = 0;  ///< resolved (never 0)
+    std::string key;       ///< fitting-tier key: derived entries extend it
+    bool hit = false;
+    double ms = 0;
+  };
+  absl::StatusOr<Fitted> Fit(const std::string& id, int64_t revision, const FitOptions& options,
+                             const CancellationToken& cancel);
+  /// Mesh `id` at `revision` (0 = latest) from the geometry tier.
+  absl::StatusOr<std::shared_ptr<const Mesh>> Geometry(const std::string& id, int64_t revision,
+                                                       int64_t* resolved_revision);
+  absl::StatusOr<std::shared_ptr<const Topology>> TopologyOf(const std::string& id, const Mesh& mesh);
+  int64_t ChunkRows(int64_t requested, int64_t bytes_per_row) const;
+
+  MeshStore* store_;
+  Cache* cache_;
+  const RequestStats* stats_;
+  const HandlerOptions options_;
+  const std::chrono::steady_clock::time_point started_ = std::chrono::steady_clock::now();
+};
+
+}  // namespace geomfit::server

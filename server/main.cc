@@ -1,0 +1,59 @@
+// geomfit-server: the long-running gRPC service. See --help for flags; every flag
+// also reads a GEOMFIT_* environment variable.
+#include <csignal>
+#include <cstdio>
+#include <thread>
+
+#include <spdlog/sinks/stdout_color_sinks.h>
+#include <spdlog/spdlog.h>
+
+#include "server/options.h"
+#include "server/server.h"
+
+int main(int argc, char** argv) {
+  absl::StatusOr<geomfit::server::ServerOptions> options =
+      geomfit::server::ParseServerOptions(std::vector<std::string>(argv + 1, argv + argc));
+  if (!options.ok()) {
+    const bool help = absl::IsNotFound(options.status());
+    std::fprintf(help ? stdout : stderr, "%s%s\n", help ? "" : "geomfit-server: ",
+                 std::string(options.status().message()).c_str());
+    if (!help) std::fprintf(stderr, "%s", geomfit::server::ServerUsage().c_str());
+    return help ? 0 : 2;
+  }
+  // Logs go to stderr; stdout carries only the "listening on port N" line.
+  spdlog::set_default_logger(spdlog::stderr_color_mt("geomfit-server"));
+  spdlog::set_level(spdlog::level::from_str(options->log_level));
+
+  // Signals are taken synchronously by this thread only (blocked before any other
+  // thread starts, so gRPC and pool threads inherit the mask).
+  sigset_t signals;
+  sigemptyset(&signals);
+  sigaddset(&signals, SIGINT);
+  sigaddset(&signals, SIGTERM);
+  pthread_sigmask(SIG_BLOCK, &signals, nullptr);
+
+  auto server = geomfit::server::Server::Start(*options);
+  if (!server.ok()) {
+    spdlog::error("cannot start: {}", std::string(server.status().message()));
+    return 1;
+  }
+  std::printf("geomfit-server listening on port %d\n", (*server)->port());
+  std::fflush(stdout);
+
+  int sig = 0;
+  sigwait(&signals, &sig);
+  spdlog::info("received signal {}", sig);
+  std::thread([&signals] {  // a second signal stops at once
+    int again = 0;
+    sigwait(&signals, &again);
+    spdlog::warn("second signal {}: exiting without draining", again);
+    std::_Exit(128 + again);
+  }).detach();
+  (*server)->Shutdown(options->drain_seconds);
+  server->reset();  // closes the store
+  spdlog::info("exit");
+  // gRPC's global teardown can linger for seconds after a clean shutdown; nothing
+  // is left to flush, so skip it.
+  std::fflush(stdout);
+  std::_Exit(0);
+}

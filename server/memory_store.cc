@@ -1,0 +1,122 @@
+#include <chrono>
+#include <map>
+#include <mutex>
+
+#include "absl/strings/str_cat.h"
+#include "server/mesh_store.h"
+
+namespace geomfit::server {
+
+int64_t NowUnixMs() {
+  return std::chrono::duration_cast<std::chrono::milliseconds>(
+             std::chrono::system_clock::now().time_since_epoch())
+      .count();
+}
+
+absl::Status MeshNotFound(const std::string& id) {
+  return absl::NotFoundError(absl::StrCat("mesh '", id, "' not found"));
+}
+
+absl::Status StaleRevision(const std::string& id, int64_t expected, int64_t actual) {
+  return absl::AbortedError(absl::StrCat("mesh '", id, "' is at revision ", actual,
+                                         ", not the expected_revision ", expected));
+}
+
+absl::Status CheckVertexCount(const std::string& id, int64_t rows, int64_t num_vertices) {
+  if (rows == num_vertices) return absl::OkStatus();
+  return absl::InvalidArgumentError(
+      absl::StrCat("positions: ", rows, " rows, mesh '", id, "' has ", num_vertices, " vertices"));
+}
+
+void AmendForPositions(const Positions& positions, int64_t revision, v1::MeshInfo* info) {
+  info->set_revision(revision);
+  info->set_updated_unix_ms(NowUnixMs());
+  v1::BoundingBox* box = info->mutable_bounding_box();
+  box->Clear();
+  if (positions.rows() == 0) return;
+  const Eigen::RowVector3d lo = positions.colwise().minCoeff(), hi = positions.colwise().maxCoeff();
+  for (int i = 0; i < 3; ++i) {
+    box->add_min(lo[i]);
+    box->add_max(hi[i]);
+  }
+}
+
+namespace {
+
+size_t MeshBytes(const Mesh& m) {
+  return sizeof(double) * m.positions.size() + sizeof(int32_t) * m.faces.size();
+}
+
+class MemoryStore final : public MeshStore {
+ public:
+  std::string Kind() const override { return "memory"; }
+
+  absl::StatusOr<v1::MeshInfo> Insert(const v1::MeshInfo& info, const Mesh& mesh) override {
+    std::lock_guard<std::mutex> lock(mu_);
+    auto [it, inserted] = meshes_.try_emplace(info.mesh_id());
+    if (inserted) it->second = {info, std::make_shared<const Mesh>(mesh)};
+    return it->second.info;
+  }
+
+  absl::StatusOr<v1::MeshInfo> UpdatePositions(const std::string& id, std::optional<int64_t> expected,
+                                               const Positions& positions) override {
+    std::lock_guard<std::mutex> lock(mu_);
+    auto it = meshes_.find(id);
+    if (it == meshes_.end()) return MeshNotFound(id);
+    StoredMesh& s = it->second;
+    if (expected && *expected != s.info.revision()) return StaleRevision(id, *expected, s.info.revision());
+    if (absl::Status c = CheckVertexCount(id, positions.rows(), s.info.num_vertices()); !c.ok()) return c;
+    auto mesh = std::make_shared<Mesh>();
+    mesh->faces = s.mesh->faces;
+    mesh->positions = positions;
+    s.mesh = std::move(mesh);
+    AmendForPositions(positions, s.info.revision() + 1, &s.info);
+    return s.info;
+  }
+
+  absl::StatusOr<v1::MeshInfo> GetInfo(const std::string& id) override {
+    std::lock_guard<std::mutex> lock(mu_);
+    auto it = meshes_.find(id);
+    if (it == meshes_.end()) return MeshNotFound(id);
+    return it->second.info;
+  }
+
+  absl::StatusOr<StoredMesh> Get(const std::string& id) override {
+    std::lock_guard<std::mutex> lock(mu_);
+    auto it = meshes_.find(id);
+    if (it == meshes_.end()) return MeshNotFound(id);
+    return it->second;
+  }
+
+  absl::StatusOr<std::vector<v1::MeshInfo>> List(const std::string& after_id, int limit) override {
+    std::lock_guard<std::mutex> lock(mu_);
+    std::vector<v1::MeshInfo> out;
+    for (auto it = meshes_.upper_bound(after_id); it != meshes_.end() && static_cast<int>(out.size()) < limit; ++it)
+      out.push_back(it->second.info);
+    return out;
+  }
+
+  absl::Status Delete(const std::string& id) override {
+    std::lock_guard<std::mutex> lock(mu_);
+    if (meshes_.erase(id) == 0) return MeshNotFound(id);
+    return absl::OkStatus();
+  }
+
+  StoreStats Stats() override {
+    std::lock_guard<std::mutex> lock(mu_);
+    StoreStats s;
+    s.meshes = static_cast<int64_t>(meshes_.size());
+    for (const auto& [id, m] : meshes_) s.bytes += static_cast<int64_t>(MeshBytes(*m.mesh));
+    return s;
+  }
+
+ private:
+  std::mutex mu_;
+  std::map<std::string, StoredMesh> meshes_;
+};
+
+}  // namespace
+
+std::unique_ptr<MeshStore> NewMemoryStore() { return std::make_unique<MemoryStore>(); }
+
+}  // namespace geomfit::server

@@ -1,0 +1,63 @@
+#pragma once
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "absl/status/statusor.h"
+#include "core/mesh/mesh.h"
+#include "geomfit/v1/geomfit.pb.h"
+
+namespace geomfit::server {
+
+/// A stored mesh: its metadata (at the latest revision) and arrays.
+struct StoredMesh {
+  v1::MeshInfo info;
+  std::shared_ptr<const Mesh> mesh;
+};
+
+struct StoreStats {
+  int64_t meshes = 0;
+  int64_t bytes = 0;  ///< array bytes held (memory) or database file size (sqlite)
+};
+
+/// Durable (or throwaway) home of uploaded meshes; only the latest revision's
+/// positions are kept. Every method is thread-safe; a write returns only once it is
+/// durable, and is atomic (a failed or half-finished write is never visible).
+class MeshStore {
+ public:
+  virtual ~MeshStore() = default;
+  virtual std::string Kind() const = 0;
+  /// Stores a new mesh (info.mesh_id set, revision 1). If the id exists already,
+  /// nothing is written and the existing info is returned (idempotent upload).
+  virtual absl::StatusOr<v1::MeshInfo> Insert(const v1::MeshInfo& info, const Mesh& mesh) = 0;
+  /// Replaces the positions and makes revision + 1. NOT_FOUND for an unknown id;
+  /// ABORTED when expected_revision is set and differs from the stored revision.
+  virtual absl::StatusOr<v1::MeshInfo> UpdatePositions(const std::string& id,
+                                                       std::optional<int64_t> expected_revision,
+                                                       const Positions& positions) = 0;
+  virtual absl::StatusOr<v1::MeshInfo> GetInfo(const std::string& id) = 0;
+  virtual absl::StatusOr<StoredMesh> Get(const std::string& id) = 0;
+  /// Up to `limit` meshes with id > after_id, in id order.
+  virtual absl::StatusOr<std::vector<v1::MeshInfo>> List(const std::string& after_id, int limit) = 0;
+  /// NOT_FOUND for an unknown id.
+  virtual absl::Status Delete(const std::string& id) = 0;
+  virtual StoreStats Stats() = 0;
+};
+
+/// In-process store for throwaway runs and tests.
+std::unique_ptr<MeshStore> NewMemoryStore();
+/// SQLite store in `data_dir`/meshes.db (created if missing): WAL, synchronous=FULL.
+absl::StatusOr<std::unique_ptr<MeshStore>> OpenSqliteStore(const std::string& data_dir);
+
+/// The info fields that change with positions (bounding box, revision, time).
+void AmendForPositions(const Positions& positions, int64_t revision, v1::MeshInfo* info);
+int64_t NowUnixMs();
+/// NOT_FOUND naming the mesh.
+absl::Status MeshNotFound(const std::string& id);
+absl::Status StaleRevision(const std::string& id, int64_t expected, int64_t actual);
+/// INVALID_ARGUMENT unless an update carries one row per vertex.
+absl::Status CheckVertexCount(const std::string& id, int64_t rows, int64_t num_vertices);
+
+}  // namespace geomfit::server

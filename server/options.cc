@@ -1,0 +1,164 @@
+#include "server/options.h"
+
+#include <cstdlib>
+#include <functional>
+#include <map>
+
+#include "absl/strings/ascii.h"
+#include "absl/strings/match.h"
+#include "absl/strings/numbers.h"
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_replace.h"
+#include "core/util/status_macros.h"
+
+namespace geomfit::server {
+namespace {
+
+using Setter = std::function<absl::Status(const std::string&, ServerOptions*)>;
+
+struct Flag {
+  const char* name;
+  const char* help;
+  Setter set;
+};
+
+absl::Status Bad(const std::string& name, const std::string& value, const char* want) {
+  return absl::InvalidArgumentError(absl::StrCat("--", name, "=", value, ": expected ", want));
+}
+
+/// Integer with an optional K/M/G (binary) suffix.
+bool ParseBytes(std::string v, int64_t* out) {
+  int64_t scale = 1;
+  const std::string lower = absl::AsciiStrToLower(v);
+  for (const auto& [suffix, s] : {std::pair<const char*, int64_t>{"gib", 1 << 30}, {"mib", 1 << 20},
+                                  {"kib", 1 << 10}, {"g", 1 << 30}, {"m", 1 << 20}, {"k", 1 << 10}}) {
+    if (absl::EndsWith(lower, suffix)) {
+      scale = s;
+      v = v.substr(0, v.size() - std::string(suffix).size());
+      break;
+    }
+  }
+  int64_t n = 0;
+  if (!absl::SimpleAtoi(v, &n) || n < 0) return false;
+  *out = n * scale;
+  return true;
+}
+
+template <typename T>
+Setter IntSetter(T ServerOptions::*field, const char* name, int64_t lo, int64_t hi) {
+  return [=](const std::string& v, ServerOptions* o) {
+    int64_t n = 0;
+    if (!ParseBytes(v, &n) || n < lo || n > hi)
+      return Bad(name, v, absl::StrCat("an integer in [", lo, ", ", hi, "]").c_str());
+    o->*field = static_cast<T>(n);
+    return absl::OkStatus();
+  };
+}
+
+const std::vector<Flag>& Flags() {
+  static const auto* flags = new std::vector<Flag>{
+      {"host", "listen address (use 127.0.0.1 for local-only)",
+       [](const std::string& v, ServerOptions* o) { o->host = v; return absl::OkStatus(); }},
+      {"port", "gRPC port; 0 picks a free one", IntSetter(&ServerOptions::port, "port", 0, 65535)},
+      {"store", "mesh store: sqlite (durable) or memory",
+       [](const std::string& v, ServerOptions* o) {
+         if (v != "sqlite" && v != "memory") return Bad("store", v, "sqlite or memory");
+         o->store = v;
+         return absl::OkStatus();
+       }},
+      {"data-dir", "directory of the SQLite store",
+       [](const std::string& v, ServerOptions* o) {
+         if (v.empty()) return Bad("data-dir", v, "a directory");
+         o->data_dir = v;
+         return absl::OkStatus();
+       }},
+      {"cache-bytes", "cache budget (bytes; K/M/G suffixes)",
+       IntSetter(&ServerOptions::cache_bytes, "cache-bytes", 1 << 20, int64_t{1} << 50)},
+      {"max-message-bytes", "largest gRPC message",
+       IntSetter(&ServerOptions::max_message_bytes, "max-message-bytes", 1 << 16, (int64_t{1} << 31) - 1)},
+      {"max-vertices", "largest mesh accepted",
+       IntSetter(&ServerOptions::max_vertices, "max-vertices", 3, int64_t{1} << 31)},
+      {"threads", "numeric threads per computation; 0 = all cores",
+       IntSetter(&ServerOptions::threads, "threads", 0, 1024)},
+      {"workers", "concurrent computations (compute pool size)",
+       IntSetter(&ServerOptions::workers, "workers", 1, 1024)},
+      {"queue", "pending computations before RESOURCE_EXHAUSTED",
+       IntSetter(&ServerOptions::queue, "queue", 1, 1 << 20)},
+      {"metrics-port", "Prometheus /metrics port; 0 = off",
+       IntSetter(&ServerOptions::metrics_port, "metrics-port", 0, 65535)},
+      {"drain-seconds", "on SIGTERM/SIGINT, stop within this many seconds",
+       [](const std::string& v, ServerOptions* o) {
+         double s = 0;
+         if (!absl::SimpleAtod(v, &s) || s < 0 || s > 3600) return Bad("drain-seconds", v, "0..3600");
+         o->drain_seconds = s;
+         return absl::OkStatus();
+       }},
+      {"chunk-rows", "rows per streamed response chunk",
+       IntSetter(&ServerOptions::chunk_rows, "chunk-rows", 1, int64_t{1} << 24)},
+      {"log-level", "trace|debug|info|warn|error|off",
+       [](const std::string& v, ServerOptions* o) {
+         for (const char* level : {"trace", "debug", "info", "warn", "error", "off"}) {
+           if (v == level) {
+             o->log_level = v;
+             return absl::OkStatus();
+           }
+         }
+         return Bad("log-level", v, "trace, debug, info, warn, error or off");
+       }},
+  };
+  return *flags;
+}
+
+std::string EnvName(const char* flag) {
+  return "GEOMFIT_" + absl::AsciiStrToUpper(absl::StrReplaceAll(flag, {{"-", "_"}}));
+}
+
+const Flag* Find(const std::string& name) {
+  for (const Flag& f : Flags())
+    if (name == f.name) return &f;
+  return nullptr;
+}
+
+}  // namespace
+
+std::string ServerUsage() {
+  ServerOptions d;
+  std::string s = "usage: geomfit-server [--flag=value ...]\n";
+  for (const Flag& f : Flags()) absl::StrAppend(&s, "  --", f.name, "  (", EnvName(f.name), ")  ", f.help, "\n");
+  absl::StrAppend(&s, "defaults: --port=", d.port, " --store=", d.store, " --data-dir=", d.data_dir,
+                  " --cache-bytes=", d.cache_bytes, " --max-message-bytes=", d.max_message_bytes,
+                  " --max-vertices=", d.max_vertices, " --workers=", d.workers, " --drain-seconds=",
+                  d.drain_seconds, "\n");
+  return s;
+}
+
+absl::StatusOr<ServerOptions> ParseServerOptions(const std::vector<std::string>& args) {
+  ServerOptions o;
+  for (const Flag& f : Flags()) {
+    const std::string env = EnvName(f.name);
+    if (const char* v = std::getenv(env.c_str()); v != nullptr && *v != '\0') {
+      absl::Status s = f.set(v, &o);
+      if (!s.ok()) return absl::InvalidArgumentError(absl::StrCat(env, ": ", s.message()));
+    }
+  }
+  for (size_t i = 0; i < args.size(); ++i) {
+    const std::string& a = args[i];
+    if (a == "--help" || a == "-h") return absl::NotFoundError(ServerUsage());
+    if (!absl::StartsWith(a, "--")) return absl::InvalidArgumentError("unexpected argument '" + a + "'");
+    std::string name = a.substr(2), value;
+    if (const size_t eq = name.find('='); eq != std::string::npos) {
+      value = name.substr(eq + 1);
+      name.resize(eq);
+    } else if (i + 1 < args.size()) {
+      value = args[++i];
+    } else {
+      return absl::InvalidArgumentError("--" + name + ": missing value");
+    }
+    const Flag* f = Find(name);
+    if (f == nullptr) return absl::InvalidArgumentError("unknown flag --" + name + " (see --help)");
+    GF_RETURN_IF_ERROR(f->set(value, &o));
+  }
+  return o;
+}
+
+}  // namespace geomfit::server

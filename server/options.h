@@ -1,0 +1,39 @@
+#pragma once
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "absl/status/statusor.h"
+
+namespace geomfit::server {
+
+/// Server configuration. Every field has a flag (--port) and an environment variable
+/// (GEOMFIT_PORT); flags win over the environment, which wins over the defaults.
+struct ServerOptions {
+  std::string host = "0.0.0.0";
+  int port = 50051;                        ///< 0 = pick a free port (reported at start)
+  std::string store = "sqlite";            ///< sqlite | memory
+  std::string data_dir = "geomfit-data";   ///< SQLite database directory
+  int64_t cache_bytes = int64_t{2} << 30;  ///< byte budget of the three cache tiers
+  int64_t max_message_bytes = int64_t{64} << 20;
+  int64_t max_vertices = 20'000'000;
+  int threads = 0;                         ///< numeric threads per computation; 0 = all cores
+  int workers = 2;                         ///< compute pool size (concurrent computations)
+  int queue = 256;                         ///< pending tasks beyond which RESOURCE_EXHAUSTED
+  int metrics_port = 0;                    ///< Prometheus exposition port; 0 = off
+  double drain_seconds = 10;               ///< SIGTERM: finish in-flight calls within this
+  int64_t chunk_rows = 16384;              ///< rows per streamed response chunk
+  std::string log_level = "info";
+
+  std::string Address() const { return host + ":" + std::to_string(port); }
+};
+
+/// Usage text listing every flag, its variable and default.
+std::string ServerUsage();
+
+/// Applies GEOMFIT_* environment variables, then `args` (argv without the program
+/// name; "--name=value" or "--name value"). Errors name the flag and the bad value.
+/// "--help" yields a NOT_FOUND status carrying the usage text.
+absl::StatusOr<ServerOptions> ParseServerOptions(const std::vector<std::string>& args);
+
+}  // namespace geomfit::server

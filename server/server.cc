@@ -1,0 +1,102 @@
+#include "server/server.h"
+
+#include <thread>
+
+#include <grpcpp/ext/proto_server_reflection_plugin.h>
+#include <grpcpp/health_check_service_interface.h>
+#include <prometheus/exposer.h>
+#include <spdlog/spdlog.h>
+
+#include "absl/strings/str_cat.h"
+#include "core/util/status_macros.h"
+#include "server/cache.h"
+#include "server/handlers.h"
+#include "server/mesh_store.h"
+#include "server/metrics.h"
+#include "server/request_stats.h"
+#include "server/service.h"
+#include "server/thread_pool.h"
+
+namespace geomfit::server {
+namespace {
+const char* const kServiceName = "geomfit.v1.GeomFit";
+}  // namespace
+
+absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& options) {
+  std::unique_ptr<Server> s(new Server());
+  s->options_ = options;
+  if (options.store == "memory") {
+    s->store_ = NewMemoryStore();
+  } else {
+    GF_ASSIGN_OR_RETURN(s->store_, OpenSqliteStore(options.data_dir));
+  }
+  s->cache_ = std::make_unique<Cache>(options.cache_bytes);
+  s->stats_ = std::make_unique<RequestStats>();
+  HandlerOptions h;
+  h.max_vertices = options.max_vertices;
+  h.max_message_bytes = options.max_message_bytes;
+  h.chunk_rows = options.chunk_rows;
+  h.threads = options.threads;
+  h.workers = options.workers;
+  s->handlers_ = std::make_unique<Handlers>(s->store_.get(), s->cache_.get(), s->stats_.get(), h);
+  s->compute_ = std::make_unique<ThreadPool>(options.workers, options.queue);
+  s->io_ = std::make_unique<ThreadPool>(2, options.queue);
+  s->service_ = std::make_unique<Service>(s->handlers_.get(), s->compute_.get(), s->io_.get(), s->stats_.get());
+
+  grpc::EnableDefaultHealthCheckService(true);
+  grpc::reflection::InitProtoReflectionServerBuilderPlugin();
+  grpc::ServerBuilder builder;
+  builder.AddChannelArgument(GRPC_ARG_ALLOW_REUSEPORT, 0);
+  builder.SetMaxReceiveMessageSize(static_cast<int>(options.max_message_bytes));
+  builder.SetMaxSendMessageSize(static_cast<int>(options.max_message_bytes));
+  builder.AddListeningPort(options.Address(), grpc::InsecureServerCredentials(), &s->port_);
+  builder.RegisterService(s->service_.get());
+  s->grpc_server_ = builder.BuildAndStart();
+  if (s->grpc_server_ == nullptr || s->port_ == 0) {
+    return absl::UnavailableError(absl::StrCat("cannot listen on ", options.Address(), " (port in use?)"));
+  }
+  s->grpc_server_->GetHealthCheckService()->SetServingStatus(kServiceName, true);
+  s->grpc_server_->GetHealthCheckService()->SetServingStatus(true);
+
+  if (options.metrics_port > 0) {
+    try {
+      s->exposer_ = std::make_unique<prometheus::Exposer>(absl::StrCat(options.host, ":", options.metrics_port));
+    } catch (const std::exception& e) {
+      return absl::UnavailableError(absl::StrCat("metrics: cannot listen on port ", options.metrics_port, ": ", e.what()));
+    }
+    s->metrics_ = std::make_shared<MetricsCollectable>(s->stats_.get(), s->cache_.get(), s->store_.get());
+    s->exposer_->RegisterCollectable(s->metrics_);
+  }
+  spdlog::info("geomfit-server listening on {}:{} (store={} data-dir={} cache-bytes={} workers={} metrics-port={})",
+               options.host, s->port_, options.store, options.data_dir, options.cache_bytes, options.workers,
+               options.metrics_port);
+  return s;
+}
+
+void Server::Shutdown(double drain_seconds) {
+  if (stopped_) return;
+  stopped_ = true;
+  if (grpc_server_ == nullptr) return;  // Start failed before serving
+  spdlog::info("draining: health NOT_SERVING, finishing in-flight calls within {}s", drain_seconds);
+  grpc_server_->GetHealthCheckService()->SetServingStatus(false);
+  service_->StartDraining();
+  // Our calls get until the deadline; then Shutdown cancels what is left at once
+  // (waiting in Shutdown itself would also wait out the health service's idle
+  // internal calls, i.e. always the full deadline).
+  const auto deadline = std::chrono::steady_clock::now() +
+                        std::chrono::milliseconds(static_cast<int64_t>(drain_seconds * 1e3));
+  while (service_->in_flight() > 0 && std::chrono::steady_clock::now() < deadline) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
+  if (service_->in_flight() > 0) spdlog::warn("drain deadline passed: cancelling {} calls", service_->in_flight());
+  grpc_server_->Shutdown(std::chrono::system_clock::now());
+  compute_->Stop();
+  io_->Stop();
+  grpc_server_->Wait();
+  exposer_.reset();
+  spdlog::info("stopped");
+}
+
+Server::~Server() { Shutdown(0); }
+
+}  // namespace geomfit::server

@@ -1,0 +1,241 @@
+#include "server/service.h"
+
+#include <memory>
+#include <utility>
+#include <vector>
+
+#include <spdlog/spdlog.h>
+
+#include "absl/status/status.h"
+#include "server/grpc_status.h"
+
+namespace geomfit::server {
+namespace {
+
+absl::Status QueueFull(const char* pool) {
+  return absl::ResourceExhaustedError(std::string("server busy: the ") + pool +
+                                      " queue is full (--queue); retry later");
+}
+
+/// A token that trips at the call's deadline and when the call is cancelled.
+std::unique_ptr<CancellationToken> TokenFor(const grpc::CallbackServerContext* ctx) {
+  const auto deadline = ctx->deadline();
+  if (deadline >= std::chrono::system_clock::time_point::max() - std::chrono::hours(24 * 365)) {
+    return std::make_unique<CancellationToken>();
+  }
+  const auto left = deadline - std::chrono::system_clock::now();
+  return std::make_unique<CancellationToken>(
+      std::chrono::steady_clock::now() + std::chrono::duration_cast<std::chrono::steady_clock::duration>(left));
+}
+
+/// Client-streaming call: messages are folded into an Assembler on the gRPC thread
+/// (cheap copies); the end of the stream runs `finish` on the compute pool.
+template <typename Request, typename Assembler>
+class ReadReactor final : public grpc::ServerReadReactor<Request> {
+ public:
+  using FinishFn = std::function<absl::StatusOr<v1::MeshInfo>(const Assembler&)>;
+
+  ReadReactor(Service* service, grpc::CallbackServerContext* ctx, v1::MeshInfo* response, const char* method,
+              FinishFn finish)
+      : service_(service), ctx_(ctx), response_(response), assembler_(service->handlers()->options().max_vertices),
+        finish_(std::move(finish)) {
+    service_->Begin();
+    call_.method = method;
+    if (absl::Status s = service_->Admit(); !s.ok()) {
+      Done(s);
+      return;
+    }
+    this->StartRead(&request_);
+  }
+
+  void OnReadDone(bool ok) override {
+    if (ok) {
+      absl::Status s = assembler_.Add(request_);
+      if (!s.ok()) return Done(s);
+      request_.Clear();
+      this->StartRead(&request_);
+      return;
+    }
+    if (ctx_->IsCancelled()) return Done(absl::CancelledError("client cancelled the stream; nothing stored"));
+    call_.bytes_in = assembler_.bytes();
+    const bool queued = service_->compute()->TrySubmit([this] {
+      absl::StatusOr<v1::MeshInfo> info = finish_(assembler_);
+      if (info.ok()) {
+        call_.mesh_id = info->mesh_id();
+        *response_ = std::move(*info);
+      }
+      Done(info.status());
+    });
+    if (!queued) Done(QueueFull("compute"));
+  }
+
+  void OnDone() override { delete this; }
+
+ private:
+  void Done(const absl::Status& s) {
+    if (call_.mesh_id.empty()) call_.mesh_id = assembler_.mesh_id();
+    this->Finish(service_->Finish(call_, s));
+  }
+
+  Service* service_;
+  grpc::CallbackServerContext* ctx_;
+  v1::MeshInfo* response_;
+  Request request_;
+  Assembler assembler_;
+  FinishFn finish_;
+  Service::Call call_{};
+};
+
+/// Server-streaming call: `work` produces every chunk on a pool thread (polling the
+/// call's token); the chunks are then written one by one.
+template <typename Response>
+class WriteReactor final : public grpc::ServerWriteReactor<Response> {
+ public:
+  using WorkFn = std::function<absl::StatusOr<std::vector<Response>>(const CancellationToken&)>;
+
+  WriteReactor(Service* service, grpc::CallbackServerContext* ctx, ThreadPool* pool, Service::Call call,
+               WorkFn work)
+      : service_(service), token_(TokenFor(ctx)), work_(std::move(work)), call_(std::move(call)) {
+    service_->Begin();
+    if (absl::Status s = service_->Admit(); !s.ok()) {
+      Done(s);
+      return;
+    }
+    if (!pool->TrySubmit([this] { Run(); })) Done(QueueFull(pool == service->compute() ? "compute" : "io"));
+  }
+
+  void OnWriteDone(bool ok) override {
+    if (!ok) return Done(absl::CancelledError("client went away during the response stream"));
+    WriteNext();
+  }
+  void OnCancel() override { token_->Cancel(); }
+  void OnDone() override { delete this; }
+
+ private:
+  void Run() {
+    absl::StatusOr<std::vector<Response>> chunks = work_(*token_);
+    if (!chunks.ok()) return Done(chunks.status());
+    chunks_ = std::move(*chunks);
+    WriteNext();
+  }
+  /// Writes the next chunk; the last one goes out together with the status.
+  void WriteNext() {
+    if (chunks_.empty()) return Done(absl::OkStatus());
+    Response* chunk = &chunks_[next_++];
+    call_.bytes_out += static_cast<int64_t>(chunk->ByteSizeLong());
+    if (next_ < chunks_.size()) return this->StartWrite(chunk);
+    this->StartWriteAndFinish(chunk, grpc::WriteOptions(), service_->Finish(call_, absl::OkStatus()));
+  }
+  void Done(const absl::Status& s) { this->Finish(service_->Finish(call_, s)); }
+
+  Service* service_;
+  std::unique_ptr<CancellationToken> token_;
+  WorkFn work_;
+  Service::Call call_;
+  std::vector<Response> chunks_;
+  size_t next_ = 0;
+};
+
+}  // namespace
+
+absl::Status Service::Admit() const {
+  if (draining()) return absl::UnavailableError("server is shutting down; retry on another replica or later");
+  return absl::OkStatus();
+}
+
+grpc::Status Service::Finish(const Call& call, const absl::Status& status) {
+  const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - call.start).count();
+  const std::string code = absl::StatusCodeToString(status.code());
+  stats_->Record(call.method, code, status.ok(), ms);
+  in_flight_.fetch_sub(1);
+  if (status.ok()) {
+    spdlog::info("{} mesh={} in={}B out={}B {:.3f}ms OK", call.method, call.mesh_id, call.bytes_in,
+                 call.bytes_out, ms);
+  } else {
+    spdlog::warn("{} mesh={} in={}B out={}B {:.3f}ms {}: {}", call.method, call.mesh_id, call.bytes_in,
+                 call.bytes_out, ms, code, std::string(status.message()));
+  }
+  return ToGrpcStatus(status);
+}
+
+template <typename Response>
+grpc::ServerUnaryReactor* Service::Unary(grpc::CallbackServerContext* ctx, Call call, ThreadPool* pool,
+                                         Response* response, std::function<absl::StatusOr<Response>()> work) {
+  grpc::ServerUnaryReactor* reactor = ctx->DefaultReactor();
+  Begin();
+  auto run = [this, reactor, response, work = std::move(work), call]() mutable {
+    absl::StatusOr<Response> r = work();
+    if (r.ok()) {
+      *response = std::move(*r);
+      call.bytes_out = static_cast<int64_t>(response->ByteSizeLong());
+    }
+    reactor->Finish(Finish(call, r.status()));
+  };
+  if (absl::Status s = Admit(); !s.ok()) {
+    reactor->Finish(Finish(call, s));
+  } else if (pool == nullptr) {
+    run();
+  } else if (!pool->TrySubmit(std::move(run))) {
+    reactor->Finish(Finish(call, QueueFull("io")));
+  }
+  return reactor;
+}
+
+grpc::ServerReadReactor<v1::UploadMeshRequest>* Service::UploadMesh(grpc::CallbackServerContext* ctx,
+                                                                    v1::MeshInfo* response) {
+  return new ReadReactor<v1::UploadMeshRequest, UploadAssembler>(
+      this, ctx, response, "UploadMesh", [this](const UploadAssembler& a) { return handlers_->UploadMesh(a); });
+}
+
+grpc::ServerReadReactor<v1::UpdatePositionsRequest>* Service::UpdatePositions(grpc::CallbackServerContext* ctx,
+                                                                              v1::MeshInfo* response) {
+  return new ReadReactor<v1::UpdatePositionsRequest, PositionsAssembler>(
+      this, ctx, response, "UpdatePositions",
+      [this](const PositionsAssembler& a) { return handlers_->UpdatePositions(a); });
+}
+
+grpc::ServerUnaryReactor* Service::GetMesh(grpc::CallbackServerContext* ctx, const v1::GetMeshRequest* request,
+                                           v1::MeshInfo* response) {
+  return Unary<v1::MeshInfo>(ctx, {"GetMesh", request->mesh_id()}, io_, response,
+                             [this, request] { return handlers_->GetMesh(*request); });
+}
+
+grpc::ServerWriteReactor<v1::DownloadMeshResponse>* Service::DownloadMesh(grpc::CallbackServerContext* ctx,
+                                                                          const v1::DownloadMeshRequest* request) {
+  return new WriteReactor<v1::DownloadMeshResponse>(
+      this, ctx, io_, {"DownloadMesh", request->mesh_id()},
+      [this, request](const CancellationToken&) { return handlers_->DownloadMesh(*request); });
+}
+
+grpc::ServerUnaryReactor* Service::ListMeshes(grpc::CallbackServerContext* ctx, const v1::ListMeshesRequest* request,
+                                              v1::ListMeshesResponse* response) {
+  return Unary<v1::ListMeshesResponse>(ctx, {"ListMeshes", ""}, io_, response,
+                                       [this, request] { return handlers_->ListMeshes(*request); });
+}
+
+grpc::ServerUnaryReactor* Service::DeleteMesh(grpc::CallbackServerContext* ctx, const v1::DeleteMeshRequest* request,
+                                              v1::DeleteMeshResponse* response) {
+  return Unary<v1::DeleteMeshResponse>(ctx, {"DeleteMesh", request->mesh_id()}, io_, response,
+                                       [this, request] { return handlers_->DeleteMesh(*request); });
+}
+
+grpc::ServerWriteReactor<v1::ComputeDifferentialsResponse>* Service::ComputeDifferentials(
+    grpc::CallbackServerContext* ctx, const v1::ComputeDifferentialsRequest* request) {
+  return new WriteReactor<v1::ComputeDifferentialsResponse>(
+      this, ctx, compute_, {"ComputeDifferentials", request->mesh_id()},
+      [this, request](const CancellationToken& cancel) { return handlers_->ComputeDifferentials(*request, cancel); });
+}
+
+grpc::ServerUnaryReactor* Service::GetServerInfo(grpc::CallbackServerContext* ctx, const v1::GetServerInfoRequest*,
+                                                 v1::ServerInfo* response) {
+  return Unary<v1::ServerInfo>(ctx, {"GetServerInfo", ""}, nullptr, response,
+                               [this]() -> absl::StatusOr<v1::ServerInfo> { return handlers_->GetServerInfo(); });
+}
+
+grpc::ServerUnaryReactor* Service::GetStatistics(grpc::CallbackServerContext* ctx, const v1::GetStatisticsRequest*,
+                                                 v1::Statistics* response) {
+  return Unary<v1::Statistics>(ctx, {"GetStatistics", ""}, io_, response,
+                               [this]() -> absl::StatusOr<v1::Statistics> { return handlers_->GetStatistics(); });
+}
+
+}  // namespace geomfit::server

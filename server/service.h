@@ -1,0 +1,82 @@
+#pragma once
+#include <atomic>
+#include <chrono>
+#include <functional>
+#include <string>
+
+#include <grpcpp/grpcpp.h>
+
+#include "absl/status/status.h"
+#include "geomfit/v1/geomfit.grpc.pb.h"
+#include "server/handlers.h"
+#include "server/request_stats.h"
+#include "server/thread_pool.h"
+
+namespace geomfit::server {
+
+/// Thin adapter from the gRPC callback API to Handlers. gRPC threads only move
+/// messages: every handler runs on a pool (compute: uploads, updates, fits; io:
+/// store reads and deletes), and each call ends in Service::Finish, which logs one
+/// line and records statistics.
+class Service final : public v1::GeomFit::CallbackService {
+ public:
+  Service(Handlers* handlers, ThreadPool* compute, ThreadPool* io, RequestStats* stats)
+      : handlers_(handlers), compute_(compute), io_(io), stats_(stats) {}
+
+  /// From now on every new call gets UNAVAILABLE.
+  void StartDraining() { draining_.store(true); }
+  bool draining() const { return draining_.load(); }
+  /// Calls begun (Begin) and not yet finished (Finish).
+  int in_flight() const { return in_flight_.load(); }
+  void Begin() { in_flight_.fetch_add(1); }
+
+  grpc::ServerReadReactor<v1::UploadMeshRequest>* UploadMesh(grpc::CallbackServerContext* ctx,
+                                                             v1::MeshInfo* response) override;
+  grpc::ServerReadReactor<v1::UpdatePositionsRequest>* UpdatePositions(grpc::CallbackServerContext* ctx,
+                                                                       v1::MeshInfo* response) override;
+  grpc::ServerUnaryReactor* GetMesh(grpc::CallbackServerContext* ctx, const v1::GetMeshRequest* request,
+                                    v1::MeshInfo* response) override;
+  grpc::ServerWriteReactor<v1::DownloadMeshResponse>* DownloadMesh(grpc::CallbackServerContext* ctx,
+                                                                   const v1::DownloadMeshRequest* request) override;
+  grpc::ServerUnaryReactor* ListMeshes(grpc::CallbackServerContext* ctx, const v1::ListMeshesRequest* request,
+                                       v1::ListMeshesResponse* response) override;
+  grpc::ServerUnaryReactor* DeleteMesh(grpc::CallbackServerContext* ctx, const v1::DeleteMeshRequest* request,
+                                       v1::DeleteMeshResponse* response) override;
+  grpc::ServerWriteReactor<v1::ComputeDifferentialsResponse>* ComputeDifferentials(
+      grpc::CallbackServerContext* ctx, const v1::ComputeDifferentialsRequest* request) override;
+  grpc::ServerUnaryReactor* GetServerInfo(grpc::CallbackServerContext* ctx, const v1::GetServerInfoRequest* request,
+                                          v1::ServerInfo* response) override;
+  grpc::ServerUnaryReactor* GetStatistics(grpc::CallbackServerContext* ctx, const v1::GetStatisticsRequest* request,
+                                          v1::Statistics* response) override;
+
+  /// What one call did, for the request log line.
+  struct Call {
+    const char* method;
+    std::string mesh_id;
+    int64_t bytes_in = 0, bytes_out = 0;
+    std::chrono::steady_clock::time_point start = std::chrono::steady_clock::now();
+  };
+  /// Logs and records `call` (begun with Begin), returning the mapped status to
+  /// finish the RPC with.
+  grpc::Status Finish(const Call& call, const absl::Status& status);
+  /// UNAVAILABLE while draining, else OK.
+  absl::Status Admit() const;
+  Handlers* handlers() { return handlers_; }
+  ThreadPool* compute() { return compute_; }
+  ThreadPool* io() { return io_; }
+
+ private:
+  template <typename Response>
+  grpc::ServerUnaryReactor* Unary(grpc::CallbackServerContext* ctx, Call call, ThreadPool* pool,
+                                  Response* response,
+                                  std::function<absl::StatusOr<Response>()> work);
+
+  Handlers* handlers_;
+  ThreadPool* compute_;
+  ThreadPool* io_;
+  RequestStats* stats_;
+  std::atomic<bool> draining_{false};
+  std::atomic<int> in_flight_{0};
+};
+
+}  // namespace geomfit::server

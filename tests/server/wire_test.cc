@@ -1,0 +1,72 @@
+#include "proto/wire.h"
+
+#include <gtest/gtest.h>
+
+namespace geomfit::wire {
+namespace {
+
+TEST(WireTest, FitOptionsRoundTripAndUnsetMeansDefault) {
+  FitOptions o;
+  o.degree = 4;
+  o.rings = 2.5;
+  o.method = FitMethod::kLOP;
+  o.interpolate = false;
+  o.two_pass = true;
+  o.oscillation_safeguard = true;
+  o.frame_normals = NormalWeighting::kAngle;
+  o.cond_threshold[3] = 42;
+  auto back = FromProto(ToProto(o));
+  ASSERT_TRUE(back.ok()) << back.status();
+  EXPECT_EQ(FitOptionsKey(*back), FitOptionsKey(o));
+  auto defaults = FromProto(v1::FitOptions());
+  ASSERT_TRUE(defaults.ok());
+  EXPECT_EQ(FitOptionsKey(*defaults), FitOptionsKey(FitOptions()));
+  v1::FitOptions bad;
+  bad.set_degree(7);
+  EXPECT_EQ(FromProto(bad).status().code(), absl::StatusCode::kInvalidArgument);
+}
+
+TEST(WireTest, ArraysRoundTripAndBadShapesAreNamed) {
+  const double values[6] = {1, 2, 3, 4, 5, 6};
+  v1::DoubleArray a;
+  EncodeDoubles(values, 2, 3, &a);
+  auto m = DecodeDoubles(a, "positions", {3});
+  ASSERT_TRUE(m.ok());
+  EXPECT_EQ((*m)(1, 2), 6);
+  auto wrong_cols = DecodeDoubles(a, "positions", {4});
+  EXPECT_NE(wrong_cols.status().message().find("positions: shape[1] is 3, expected 4"), std::string::npos)
+      << wrong_cols.status();
+  a.mutable_data()->resize(40);
+  auto short_data = DecodeDoubles(a, "positions", {3});
+  EXPECT_NE(short_data.status().message().find("40 bytes"), std::string::npos) << short_data.status();
+  a.set_shape(0, -1);
+  EXPECT_FALSE(DecodeDoubles(a, "positions", {3}).ok());
+}
+
+TEST(WireTest, QuantitiesMask) {
+  v1::ComputeDifferentialsRequest r;
+  AddQuantities(kMeanCurvature | kCurvatureTensor, &r);
+  auto mask = QuantityMask(r.quantities());
+  ASSERT_TRUE(mask.ok());
+  EXPECT_EQ(*mask, static_cast<uint32_t>(kMeanCurvature | kCurvatureTensor));
+  r.add_quantities(static_cast<v1::Quantity>(40));
+  EXPECT_NE(QuantityMask(r.quantities()).status().message().find("quantities[2]"), std::string::npos);
+}
+
+TEST(WireTest, DifferentialsReaderRejectsGapsAndShortStreams) {
+  v1::ComputeDifferentialsResponse first;
+  first.mutable_summary()->set_num_vertices(4);
+  first.set_num_vertices(2);
+  const double mean[2] = {1, 2};
+  EncodeDoubles(mean, 2, 0, first.mutable_mean());
+  DifferentialsReader reader;
+  ASSERT_TRUE(reader.Add(first).ok());
+  v1::ComputeDifferentialsResponse gap;
+  gap.set_vertex_offset(3);
+  gap.set_num_vertices(1);
+  EXPECT_EQ(reader.Add(gap).code(), absl::StatusCode::kDataLoss);
+  EXPECT_EQ(reader.Finish().status().code(), absl::StatusCode::kDataLoss);
+}
+
+}  // namespace
+}  // namespace geomfit::wire
