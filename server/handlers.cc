@@ -23,11 +23,6 @@ int64_t MeshBytes(const Mesh& m) {
   return static_cast<int64_t>(sizeof(double) * m.positions.size() + sizeof(int32_t) * m.faces.size());
 }
 
-absl::Status RequireId(const std::string& id) {
-  if (id.empty()) return absl::InvalidArgumentError("mesh_id: empty");
-  return absl::OkStatus();
-}
-
 /// Identity of an upload: faces, positions, name and (sorted) labels.
 std::string HashUpload(const Mesh& mesh, const v1::MeshHeader& header) {
   ContentHash h;
@@ -139,18 +134,26 @@ v1::FitSummary Summarize(const SurfaceFits& fits, const FitOptions& options) {
 
 }  // namespace
 
+absl::Status RequireId(const std::string& id) {
+  if (id.empty()) return absl::InvalidArgumentError("mesh_id: empty");
+  return absl::OkStatus();
+}
+
 Handlers::Handlers(MeshStore* store, Cache* cache, const RequestStats* stats, HandlerOptions options)
     : store_(store), cache_(cache), stats_(stats), options_(options) {}
 
 absl::StatusOr<v1::MeshInfo> Handlers::UploadMesh(const UploadAssembler& upload) {
   GF_ASSIGN_OR_RETURN(Mesh mesh, upload.Finish());
+  return StoreNewMesh(std::move(mesh), upload.header());
+}
+
+absl::StatusOr<v1::MeshInfo> Handlers::StoreNewMesh(Mesh mesh, const v1::MeshHeader& header) {
   GF_ASSIGN_OR_RETURN(Topology topo, ValidateMesh(mesh));
   const int64_t bytes = MeshBytes(mesh) + static_cast<int64_t>(topo.Bytes());
   if (bytes > cache_->budget()) {
     return absl::ResourceExhaustedError(absl::StrCat("mesh needs ", bytes, " bytes of cache, the budget is ",
                                                      cache_->budget(), " (--cache-bytes)"));
   }
-  const v1::MeshHeader& header = upload.header();
   v1::MeshInfo info;
   info.set_content_hash(HashUpload(mesh, header));
   info.set_mesh_id("m-" + info.content_hash().substr(0, 20));
@@ -251,7 +254,7 @@ absl::StatusOr<v1::DeleteMeshResponse> Handlers::DeleteMesh(const v1::DeleteMesh
 }
 
 absl::StatusOr<Handlers::Fitted> Handlers::Fit(const std::string& id, int64_t revision, const FitOptions& options,
-                                               const CancellationToken& cancel) {
+                                               const CancellationToken& cancel, bool stencils) {
   Fitted f;
   GF_ASSIGN_OR_RETURN(std::shared_ptr<const Mesh> mesh, Geometry(id, revision, &f.revision));
   GF_ASSIGN_OR_RETURN(std::shared_ptr<const Topology> topo, TopologyOf(id, *mesh));
@@ -271,7 +274,7 @@ absl::StatusOr<Handlers::Fitted> Handlers::Fit(const std::string& id, int64_t re
             return std::make_pair(n, static_cast<int64_t>(n->Bytes()));
           },
           &cancel));
-  f.key = absl::StrCat(id, "/r", f.revision, "/fit/", FitOptionsKey(options));
+  f.key = absl::StrCat(id, "/r", f.revision, "/fit/", FitOptionsKey(options), stencils ? "/stencils" : "");
   Stopwatch watch;
   GF_ASSIGN_OR_RETURN(
       f.fits, cache_->Get<SurfaceFits>(
@@ -279,6 +282,7 @@ absl::StatusOr<Handlers::Fitted> Handlers::Fit(const std::string& id, int64_t re
                   [&]() -> absl::StatusOr<std::pair<std::shared_ptr<const SurfaceFits>, int64_t>> {
                     FitRequest fit_request;
                     fit_request.cancel = &cancel;
+                    fit_request.stencils = stencils;
                     GF_ASSIGN_OR_RETURN(auto fits, FitSurface(*mesh, *topo, options, nbhd, fit_request));
                     return std::make_pair(fits, static_cast<int64_t>(fits->Bytes()));
                   },
@@ -343,7 +347,9 @@ v1::ServerInfo Handlers::GetServerInfo() const {
   info.set_compute_workers(options_.workers);
   info.set_default_chunk_rows(options_.chunk_rows);
   for (const char* c : {"UploadMesh", "UpdatePositions", "GetMesh", "DownloadMesh", "ListMeshes", "DeleteMesh",
-                        "ComputeDifferentials", "GetServerInfo", "GetStatistics", "fit_method:LHF",
+                        "ComputeDifferentials", "GetServerInfo", "GetStatistics", "ProjectPoints",
+                        "HighOrderNodes", "RefineMesh", "Integrate", "reconstruction:WALF",
+                        "reconstruction:CMF", "fit_method:LHF",
                         "fit_method:LOP", "faces:triangle", "faces:quad", "faces:mixed"}) {
     info.add_capabilities(c);
   }

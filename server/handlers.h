@@ -26,6 +26,9 @@ struct HandlerOptions {
   int workers = 2;             ///< reported by GetServerInfo
 };
 
+/// INVALID_ARGUMENT for an empty mesh id.
+absl::Status RequireId(const std::string& id);
+
 class Handlers {
  public:
   Handlers(MeshStore* store, Cache* cache, const RequestStats* stats, HandlerOptions options);
@@ -42,6 +45,15 @@ class Handlers {
   v1::ServerInfo GetServerInfo() const;
   v1::Statistics GetStatistics() const;
 
+  // Chapter 4 (reconstruction_handlers.cc).
+  absl::StatusOr<std::vector<v1::ProjectPointsResponse>> ProjectPoints(const v1::ProjectPointsRequest& request,
+                                                                       const CancellationToken& cancel);
+  absl::StatusOr<v1::HighOrderNodesResponse> HighOrderNodes(const v1::HighOrderNodesRequest& request,
+                                                            const CancellationToken& cancel);
+  absl::StatusOr<v1::MeshInfo> RefineMesh(const v1::RefineMeshRequest& request, const CancellationToken& cancel);
+  absl::StatusOr<v1::IntegrateResponse> Integrate(const v1::IntegrateRequest& request,
+                                                  const CancellationToken& cancel);
+
   const HandlerOptions& options() const { return options_; }
 
  private:
@@ -53,8 +65,16 @@ class Handlers {
     bool hit = false;
     double ms = 0;
   };
+  /// `stencils`: fits that also carry their stencil operators (field integration).
   absl::StatusOr<Fitted> Fit(const std::string& id, int64_t revision, const FitOptions& options,
-                             const CancellationToken& cancel);
+                             const CancellationToken& cancel, bool stencils = false);
+  /// Validates, hashes and stores a new mesh (UploadMesh, RefineMesh).
+  absl::StatusOr<v1::MeshInfo> StoreNewMesh(Mesh mesh, const v1::MeshHeader& header);
+  struct Reconstructed;
+  /// The reconstructed surface of a request (fits from the cache).
+  absl::StatusOr<std::unique_ptr<Reconstructed>> Reconstruct(const std::string& id, int64_t revision,
+                                                             const v1::ReconstructionOptions& options,
+                                                             bool stencils, const CancellationToken& cancel);
   /// Mesh `id` at `revision` (0 = latest) from the geometry tier.
   absl::StatusOr<std::shared_ptr<const Mesh>> Geometry(const std::string& id, int64_t revision,
                                                        int64_t* resolved_revision);

@@ -238,4 +238,30 @@ grpc::ServerUnaryReactor* Service::GetStatistics(grpc::CallbackServerContext* ct
                                [this]() -> absl::StatusOr<v1::Statistics> { return handlers_->GetStatistics(); });
 }
 
+grpc::ServerWriteReactor<v1::ProjectPointsResponse>* Service::ProjectPoints(grpc::CallbackServerContext* ctx,
+                                                                            const v1::ProjectPointsRequest* request) {
+  return new WriteReactor<v1::ProjectPointsResponse>(
+      this, ctx, compute_, {"ProjectPoints", request->mesh_id()},
+      [this, request](const CancellationToken& cancel) { return handlers_->ProjectPoints(*request, cancel); });
+}
+
+grpc::ServerUnaryReactor* Service::HighOrderNodes(grpc::CallbackServerContext* ctx,
+                                                  const v1::HighOrderNodesRequest* request,
+                                                  v1::HighOrderNodesResponse* response) {
+  return Unary<v1::HighOrderNodesResponse>(ctx, {"HighOrderNodes", request->mesh_id()}, compute_, response,
+                                           [this, ctx, request] { return handlers_->HighOrderNodes(*request, *TokenFor(ctx)); });
+}
+
+grpc::ServerUnaryReactor* Service::RefineMesh(grpc::CallbackServerContext* ctx, const v1::RefineMeshRequest* request,
+                                              v1::MeshInfo* response) {
+  return Unary<v1::MeshInfo>(ctx, {"RefineMesh", request->mesh_id()}, compute_, response,
+                             [this, ctx, request] { return handlers_->RefineMesh(*request, *TokenFor(ctx)); });
+}
+
+grpc::ServerUnaryReactor* Service::Integrate(grpc::CallbackServerContext* ctx, const v1::IntegrateRequest* request,
+                                             v1::IntegrateResponse* response) {
+  return Unary<v1::IntegrateResponse>(ctx, {"Integrate", request->mesh_id()}, compute_, response,
+                                      [this, ctx, request] { return handlers_->Integrate(*request, *TokenFor(ctx)); });
+}
+
 }  // namespace geomfit::server

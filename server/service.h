@@ -48,6 +48,14 @@ class Service final : public v1::GeomFit::CallbackService {
                                           v1::ServerInfo* response) override;
   grpc::ServerUnaryReactor* GetStatistics(grpc::CallbackServerContext* ctx, const v1::GetStatisticsRequest* request,
                                           v1::Statistics* response) override;
+  grpc::ServerWriteReactor<v1::ProjectPointsResponse>* ProjectPoints(grpc::CallbackServerContext* ctx,
+                                                                     const v1::ProjectPointsRequest* request) override;
+  grpc::ServerUnaryReactor* HighOrderNodes(grpc::CallbackServerContext* ctx, const v1::HighOrderNodesRequest* request,
+                                           v1::HighOrderNodesResponse* response) override;
+  grpc::ServerUnaryReactor* RefineMesh(grpc::CallbackServerContext* ctx, const v1::RefineMeshRequest* request,
+                                       v1::MeshInfo* response) override;
+  grpc::ServerUnaryReactor* Integrate(grpc::CallbackServerContext* ctx, const v1::IntegrateRequest* request,
+                                      v1::IntegrateResponse* response) override;
 
   /// What one call did, for the request log line.
   struct Call {

@@ -7,6 +7,7 @@
 
 #include <gtest/gtest.h>
 
+#include "core/integration/integrate.h"
 #include "core/quantities/differentials.h"
 #include "proto/wire.h"
 #include "tests/server/test_util.h"
@@ -271,6 +272,182 @@ TEST_F(HandlersTest, ServerInfoAndStatistics) {
   EXPECT_EQ(s.methods(0).errors(), 1);
   EXPECT_EQ(s.methods(0).bucket_count(s.methods(0).bucket_count_size() - 1), 2);
   EXPECT_EQ(s.caches_size(), 3);
+}
+
+// ---- Chapter 4 RPCs --------------------------------------------------------------
+
+v1::ReconstructionOptions Recon(int degree, v1::Reconstruction method = v1::RECONSTRUCTION_WALF) {
+  v1::ReconstructionOptions o;
+  o.mutable_fit()->set_degree(degree);
+  o.mutable_fit()->set_oscillation_safeguard(false);
+  o.set_method(method);
+  return o;
+}
+
+TEST_F(HandlersTest, IntegrateMatchesCoreAndTheSphere) {
+  const Mesh mesh = TestSphere(12);
+  auto info = Upload(mesh);
+  ASSERT_TRUE(info.ok());
+  v1::IntegrateRequest q;
+  q.set_mesh_id(info->mesh_id());
+  *q.mutable_options() = Recon(4);
+  Eigen::VectorXd x2 = mesh.positions.col(0).array().square();
+  wire::EncodeDoubles(x2.data(), x2.size(), 0, q.mutable_scalars());
+  wire::RowsXd vec = mesh.positions;
+  wire::EncodeDoubles(vec.data(), vec.rows(), 3, q.mutable_vectors());
+  CancellationToken token;
+  auto r = handlers_.Integrate(q, token);
+  ASSERT_TRUE(r.ok()) << r.status();
+  EXPECT_NEAR(r->area(), 4 * M_PI, 1e-5 * 4 * M_PI);
+  EXPECT_NEAR(r->volume(), 4 * M_PI / 3, 1e-5 * 4 * M_PI);
+  ASSERT_EQ(r->scalars_size(), 1);
+  EXPECT_NEAR(r->scalars(0), 4 * M_PI / 3, 1e-4);
+  EXPECT_NEAR(r->flux(), 4 * M_PI, 1e-4);  // div x = 3
+  // The same numbers as the core computes in process.
+  FitOptions o;
+  o.degree = 4;
+  auto fits = FitSurface(mesh, BuildTopology(mesh).value(), o, nullptr, FitRequest{.stencils = true}).value();
+  IntegrationInput in;
+  in.scalars = x2;
+  in.vectors = mesh.positions;
+  const Integrals core = geomfit::Integrate(WalfSurface(mesh, fits), in, 1).value();
+  EXPECT_DOUBLE_EQ(r->area(), core.area);
+  EXPECT_DOUBLE_EQ(r->flux(), core.flux);
+  // The flat baseline is far less accurate.
+  *q.mutable_options() = Recon(4, v1::RECONSTRUCTION_LINEAR);
+  auto flat = handlers_.Integrate(q, token);
+  ASSERT_TRUE(flat.ok());
+  EXPECT_GT(std::abs(flat->area() - 4 * M_PI), 100 * std::abs(r->area() - 4 * M_PI));
+}
+
+TEST_F(HandlersTest, ProjectPointsEvaluatesFacePointsAndProjectsXyz) {
+  const Mesh mesh = TestSphere(8);
+  auto info = Upload(mesh);
+  ASSERT_TRUE(info.ok());
+  CancellationToken token;
+  v1::ProjectPointsRequest q;
+  q.set_mesh_id(info->mesh_id());
+  *q.mutable_options() = Recon(3);
+  q.set_chunk_rows(7);
+  std::vector<int32_t> faces;
+  wire::RowsXd natural(20, 2);
+  for (int i = 0; i < 20; ++i) faces.push_back(i * 13 % mesh.NumFaces()), natural.row(i) << 0.2, 0.3;
+  wire::EncodeInts(faces.data(), 20, 0, q.mutable_faces());
+  wire::EncodeDoubles(natural.data(), 20, 2, q.mutable_natural());
+  auto r = handlers_.ProjectPoints(q, token);
+  ASSERT_TRUE(r.ok()) << r.status();
+  ASSERT_EQ(r->size(), 3u);  // 20 rows in chunks of 7
+  int seen = 0;
+  for (const auto& chunk : *r) {
+    auto pos = wire::DecodeDoubles(chunk.positions(), "positions", {3}).value();
+    for (int i = 0; i < pos.rows(); ++i, ++seen) EXPECT_NEAR(pos.row(i).norm(), 1.0, 5e-4);
+  }
+  EXPECT_EQ(seen, 20);
+  // xyz points off the sphere land on it.
+  v1::ProjectPointsRequest p;
+  p.set_mesh_id(info->mesh_id());
+  *p.mutable_options() = Recon(3);
+  wire::RowsXd xyz(2, 3);
+  xyz << 0, 0, 1.1, 0.5, 0.5, 0.6;
+  wire::EncodeDoubles(xyz.data(), 2, 3, p.mutable_points());
+  auto proj = handlers_.ProjectPoints(p, token);
+  ASSERT_TRUE(proj.ok()) << proj.status();
+  auto pos = wire::DecodeDoubles((*proj)[0].positions(), "positions", {3}).value();
+  for (int i = 0; i < 2; ++i) EXPECT_NEAR(pos.row(i).norm(), 1.0, 5e-4);
+}
+
+TEST_F(HandlersTest, HighOrderNodesAndRefineMesh) {
+  const Mesh mesh = TestSphere(6);
+  auto info = Upload(mesh, "ball");
+  ASSERT_TRUE(info.ok());
+  CancellationToken token;
+  v1::HighOrderNodesRequest h;
+  h.set_mesh_id(info->mesh_id());
+  *h.mutable_options() = Recon(3);
+  h.set_order(3);
+  auto nodes = handlers_.HighOrderNodes(h, token);
+  ASSERT_TRUE(nodes.ok()) << nodes.status();
+  auto offsets = wire::DecodeInts(nodes->offsets(), "offsets", {0}).value();
+  EXPECT_EQ(offsets.size(), mesh.NumFaces() + 1);
+  EXPECT_EQ(offsets(1) - offsets(0), 10);  // cubic triangle
+  v1::RefineMeshRequest q;
+  q.set_mesh_id(info->mesh_id());
+  *q.mutable_options() = Recon(3);
+  auto refined = handlers_.RefineMesh(q, token);
+  ASSERT_TRUE(refined.ok()) << refined.status();
+  EXPECT_EQ(refined->num_faces(), 4 * mesh.NumFaces());
+  EXPECT_EQ(refined->name(), "ball refined x2");
+  EXPECT_EQ(refined->labels().at("refined_from"), info->mesh_id());
+  v1::GetMeshRequest g;
+  g.set_mesh_id(refined->mesh_id());
+  EXPECT_TRUE(handlers_.GetMesh(g).ok());
+}
+
+TEST_F(HandlersTest, ReconstructionRpcsRejectBadInputAndKeepTheMesh) {
+  const Mesh mesh = TestSphere(4);
+  auto info = Upload(mesh);
+  ASSERT_TRUE(info.ok());
+  CancellationToken token;
+  auto code = [](const absl::Status& s) { return s.code(); };
+  v1::ProjectPointsRequest p;
+  p.set_mesh_id("m-missing");
+  wire::RowsXd xyz(1, 3);
+  xyz << 0, 0, 1;
+  wire::EncodeDoubles(xyz.data(), 1, 3, p.mutable_points());
+  EXPECT_EQ(code(handlers_.ProjectPoints(p, token).status()), absl::StatusCode::kNotFound);
+  p.set_mesh_id(info->mesh_id());
+  std::vector<int32_t> faces = {mesh.NumFaces()};
+  wire::RowsXd natural(1, 2);
+  natural << 0.1, 0.1;
+  wire::EncodeInts(faces.data(), 1, 0, p.mutable_faces());
+  wire::EncodeDoubles(natural.data(), 1, 2, p.mutable_natural());
+  EXPECT_EQ(code(handlers_.ProjectPoints(p, token).status()), absl::StatusCode::kInvalidArgument);  // both kinds
+  p.clear_points();
+  auto bad_face = handlers_.ProjectPoints(p, token);
+  EXPECT_EQ(code(bad_face.status()), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(bad_face.status().message().find("out of range"), std::string::npos) << bad_face.status();
+  faces = {0};
+  natural << 0.9, 0.5;
+  wire::EncodeInts(faces.data(), 1, 0, p.mutable_faces());
+  wire::EncodeDoubles(natural.data(), 1, 2, p.mutable_natural());
+  auto outside = handlers_.ProjectPoints(p, token);
+  EXPECT_NE(outside.status().message().find("outside"), std::string::npos) << outside.status();
+  p.mutable_natural()->set_data("short");
+  EXPECT_EQ(code(handlers_.ProjectPoints(p, token).status()), absl::StatusCode::kInvalidArgument);
+
+  v1::IntegrateRequest q;
+  q.set_mesh_id(info->mesh_id());
+  Eigen::VectorXd wrong(mesh.NumVertices() - 1);
+  wrong.setOnes();
+  wire::EncodeDoubles(wrong.data(), wrong.size(), 0, q.mutable_scalars());
+  auto integ = handlers_.Integrate(q, token);
+  EXPECT_EQ(code(integ.status()), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(integ.status().message().find("scalar field"), std::string::npos) << integ.status();
+  q.clear_scalars();
+  *q.mutable_options() = Recon(2, v1::RECONSTRUCTION_CMF);
+  EXPECT_EQ(code(handlers_.Integrate(q, token).status()), absl::StatusCode::kInvalidArgument);
+  q.mutable_options()->set_method(v1::RECONSTRUCTION_WALF);
+  q.mutable_options()->mutable_fit()->set_degree(9);
+  EXPECT_EQ(code(handlers_.Integrate(q, token).status()), absl::StatusCode::kInvalidArgument);
+
+  v1::HighOrderNodesRequest h;
+  h.set_mesh_id(info->mesh_id());
+  h.set_order(4);
+  EXPECT_EQ(code(handlers_.HighOrderNodes(h, token).status()), absl::StatusCode::kInvalidArgument);
+  v1::RefineMeshRequest r;
+  r.set_mesh_id(info->mesh_id());
+  r.set_factor(1);
+  EXPECT_EQ(code(handlers_.RefineMesh(r, token).status()), absl::StatusCode::kInvalidArgument);
+  r.set_factor(2);
+  r.mutable_options()->set_feature_angle_deg(500);
+  EXPECT_EQ(code(handlers_.RefineMesh(r, token).status()), absl::StatusCode::kInvalidArgument);
+
+  v1::GetMeshRequest g;
+  g.set_mesh_id(info->mesh_id());
+  auto still = handlers_.GetMesh(g);
+  ASSERT_TRUE(still.ok());
+  EXPECT_EQ(still->revision(), 1);
+  EXPECT_EQ(still->content_hash(), info->content_hash());
 }
 
 }  // namespace
