@@ -61,3 +61,33 @@ def test_remote_usage_errors():
     r = run("list", check=False)
     assert r.returncode == 2
     assert "--server" in r.stderr
+
+
+def test_chapter4_commands_remote_match_local(server, tmp_path):
+    """project, refine, nodes and integrate give byte-identical results over gRPC."""
+    address = server.address
+    sphere = str(tmp_path / "s.obj")
+    run("generate", "sphere", "--level", "6", "--output", sphere)
+    points = tmp_path / "xyz.txt"
+    points.write_text("0 0 1.1\n0.5 0.5 0.6\n")
+    faces = tmp_path / "fxe.txt"
+    faces.write_text("0 0.25 0.25\n3 0.1 0.6\n")
+    for args in (["integrate", sphere, "--degree", "4"],
+                 ["project", sphere, "--points", str(points), "--method", "cmf"],
+                 ["project", sphere, "--face-points", str(faces)]):
+        assert run(*args, "--server", address).stdout == run(*args).stdout, args
+    local, remote = str(tmp_path / "local.obj"), str(tmp_path / "remote.obj")
+    run("refine", sphere, "--factor", "3", "--output", local)
+    stored = run("refine", sphere, "--factor", "3", "--output", remote, "--server", address)
+    assert "stored the refined mesh as m-" in stored.stderr
+    assert open(local).read() == open(remote).read()
+    run("nodes", sphere, "--order", "3", "--output", str(tmp_path / "l"))
+    run("nodes", sphere, "--order", "3", "--output", str(tmp_path / "r"), "--server", address)
+    for suffix in (".nodes.tsv", ".elements.tsv"):
+        assert open(str(tmp_path / "l") + suffix).read() == open(str(tmp_path / "r") + suffix).read()
+    # Bad input is a one-line error naming the point, and the server stays up.
+    faces.write_text("0 0.9 0.5\n")
+    bad = run("project", sphere, "--face-points", str(faces), "--server", address, check=False)
+    assert bad.returncode == 1
+    assert "outside triangle face 0" in bad.stderr
+    assert run("list", "--server", address).returncode == 0

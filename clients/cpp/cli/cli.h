@@ -129,6 +129,14 @@ absl::Status RunNodes(const std::vector<std::string>& args);      ///< reconstru
 absl::Status RunIntegrate(const std::vector<std::string>& args);  ///< reconstruct.cc
 
 #ifdef GEOMFIT_WITH_CLIENT
+}  // namespace geomfit::cli
+#include "clients/cpp/client/client.h"
+namespace geomfit::cli {
+/// A client of the server at HOST:PORT (remote.cc).
+std::unique_ptr<Client> ConnectTo(const std::string& server);
+/// MESH on the command line is a file (uploaded, idempotently; read into *mesh) or the
+/// id of a stored mesh (*mesh left empty). Returns the mesh id.
+absl::StatusOr<std::string> RemoteMeshId(Client& client, const std::string& mesh_arg, bool verbose, Mesh* mesh);
 /// Service mode (remote.cc): `curvature --server ...` with parsed arguments.
 absl::Status RunCurvatureRemote(const CurvatureArgs& args);
 /// Service-only commands (remote.cc): upload, update, info, list, delete.

@@ -1,5 +1,6 @@
 // In-process chapter-4 commands of the `geomfit` tool: project, refine, nodes, integrate.
 #include <cstdio>
+#include <map>
 #include <sstream>
 
 #include "absl/strings/numbers.h"
@@ -20,7 +21,7 @@ namespace {
 
 // Options every reconstruction command shares.
 struct SurfaceArgs {
-  std::string mesh, method = "walf", output, feature_edges;
+  std::string mesh, method = "walf", output, feature_edges, server;
   int degree = 3, threads = 0;
   double feature_angle = 0;
   bool no_safeguard = false, verbose = false;
@@ -35,8 +36,42 @@ void AddSurfaceOptions(ArgParser* p, SurfaceArgs* a) {
       .String("feature-edges", &a->feature_edges, "file of user-marked feature edges 'a b' (vertex ids)", "FILE")
       .Int("threads", &a->threads, "threads (0 = all cores)")
       .String("output", &a->output, "output file", "FILE")
+      .String("server", &a->server, "compute on a geomfit server (MESH: a file to upload or a mesh id)", "HOST:PORT")
       .Flag("verbose", &a->verbose, "print timings to stderr");
 }
+
+#ifdef GEOMFIT_WITH_CLIENT
+// The same surface options as the service takes them.
+absl::StatusOr<v1::ReconstructionOptions> ToWire(const SurfaceArgs& a) {
+  v1::ReconstructionOptions o;
+  const std::map<std::string, v1::Reconstruction> methods = {
+      {"walf", v1::RECONSTRUCTION_WALF}, {"cmf", v1::RECONSTRUCTION_CMF}, {"linear", v1::RECONSTRUCTION_LINEAR}};
+  if (!methods.count(a.method)) return UsageError(absl::StrCat("--method '", a.method, "': expected walf, cmf or linear"));
+  o.set_method(methods.at(a.method));
+  o.mutable_fit()->set_degree(a.degree);
+  o.mutable_fit()->set_oscillation_safeguard(!a.no_safeguard);
+  o.set_feature_angle_deg(a.feature_angle);
+  if (!a.feature_edges.empty()) return UsageError("--feature-edges is not supported with --server yet");
+  return o;
+}
+
+struct RemoteSession {
+  std::unique_ptr<Client> client;
+  std::string id;
+  Mesh mesh;  // read when MESH is a file
+};
+
+absl::StatusOr<RemoteSession> Connect(const SurfaceArgs& a) {
+  RemoteSession r;
+  r.client = ConnectTo(a.server);
+  GF_ASSIGN_OR_RETURN(r.id, RemoteMeshId(*r.client, a.mesh, a.verbose, &r.mesh));
+  return r;
+}
+#endif
+
+#ifndef GEOMFIT_WITH_CLIENT
+absl::Status NoClient(const SurfaceArgs&) { return UsageError(kNoClientMessage); }
+#endif
 
 absl::StatusOr<ReconstructionMethod> ParseMethod(const std::string& m) {
   if (m == "walf") return ReconstructionMethod::kWalf;
@@ -147,14 +182,31 @@ absl::Status RunProject(const std::vector<std::string>& argv) {
   GF_RETURN_IF_ERROR(ParseOrHelp(p, argv, &help));
   if (help) return absl::OkStatus();
   if (points.empty() == face_points.empty()) return UsageError("give exactly one of --points and --face-points");
-  Loaded l;
-  GF_RETURN_IF_ERROR(Load(a, false, &l));
   std::vector<ProjectedPoint> out;
   Stopwatch t;
-  if (!points.empty()) {
+  if (!a.server.empty()) {
+#ifdef GEOMFIT_WITH_CLIENT
+    GF_ASSIGN_OR_RETURN(const v1::ReconstructionOptions o, ToWire(a));
+    GF_ASSIGN_OR_RETURN(RemoteSession r, Connect(a));
+    GF_ASSIGN_OR_RETURN(const RowMajorMatrixXd table, ReadTable(points.empty() ? face_points : points, 3));
+    if (!points.empty()) {
+      GF_ASSIGN_OR_RETURN(out, r.client->ProjectPoints(r.id, Positions(table), o));
+    } else {
+      std::vector<FacePoint> fp(table.rows());
+      for (int i = 0; i < table.rows(); ++i) fp[i] = {static_cast<int32_t>(table(i, 0)), table(i, 1), table(i, 2)};
+      GF_ASSIGN_OR_RETURN(out, r.client->EvaluateFacePoints(r.id, fp, o));
+    }
+#else
+    return NoClient(a);
+#endif
+  } else if (!points.empty()) {
+    Loaded l;
+    GF_RETURN_IF_ERROR(Load(a, false, &l));
     GF_ASSIGN_OR_RETURN(const RowMajorMatrixXd xyz, ReadTable(points, 3));
     GF_RETURN_IF_ERROR(ProjectPoints(*l.surface, l.topo, Positions(xyz), &out, a.threads));
   } else {
+    Loaded l;
+    GF_RETURN_IF_ERROR(Load(a, false, &l));
     GF_ASSIGN_OR_RETURN(const RowMajorMatrixXd fxe, ReadTable(face_points, 3));
     std::vector<FacePoint> fp(fxe.rows());
     for (int i = 0; i < fxe.rows(); ++i) {
@@ -192,6 +244,18 @@ absl::Status RunRefine(const std::vector<std::string>& argv) {
   if (a.output.empty()) return UsageError("'geomfit refine' needs --output FILE");
   if (auto f = FormatFromPath(a.output); !f.ok()) return UsageError(f.status().message());
   if (factor < 2 || factor > 8) return UsageError(absl::StrCat("--factor ", factor, " is out of range [2, 8]"));
+  if (!a.server.empty()) {
+#ifdef GEOMFIT_WITH_CLIENT
+    GF_ASSIGN_OR_RETURN(const v1::ReconstructionOptions o, ToWire(a));
+    GF_ASSIGN_OR_RETURN(RemoteSession r, Connect(a));
+    GF_ASSIGN_OR_RETURN(const RemoteMesh refined, r.client->RefineMesh(r.id, factor, o));
+    std::fprintf(stderr, "geomfit: stored the refined mesh as %s\n", refined.mesh_id.c_str());
+    GF_ASSIGN_OR_RETURN(const Mesh m, r.client->Download(refined.mesh_id));
+    return WriteMesh(m, a.output);
+#else
+    return NoClient(a);
+#endif
+  }
   Loaded l;
   GF_RETURN_IF_ERROR(Load(a, false, &l));
   GF_ASSIGN_OR_RETURN(const Mesh refined, RefineMesh(*l.surface, l.topo, factor, a.threads));
@@ -212,9 +276,20 @@ absl::Status RunNodes(const std::vector<std::string>& argv) {
   if (help) return absl::OkStatus();
   if (a.output.empty()) return UsageError("'geomfit nodes' needs --output PREFIX");
   if (order != 2 && order != 3) return UsageError(absl::StrCat("--order ", order, ": expected 2 or 3"));
-  Loaded l;
-  GF_RETURN_IF_ERROR(Load(a, false, &l));
-  GF_ASSIGN_OR_RETURN(const HighOrderMesh ho, MakeHighOrderMesh(*l.surface, l.topo, order, a.threads));
+  HighOrderMesh ho;
+  if (!a.server.empty()) {
+#ifdef GEOMFIT_WITH_CLIENT
+    GF_ASSIGN_OR_RETURN(const v1::ReconstructionOptions o, ToWire(a));
+    GF_ASSIGN_OR_RETURN(RemoteSession r, Connect(a));
+    GF_ASSIGN_OR_RETURN(ho, r.client->HighOrderNodes(r.id, order, o));
+#else
+    return NoClient(a);
+#endif
+  } else {
+    Loaded l;
+    GF_RETURN_IF_ERROR(Load(a, false, &l));
+    GF_ASSIGN_OR_RETURN(ho, MakeHighOrderMesh(*l.surface, l.topo, order, a.threads));
+  }
   std::string nodes = "x\ty\tz\n", elements;
   for (int i = 0; i < ho.nodes.rows(); ++i)
     absl::StrAppendFormat(&nodes, "%.17g\t%.17g\t%.17g\n", ho.nodes(i, 0), ho.nodes(i, 1), ho.nodes(i, 2));
@@ -246,8 +321,6 @@ absl::Status RunIntegrate(const std::vector<std::string>& argv) {
   if (help) return absl::OkStatus();
   if (a.method == "cmf") return UsageError("--method cmf is not supported for integration (walf or linear)");
   if (quadrature < 0 || quadrature > 30) return UsageError(absl::StrCat("--quadrature ", quadrature, " is out of range [0, 30]"));
-  Loaded l;
-  GF_RETURN_IF_ERROR(Load(a, !scalar.empty() || !vector.empty(), &l));
   IntegrationInput in;
   in.quadrature_degree = quadrature;
   if (!scalar.empty()) {
@@ -256,7 +329,20 @@ absl::Status RunIntegrate(const std::vector<std::string>& argv) {
   if (!vector.empty()) {
     GF_ASSIGN_OR_RETURN(in.vectors, ReadTable(vector, 3));
   }
-  GF_ASSIGN_OR_RETURN(const Integrals r, Integrate(*l.surface, in, a.threads));
+  Integrals r;
+  if (!a.server.empty()) {
+#ifdef GEOMFIT_WITH_CLIENT
+    GF_ASSIGN_OR_RETURN(const v1::ReconstructionOptions o, ToWire(a));
+    GF_ASSIGN_OR_RETURN(RemoteSession s, Connect(a));
+    GF_ASSIGN_OR_RETURN(r, s.client->Integrate(s.id, in, o));
+#else
+    return NoClient(a);
+#endif
+  } else {
+    Loaded l;
+    GF_RETURN_IF_ERROR(Load(a, !scalar.empty() || !vector.empty(), &l));
+    GF_ASSIGN_OR_RETURN(r, Integrate(*l.surface, in, a.threads));
+  }
   std::string text = absl::StrFormat("area\t%.17g\nvolume\t%.17g\n", r.area, r.volume);
   if (!scalar.empty()) absl::StrAppendFormat(&text, "scalar\t%.17g\n", r.scalars[0]);
   if (!vector.empty()) absl::StrAppendFormat(&text, "flux\t%.17g\n", r.flux);

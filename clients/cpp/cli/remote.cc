@@ -11,13 +11,13 @@
 #include "core/util/status_macros.h"
 
 namespace geomfit::cli {
-namespace {
-
 std::unique_ptr<Client> ConnectTo(const std::string& server) {
   ClientOptions o;
   o.target = server;
   return Client::Connect(o);
 }
+
+namespace {
 
 /// One tab-separated line per mesh, under a header line.
 std::string MeshTable(const std::vector<RemoteMesh>& meshes) {
@@ -124,18 +124,20 @@ absl::Status Delete(const std::vector<std::string>& args) {
 
 }  // namespace
 
+absl::StatusOr<std::string> RemoteMeshId(Client& client, const std::string& mesh_arg, bool verbose, Mesh* mesh) {
+  if (!std::filesystem::exists(mesh_arg)) return mesh_arg;
+  GF_ASSIGN_OR_RETURN(*mesh, ReadMesh(mesh_arg));
+  GF_ASSIGN_OR_RETURN(RemoteMesh info, client.Upload(*mesh, std::filesystem::path(mesh_arg).filename().string()));
+  if (verbose) std::fprintf(stderr, "geomfit: uploaded %s as %s\n", mesh_arg.c_str(), info.mesh_id.c_str());
+  return info.mesh_id;
+}
+
 absl::Status RunCurvatureRemote(const CurvatureArgs& a) {
   std::unique_ptr<Client> client = ConnectTo(a.server);
   // MESH is a file (uploaded first; idempotent) or the id of a stored mesh.
   Mesh mesh;
-  std::string id = a.mesh;
-  if (std::filesystem::exists(a.mesh)) {
-    GF_ASSIGN_OR_RETURN(mesh, ReadMesh(a.mesh));
-    GF_ASSIGN_OR_RETURN(RemoteMesh info,
-                        client->Upload(mesh, std::filesystem::path(a.mesh).filename().string()));
-    id = info.mesh_id;
-    if (a.verbose) std::fprintf(stderr, "geomfit: uploaded %s as %s\n", a.mesh.c_str(), id.c_str());
-  } else if (a.output.empty() || OutputKindFromPath(a.output).value_or(OutputKind::kTsv) == OutputKind::kVtp) {
+  GF_ASSIGN_OR_RETURN(const std::string id, RemoteMeshId(*client, a.mesh, a.verbose, &mesh));
+  if (mesh.NumVertices() == 0 && OutputKindFromPath(a.output).value_or(OutputKind::kTsv) == OutputKind::kVtp) {
     GF_ASSIGN_OR_RETURN(mesh, client->Download(id));  // VTP needs the mesh
   }
   GF_ASSIGN_OR_RETURN(RemoteDifferentials d, client->ComputeDifferentials(id, a.fit, kAllQuantities, 0, true));

@@ -288,3 +288,138 @@ absl::StatusOr<v1::Statistics> Client::GetStatistics() {
 }
 
 }  // namespace geomfit
+
+// ---- Chapter 4 ------------------------------------------------------------------------
+
+namespace geomfit {
+
+absl::StatusOr<std::vector<ProjectedPoint>> Client::ProjectPoints(const std::string& mesh_id, const Positions& points,
+                                                                  const v1::ReconstructionOptions& options) {
+  v1::ProjectPointsRequest request;
+  *request.mutable_options() = options;
+  wire::EncodeDoubles(points.data(), points.rows(), 3, request.mutable_points());
+  return SendProject(mesh_id, std::move(request));
+}
+
+absl::StatusOr<std::vector<ProjectedPoint>> Client::EvaluateFacePoints(const std::string& mesh_id,
+                                                                       const std::vector<FacePoint>& points,
+                                                                       const v1::ReconstructionOptions& options) {
+  v1::ProjectPointsRequest request;
+  *request.mutable_options() = options;
+  std::vector<int32_t> faces(points.size());
+  wire::RowsXd natural(points.size(), 2);
+  for (size_t i = 0; i < points.size(); ++i) faces[i] = points[i].face, natural.row(i) << points[i].xi, points[i].eta;
+  wire::EncodeInts(faces.data(), static_cast<int64_t>(faces.size()), 0, request.mutable_faces());
+  wire::EncodeDoubles(natural.data(), natural.rows(), 2, request.mutable_natural());
+  return SendProject(mesh_id, std::move(request));
+}
+
+absl::StatusOr<std::vector<ProjectedPoint>> Client::SendProject(const std::string& mesh_id,
+                                                                v1::ProjectPointsRequest request) {
+  return WithMesh<std::vector<ProjectedPoint>>(
+      mesh_id, [&](const std::string& id) -> absl::StatusOr<std::vector<ProjectedPoint>> {
+        request.set_mesh_id(id);
+        std::vector<ProjectedPoint> out;
+        absl::Status decode;
+        GF_RETURN_IF_ERROR(impl_->Call([&](grpc::ClientContext& ctx) {
+          out.clear();
+          decode = absl::OkStatus();
+          auto stream = impl_->stub->ProjectPoints(&ctx, request);
+          v1::ProjectPointsResponse c;
+          while (stream->Read(&c)) {
+            if (!decode.ok()) continue;
+            auto pos = wire::DecodeDoubles(c.positions(), "positions", {3});
+            auto nrm = wire::DecodeDoubles(c.normals(), "normals", {3});
+            auto nat = wire::DecodeDoubles(c.natural(), "natural", {2});
+            auto dist = wire::DecodeDoubles(c.distances(), "distances", {0});
+            auto faces = wire::DecodeInts(c.faces(), "faces", {0});
+            for (const absl::Status& s : {pos.status(), nrm.status(), nat.status(), dist.status(), faces.status()})
+              if (decode.ok() && !s.ok()) decode = s;
+            if (!decode.ok()) continue;
+            if (c.offset() != static_cast<int64_t>(out.size()) || nrm->rows() != pos->rows() ||
+                nat->rows() != pos->rows() || dist->rows() != pos->rows() || faces->rows() != pos->rows()) {
+              decode = absl::DataLossError("ProjectPoints: chunks out of order or of unequal lengths");
+              continue;
+            }
+            for (Eigen::Index i = 0; i < pos->rows(); ++i) {
+              ProjectedPoint p;
+              p.where = {(*faces)(i, 0), (*nat)(i, 0), (*nat)(i, 1)};
+              p.point.position = pos->row(i).transpose();
+              p.point.normal = nrm->row(i).transpose();
+              p.point.jacobian.setZero();
+              p.distance = (*dist)(i, 0);
+              out.push_back(p);
+            }
+          }
+          return stream->Finish();
+        }));
+        GF_RETURN_IF_ERROR(decode);
+        return out;
+      });
+}
+
+absl::StatusOr<HighOrderMesh> Client::HighOrderNodes(const std::string& mesh_id, int order,
+                                                     const v1::ReconstructionOptions& options) {
+  return WithMesh<HighOrderMesh>(mesh_id, [&](const std::string& id) -> absl::StatusOr<HighOrderMesh> {
+    v1::HighOrderNodesRequest request;
+    request.set_mesh_id(id);
+    request.set_order(order);
+    *request.mutable_options() = options;
+    v1::HighOrderNodesResponse response;
+    GF_RETURN_IF_ERROR(impl_->Call(
+        [&](grpc::ClientContext& ctx) { return impl_->stub->HighOrderNodes(&ctx, request, &response); }));
+    HighOrderMesh out;
+    out.order = response.order();
+    GF_ASSIGN_OR_RETURN(out.nodes, wire::DecodeDoubles(response.nodes(), "nodes", {3}));
+    GF_ASSIGN_OR_RETURN(const wire::RowsXi offsets, wire::DecodeInts(response.offsets(), "offsets", {0}));
+    GF_ASSIGN_OR_RETURN(const wire::RowsXi elements, wire::DecodeInts(response.elements(), "elements", {0}));
+    out.offsets.assign(offsets.data(), offsets.data() + offsets.size());
+    out.elements.assign(elements.data(), elements.data() + elements.size());
+    return out;
+  });
+}
+
+absl::StatusOr<RemoteMesh> Client::RefineMesh(const std::string& mesh_id, int factor,
+                                              const v1::ReconstructionOptions& options, const std::string& name) {
+  return WithMesh<RemoteMesh>(mesh_id, [&](const std::string& id) -> absl::StatusOr<RemoteMesh> {
+    v1::RefineMeshRequest request;
+    request.set_mesh_id(id);
+    request.set_factor(factor);
+    request.set_name(name);
+    *request.mutable_options() = options;
+    v1::MeshInfo info;
+    GF_RETURN_IF_ERROR(
+        impl_->Call([&](grpc::ClientContext& ctx) { return impl_->stub->RefineMesh(&ctx, request, &info); }));
+    return FromProto(info);
+  });
+}
+
+absl::StatusOr<Integrals> Client::Integrate(const std::string& mesh_id, const IntegrationInput& input,
+                                            const v1::ReconstructionOptions& options) {
+  return WithMesh<Integrals>(mesh_id, [&](const std::string& id) -> absl::StatusOr<Integrals> {
+    v1::IntegrateRequest request;
+    request.set_mesh_id(id);
+    request.set_quadrature_degree(input.quadrature_degree);
+    *request.mutable_options() = options;
+    if (input.scalars.size()) {
+      const wire::RowsXd s = input.scalars;
+      wire::EncodeDoubles(s.data(), s.rows(), s.cols(), request.mutable_scalars());
+    }
+    if (input.vectors.size()) {
+      const wire::RowsXd v = input.vectors;
+      wire::EncodeDoubles(v.data(), v.rows(), v.cols(), request.mutable_vectors());
+    }
+    v1::IntegrateResponse response;
+    GF_RETURN_IF_ERROR(
+        impl_->Call([&](grpc::ClientContext& ctx) { return impl_->stub->Integrate(&ctx, request, &response); }));
+    Integrals out;
+    out.area = response.area();
+    out.volume = response.volume();
+    out.scalars.assign(response.scalars().begin(), response.scalars().end());
+    out.flux = response.flux();
+    out.quadrature_points = response.quadrature_points();
+    return out;
+  });
+}
+
+}  // namespace geomfit

@@ -17,14 +17,14 @@
 #include "absl/status/statusor.h"
 #include "core/fitting/options.h"
 #include "core/mesh/mesh.h"
+#include "core/integration/integrate.h"
 #include "core/quantities/differentials.h"
+#include "core/reconstruction/meshing.h"
+#include "core/reconstruction/projection.h"
+#include "geomfit/v1/geomfit.pb.h"
 
 namespace geomfit {
 
-namespace v1 {
-class ServerInfo;
-class Statistics;
-}  // namespace v1
 
 struct ClientOptions {
   std::string target = "127.0.0.1:50051";  ///< host:port
@@ -85,6 +85,23 @@ class Client {
   absl::StatusOr<v1::ServerInfo> GetServerInfo();
   absl::StatusOr<v1::Statistics> GetStatistics();
 
+  // Chapter 4: the high-order surface (options as on the wire; default WALF with the
+  // fit defaults and the oscillation safeguard on).
+  /// Projections of xyz points near the surface onto it.
+  absl::StatusOr<std::vector<ProjectedPoint>> ProjectPoints(const std::string& mesh_id, const Positions& points,
+                                                            const v1::ReconstructionOptions& options = {});
+  /// Positions and normals of face points (face + natural coordinates).
+  absl::StatusOr<std::vector<ProjectedPoint>> EvaluateFacePoints(const std::string& mesh_id,
+                                                                 const std::vector<FacePoint>& points,
+                                                                 const v1::ReconstructionOptions& options = {});
+  absl::StatusOr<HighOrderMesh> HighOrderNodes(const std::string& mesh_id, int order,
+                                               const v1::ReconstructionOptions& options = {});
+  /// Refines onto the surface; the server stores the result as a new mesh.
+  absl::StatusOr<RemoteMesh> RefineMesh(const std::string& mesh_id, int factor,
+                                        const v1::ReconstructionOptions& options = {}, const std::string& name = "");
+  absl::StatusOr<Integrals> Integrate(const std::string& mesh_id, const IntegrationInput& input,
+                                      const v1::ReconstructionOptions& options = {});
+
   /// The server-side id currently standing for `mesh_id` (differs after a re-upload).
   std::string ResolveId(const std::string& mesh_id) const;
 
@@ -94,6 +111,7 @@ class Client {
   /// Runs `fn` on the remote id of `mesh_id`; on NOT_FOUND re-uploads once if allowed.
   template <typename T, typename Fn>
   absl::StatusOr<T> WithMesh(const std::string& mesh_id, Fn fn);
+  absl::StatusOr<std::vector<ProjectedPoint>> SendProject(const std::string& mesh_id, v1::ProjectPointsRequest request);
 
   std::unique_ptr<Impl> impl_;
 };
