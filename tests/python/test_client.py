@@ -157,3 +157,38 @@ def test_retry_gives_unavailable_when_nobody_listens():
         with pytest.raises(geomfit.GeomfitError) as e:
             client.server_info()
         assert e.value.code == grpc.StatusCode.UNAVAILABLE
+
+
+def test_chapter4_project_nodes_refine_integrate(server, torus_mesh):
+    positions, faces = torus_mesh
+    with geomfit.Client(server.address) as client:
+        mesh_id = client.upload(positions, faces, name="torus").mesh_id
+        # Area and volume of the torus R = 1, r = 0.3 from the WALF surface.
+        r = client.integrate(mesh_id, scalars=np.ones(len(positions)), vectors=positions, degree=4, safeguard=False)
+        area, volume = 4 * np.pi ** 2 * 0.3, 2 * np.pi ** 2 * 0.09
+        assert abs(r.area - area) < 1e-3 * area
+        assert abs(r.volume - volume) < 1e-3 * volume
+        assert abs(r.scalars[0] - r.area) < 1e-3 * area   # integral of 1
+        assert abs(r.flux - 3 * r.volume) < 1e-3 * volume  # div x = 3
+        flat = client.integrate(mesh_id, surface="linear")
+        assert abs(flat.area - area) > 10 * abs(r.area - area)
+        # Face points and xyz projections lie on the torus.
+        p = client.project(mesh_id, faces=np.arange(10), natural=np.full((10, 2), 0.25))
+        assert p["positions"].shape == (10, 3)
+        rho = np.hypot(p["positions"][:, 0], p["positions"][:, 1])
+        assert np.all(np.abs(np.hypot(rho - 1, p["positions"][:, 2]) - 0.3) < 1e-3)
+        q = client.project(mesh_id, points=positions[:5] * 1.01)
+        assert np.all(q["distances"] > 0) and q["faces"].dtype == np.int32
+        nodes, elements = client.high_order_nodes(mesh_id, order=2)
+        assert len(elements) == len(faces) and all(len(e) == 6 for e in elements)
+        refined = client.refine(mesh_id, factor=2)
+        assert refined.num_faces == 4 * len(faces)
+        with pytest.raises(geomfit.GeomfitError) as err:
+            client.project(mesh_id, faces=np.array([len(faces)]), natural=np.array([[0.1, 0.1]]))
+        assert err.value.code == grpc.StatusCode.INVALID_ARGUMENT
+        assert "out of range" in err.value.details
+        with pytest.raises(geomfit.GeomfitError) as err:
+            client.integrate(mesh_id, scalars=np.ones(len(positions) - 1))
+        assert err.value.code == grpc.StatusCode.INVALID_ARGUMENT
+        with pytest.raises(ValueError):
+            client.integrate(mesh_id, surface="spline")

@@ -18,6 +18,7 @@ QUANTITIES = {
     "tensor": pb.QUANTITY_CURVATURE_TENSOR,
 }
 _METHODS = {"lhf": pb.FIT_METHOD_LHF, "lop": pb.FIT_METHOD_LOP}
+_SURFACES = {"walf": pb.RECONSTRUCTION_WALF, "cmf": pb.RECONSTRUCTION_CMF, "linear": pb.RECONSTRUCTION_LINEAR}
 _ARRAYS = ("normals", "mean", "gaussian", "k1", "k2", "dir1", "dir2", "tensor")
 
 
@@ -350,6 +351,67 @@ class Client:
                         out.diagnostics[k][lo:lo + len(a)] = a
             return out
         return self._call(run)
+
+    # ------------------------------------------------------------------ chapter 4
+    @staticmethod
+    def _surface(surface: str, degree: int, safeguard: bool, feature_angle: float) -> "pb.ReconstructionOptions":
+        if surface.lower() not in _SURFACES:
+            raise ValueError("surface must be one of %s, got %r" % (sorted(_SURFACES), surface))
+        return pb.ReconstructionOptions(
+            fit=pb.FitOptions(degree=degree, oscillation_safeguard=safeguard),
+            method=_SURFACES[surface.lower()], feature_angle_deg=feature_angle)
+
+    def project(self, mesh_id: str, points: Optional[np.ndarray] = None, faces: Optional[np.ndarray] = None,
+                natural: Optional[np.ndarray] = None, surface: str = "walf", degree: int = 3,
+                safeguard: bool = True, feature_angle: float = 0.0) -> dict:
+        """Points on the high-order surface: projections of xyz `points` (P x 3), or face
+        points given by `faces` (P) and natural coordinates `natural` (P x 2). Returns a
+        dict of arrays: positions, normals (P x 3), faces (P), natural (P x 2), distances (P)."""
+        request = pb.ProjectPointsRequest(mesh_id=mesh_id, options=self._surface(surface, degree, safeguard, feature_angle))
+        if points is not None:
+            _encode(np.asarray(points).reshape(-1, 3), "<f8", request.points)
+        if faces is not None or natural is not None:
+            _encode(np.asarray(faces).reshape(-1), "<i4", request.faces)
+            _encode(np.asarray(natural).reshape(-1, 2), "<f8", request.natural)
+
+        def run():
+            parts = list(self._stub.ProjectPoints(request, timeout=self.timeout))
+            out = {}
+            for key, dtype in (("positions", "<f8"), ("normals", "<f8"), ("faces", "<i4"), ("natural", "<f8"),
+                               ("distances", "<f8")):
+                out[key] = np.concatenate([_decode(getattr(c, key), dtype) for c in parts])
+            return out
+        return self._call(run)
+
+    def high_order_nodes(self, mesh_id: str, order: int = 2, surface: str = "walf", degree: int = 3,
+                         safeguard: bool = True, feature_angle: float = 0.0) -> Tuple[np.ndarray, List[np.ndarray]]:
+        """Quadratic or cubic element nodes on the surface: (nodes N x 3, a list with each
+        face's node ids in VTK / gmsh Lagrange order)."""
+        r = self._call(lambda: self._stub.HighOrderNodes(pb.HighOrderNodesRequest(
+            mesh_id=mesh_id, order=order, options=self._surface(surface, degree, safeguard, feature_angle)),
+            timeout=self.timeout))
+        offsets, elements = _decode(r.offsets, "<i4"), _decode(r.elements, "<i4")
+        return _decode(r.nodes, "<f8"), [elements[a:b] for a, b in zip(offsets[:-1], offsets[1:])]
+
+    def refine(self, mesh_id: str, factor: int = 2, surface: str = "walf", degree: int = 3,
+               safeguard: bool = True, feature_angle: float = 0.0, name: str = "") -> "pb.MeshInfo":
+        """Uniform refinement onto the surface, stored by the server as a new mesh."""
+        return self._call(lambda: self._stub.RefineMesh(pb.RefineMeshRequest(
+            mesh_id=mesh_id, factor=factor, name=name,
+            options=self._surface(surface, degree, safeguard, feature_angle)), timeout=self.timeout))
+
+    def integrate(self, mesh_id: str, scalars: Optional[np.ndarray] = None, vectors: Optional[np.ndarray] = None,
+                  surface: str = "walf", degree: int = 3, quadrature_degree: int = 0,
+                  safeguard: bool = True) -> "pb.IntegrateResponse":
+        """Area, enclosed volume, integrals of nodal scalar fields (V or V x s) and the flux
+        of a nodal vector field (V x 3) over the reconstructed surface."""
+        request = pb.IntegrateRequest(mesh_id=mesh_id, quadrature_degree=quadrature_degree,
+                                      options=self._surface(surface, degree, safeguard, 0.0))
+        if scalars is not None:
+            _encode(np.asarray(scalars), "<f8", request.scalars)
+        if vectors is not None:
+            _encode(np.asarray(vectors).reshape(-1, 3), "<f8", request.vectors)
+        return self._call(lambda: self._stub.Integrate(request, timeout=self.timeout))
 
     # ------------------------------------------------------------------ server
     def server_info(self) -> "pb.ServerInfo":
