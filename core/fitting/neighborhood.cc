@@ -131,13 +131,17 @@ Neighborhoods BuildNeighborhoods(const Topology& topo, const Mesh& mesh, const R
       idx.insert(idx.end(), stencil.begin(), stencil.end());
     }
   });
-  nb.offsets.reserve(nv + 1);
-  nb.offsets.push_back(0);
-  size_t total = 0;
-  for (auto& s : block_sizes)
-    for (int32_t n : s) nb.offsets.push_back(static_cast<int32_t>(total += n));
-  nb.indices.reserve(total);
-  for (auto& idx : block_indices) nb.indices.insert(nb.indices.end(), idx.begin(), idx.end());
+  // Concatenate the blocks in order, each copied in parallel at its final offset.
+  std::vector<size_t> block_start(threads + 1, 0);
+  for (int b = 0; b < threads; ++b) block_start[b + 1] = block_start[b] + block_indices[b].size();
+  nb.offsets.resize(nv + 1);
+  nb.indices.resize(block_start[threads]);
+  nb.offsets[0] = 0;
+  ParallelForBlocks(nv, threads, [&](int64_t begin, int64_t, int b) {
+    int32_t at = static_cast<int32_t>(block_start[b]);
+    for (size_t i = 0; i < block_sizes[b].size(); ++i) nb.offsets[begin + i + 1] = at += block_sizes[b][i];
+    std::copy(block_indices[b].begin(), block_indices[b].end(), nb.indices.begin() + block_start[b]);
+  });
   return nb;
 }
 

@@ -103,10 +103,11 @@ WlsSolution SolveWls(const WlsProblem& P, const WlsSettings& S, double* coeffici
   for (int i = 0; i < rows; ++i) {
     const int r = keep[i];
     const double u = P.u[r] / h, v = P.v[r] / h;
-    // (2.2.1): w = gamma / (sqrt(|u|^2 + eps))^(d/2), as an integer power of s^(1/4).
-    const double s4 = std::sqrt(std::sqrt(u * u + v * v + S.weight_epsilon));
-    double denom = s4;
-    for (int e = 1; e < S.degree; ++e) denom *= s4;
+    // (2.2.1): w = gamma / (sqrt(|u|^2 + eps))^(d/2) = gamma / s^(d/4), s = |u|^2 + eps.
+    const double s2 = u * u + v * v + S.weight_epsilon;
+    const double root = S.degree % 2 == 0 ? std::sqrt(s2) : std::sqrt(std::sqrt(s2));  // s^(1/2) or s^(1/4)
+    double denom = root;
+    for (int e = 1, n = S.degree % 2 == 0 ? S.degree / 2 : S.degree; e < n; ++e) denom *= root;
     const double w = weight[i] = P.gamma[r] / denom;
     double up[kMaxDegree + 1] = {1}, vp[kMaxDegree + 1] = {1};
     for (int e = 1; e <= S.degree; ++e) up[e] = up[e - 1] * u, vp[e] = vp[e - 1] * v;
