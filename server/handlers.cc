@@ -117,7 +117,10 @@ v1::FitSummary Summarize(const SurfaceFits& fits, const FitOptions& options) {
   s.set_num_vertices(fits.num_vertices());
   s.set_degree_requested(options.degree);
   int min_degree = options.degree;
+  std::vector<int64_t> by_degree(kMaxDegree + 1, 0);
   for (const VertexDiagnostics& d : fits.diagnostics()) {
+    ++by_degree[std::clamp<int>(d.degree_used, 0, kMaxDegree)];
+    if (d.flags & kFlagOscillation) s.set_num_oscillation_downgraded(s.num_oscillation_downgraded() + 1);
     if (d.flags & kFlagIsolated) {
       s.set_num_isolated(s.num_isolated() + 1);
       continue;
@@ -128,6 +131,7 @@ v1::FitSummary Summarize(const SurfaceFits& fits, const FitOptions& options) {
     if (d.flags & kFlagBoundary) s.set_num_boundary(s.num_boundary() + 1);
   }
   s.set_min_degree_used(min_degree);
+  for (int64_t n : by_degree) s.add_vertices_by_degree(n);
   s.set_options_key(FitOptionsKey(options));
   return s;
 }

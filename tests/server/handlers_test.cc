@@ -284,6 +284,26 @@ v1::ReconstructionOptions Recon(int degree, v1::Reconstruction method = v1::RECO
   return o;
 }
 
+TEST_F(HandlersTest, SummaryCountsOscillationDowngradesByDegree) {
+  const Mesh mesh = TestTorus(8);  // coarse: the safeguard (4.1.3) fires (Table 4.1)
+  auto info = Upload(mesh);
+  ASSERT_TRUE(info.ok());
+  v1::ComputeDifferentialsRequest request;
+  request.set_mesh_id(info->mesh_id());
+  request.mutable_options()->set_degree(6);
+  request.mutable_options()->set_oscillation_safeguard(true);
+  CancellationToken token;
+  auto r = handlers_.ComputeDifferentials(request, token);
+  ASSERT_TRUE(r.ok()) << r.status();
+  const v1::FitSummary& s = (*r)[0].summary();
+  EXPECT_GT(s.num_oscillation_downgraded(), 0);
+  ASSERT_EQ(s.vertices_by_degree_size(), 7);
+  int64_t total = 0, below = 0;
+  for (int d = 0; d <= 6; ++d) total += s.vertices_by_degree(d), below += d < 6 ? s.vertices_by_degree(d) : 0;
+  EXPECT_EQ(total, mesh.NumVertices());
+  EXPECT_GE(below, s.num_oscillation_downgraded());
+}
+
 TEST_F(HandlersTest, IntegrateMatchesCoreAndTheSphere) {
   const Mesh mesh = TestSphere(12);
   auto info = Upload(mesh);
