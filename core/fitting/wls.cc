@@ -35,21 +35,24 @@ constexpr double kInvFactorials[kMaxCoef] = {
     1.0 / 120, 1.0 / 24, 1.0 / 12, 1.0 / 12, 1.0 / 24, 1.0 / 120,  // p = 5
     1.0 / 720, 1.0 / 120, 1.0 / 48, 1.0 / 36, 1.0 / 48, 1.0 / 120, 1.0 / 720};  // p = 6
 
-// The degree as a template parameter lets the compiler unroll the (hot) evaluation.
+// The degree as a template parameter lets the compiler unroll the (hot) evaluation:
+// f = sum_k v^k Q_k(u), each Q_k and Q_k' by Horner's rule.
 template <int D>
 void EvalTaylorFixed(const double* c, double u, double v, double* value, double* du, double* dv) {
-  double up[D + 1] = {1}, vp[D + 1] = {1};
-  for (int e = 1; e <= D; ++e) up[e] = up[e - 1] * u, vp[e] = vp[e - 1] * v;
-  double f = 0, fu = 0, fv = 0;
-  int i = 0;
-  for (int p = 0; p <= D; ++p)
-    for (int k = 0; k <= p; ++k, ++i) {
-      const int j = p - k;
-      const double a = c[i] * kInvFactorials[i];
-      f += a * up[j] * vp[k];
-      if (j > 0) fu += a * j * up[j - 1] * vp[k];
-      if (k > 0) fv += a * k * up[j] * vp[k - 1];
+  double f = 0, fu = 0, fv = 0, vk = 1, vk1 = 0;  // v^k, v^(k-1)
+  for (int k = 0; k <= D; ++k) {
+    auto a = [&](int j) { const int i = TaylorIdx(j, k); return c[i] * kInvFactorials[i]; };
+    double q = a(D - k), dq = 0;
+    for (int j = D - k - 1; j >= 0; --j) {
+      dq = dq * u + q;
+      q = q * u + a(j);
     }
+    f += vk * q;
+    fu += vk * dq;
+    fv += k * vk1 * q;
+    vk1 = vk;
+    vk *= v;
+  }
   if (value) *value = f;
   if (du) *du = fu;
   if (dv) *dv = fv;
