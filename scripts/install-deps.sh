@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Installs every system package geomfit needs (Debian 12). Idempotent; safe to re-run.
+# Installs every system package geomfit needs (Debian 12), plus any extra packages
+# named as arguments. Idempotent; safe to re-run.
 set -euo pipefail
 pkgs=(
   build-essential cmake ninja-build pkg-config
@@ -8,6 +9,7 @@ pkgs=(
   libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc
   libsqlite3-dev prometheus-cpp-dev
   python3 python3-grpcio python3-protobuf python3-numpy python3-pytest
+  "$@"
 )
 missing=()
 for p in "${pkgs[@]}"; do
