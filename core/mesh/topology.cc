@@ -2,9 +2,11 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <numeric>
 
 #include "absl/strings/str_format.h"
+#include "core/util/parallel.h"
 
 namespace geomfit {
 namespace {
@@ -146,6 +148,42 @@ absl::StatusOr<Topology> BuildTopology(const Mesh& mesh) {
   return t;
 }
 
+namespace {
+
+// A face is valid if its indices are in range and its area is not zero: zero means
+// collinear or coincident corners, judged against the face's own longest edge so that
+// tiny well-shaped faces (marching cubes makes them near grid samples) are fine.
+inline bool FaceOk(const Mesh& mesh, int f) {
+  const int nv = mesh.NumVertices(), n = mesh.FaceSize(f);
+  const int32_t* idx = mesh.faces.data() + 4 * static_cast<int64_t>(f);
+  for (int i = 0; i < n; ++i)
+    if (idx[i] < 0 || idx[i] >= nv) return false;
+  const double* P = mesh.positions.data();
+  const double* p0 = P + 3 * idx[0];
+  double ax = 0, ay = 0, az = 0, longest2 = 0;
+  for (int i = 0; i < n; ++i) {
+    const double* pa = P + 3 * idx[i];
+    const double* pb = P + 3 * idx[i + 1 == n ? 0 : i + 1];
+    const double a0 = pa[0] - p0[0], a1 = pa[1] - p0[1], a2 = pa[2] - p0[2];
+    const double b0 = pb[0] - p0[0], b1 = pb[1] - p0[1], b2 = pb[2] - p0[2];
+    ax += a1 * b2 - a2 * b1, ay += a2 * b0 - a0 * b2, az += a0 * b1 - a1 * b0;
+    const double e0 = b0 - a0, e1 = b1 - a1, e2 = b2 - a2;
+    longest2 = std::max(longest2, e0 * e0 + e1 * e1 + e2 * e2);
+  }
+  return ax * ax + ay * ay + az * az > 1e-24 * longest2 * longest2;
+}
+
+// The message about an invalid face.
+absl::Status FaceError(const Mesh& mesh, int f) {
+  for (int i = 0; i < mesh.FaceSize(f); ++i)
+    if (mesh.faces(f, i) < 0 || mesh.faces(f, i) >= mesh.NumVertices())
+      return absl::InvalidArgumentError(absl::StrFormat("face %d: vertex index out of range", f));
+  return absl::InvalidArgumentError(
+      absl::StrFormat("face %d has zero area (its corners are collinear or coincide)", f));
+}
+
+}  // namespace
+
 absl::Status ValidateGeometry(const Mesh& mesh) {
   const int nv = mesh.NumVertices();
   for (int v = 0; v < nv; ++v)
@@ -153,26 +191,18 @@ absl::Status ValidateGeometry(const Mesh& mesh) {
       if (!std::isfinite(mesh.positions(v, c)))
         return absl::InvalidArgumentError(absl::StrFormat(
             "vertex %d: coordinate %c is not finite (%g)", v, "xyz"[c], mesh.positions(v, c)));
-  // Zero area means degenerate: collinear or coincident corners, judged against the
-  // face's own longest edge (tiny but well-shaped faces, as marching cubes makes near
-  // grid samples, are fine).
-  for (int f = 0; f < mesh.NumFaces(); ++f) {
-    const int n = mesh.FaceSize(f);
-    Eigen::Vector3d area2 = Eigen::Vector3d::Zero();
-    double longest2 = 0;
-    for (int i = 0; i < n; ++i) {
-      const int a = mesh.faces(f, i), b = mesh.faces(f, (i + 1) % n);
-      if (a < 0 || a >= nv || b < 0 || b >= nv)
-        return absl::InvalidArgumentError(absl::StrFormat("face %d: vertex index out of range", f));
-      const Eigen::Vector3d pa = mesh.positions.row(a).transpose(), pb = mesh.positions.row(b).transpose();
-      area2 += pa.cross(pb);
-      longest2 = std::max(longest2, (pb - pa).squaredNorm());
-    }
-    if (!(area2.norm() > 1e-12 * longest2))
-      return absl::InvalidArgumentError(absl::StrFormat(
-          "face %d has zero area (its corners are collinear or coincide)", f));
-  }
-  return absl::OkStatus();
+  // Faces in parallel blocks; the error reported is always the lowest-numbered face's.
+  const int threads = ResolveThreads(0);
+  std::vector<int> first_bad(threads, std::numeric_limits<int>::max());
+  ParallelForBlocks(mesh.NumFaces(), threads, [&](int64_t begin, int64_t end, int b) {
+    for (int64_t f = begin; f < end; ++f)
+      if (!FaceOk(mesh, static_cast<int>(f))) {
+        first_bad[b] = static_cast<int>(f);
+        return;
+      }
+  });
+  const int bad = *std::min_element(first_bad.begin(), first_bad.end());
+  return bad == std::numeric_limits<int>::max() ? absl::OkStatus() : FaceError(mesh, bad);
 }
 
 absl::StatusOr<Topology> ValidateMesh(const Mesh& mesh) {
