@@ -141,6 +141,7 @@ run_ok refine s.obj --factor 2 --output s2.obj
 [ "$(grep -c '^f ' s2.obj)" -eq $((4 * $(grep -c '^f ' s.obj))) ] || fail "refine did not split every face in four"
 run_ok nodes s.obj --order 3 --output s3
 [ "$(wc -l <s3.elements.tsv)" -eq "$(grep -c '^f ' s.obj)" ] || fail "nodes: one element line per face"
+grep -q "NumberOfPolys=\"$((9 * $(grep -c '^f ' s.obj)))\"" s3.vtp || fail "nodes: s3.vtp should split each face into 9"
 printf '0 0.25 0.25\n1 0.1 0.2\n' >fp.txt
 run_ok project s.obj --face-points fp.txt --method cmf
 [ "$(wc -l <stdout.txt)" -eq 3 ] || fail "project: header + 2 lines expected"

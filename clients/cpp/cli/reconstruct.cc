@@ -268,7 +268,8 @@ absl::Status RunNodes(const std::vector<std::string>& argv) {
   ArgParser p("geomfit nodes", "MESH --output PREFIX [--order 2|3] [options]",
               "High-order (quadratic or cubic) elements on the reconstructed surface (4.2.1).\n"
               "Writes PREFIX.nodes.tsv (x y z per node; mesh vertices first) and\n"
-              "PREFIX.elements.tsv (node ids per face: corners, edge nodes, interior).");
+              "PREFIX.elements.tsv (node ids per face: corners, edge nodes, interior); in-process\n"
+              "also PREFIX.vtp, every element split along its nodes, for viewing.");
   AddSurfaceOptions(&p, &a);
   p.Int("order", &order, "element order: 2 or 3");
   bool help;
@@ -289,6 +290,9 @@ absl::Status RunNodes(const std::vector<std::string>& argv) {
     Loaded l;
     GF_RETURN_IF_ERROR(Load(a, false, &l));
     GF_ASSIGN_OR_RETURN(ho, MakeHighOrderMesh(*l.surface, l.topo, order, a.threads));
+    // For viewing: each element split along its nodes (the same lattice) as PREFIX.vtp.
+    GF_ASSIGN_OR_RETURN(const Mesh split, RefineMesh(*l.surface, l.topo, order, a.threads));
+    GF_RETURN_IF_ERROR(WriteVtp(a.output + ".vtp", split, {}));
   }
   std::string nodes = "x\ty\tz\n", elements;
   for (int i = 0; i < ho.nodes.rows(); ++i)
