@@ -15,6 +15,13 @@ namespace {
 
 using ::testing::HasSubstr;
 
+// The project's irregular torus (R = 1, r = 0.3) at resolution n.
+Mesh Torus(int n) {
+  GeneratorOptions g;
+  g.n = n;
+  return GenerateTorusMesh(g);
+}
+
 // A flat, jittered, randomly split grid in the plane z = 0: every frame normal is
 // exactly +z, so frame coordinates are an exact rotation of (x, y).
 Mesh FlatMesh(int n) {
@@ -84,9 +91,7 @@ TEST(FitTest, StencilsReproducePolynomialsOfTheFitDegreeExactly) {
 }
 
 TEST(FitTest, StencilAppliedToHeightsEqualsTheFit) {
-  GeneratorOptions gen;
-  gen.n = 16;
-  const Mesh m = GenerateTorusMesh(gen);
+  const Mesh m = Torus(16);
   const Topology t = BuildTopology(m).value();
   FitOptions o;
   o.degree = 4;
@@ -105,9 +110,7 @@ TEST(FitTest, StencilAppliedToHeightsEqualsTheFit) {
 }
 
 TEST(FitTest, ConditionSafeguardDropsWholeDegrees) {
-  GeneratorOptions gen;
-  gen.n = 12;
-  const Mesh m = GenerateTorusMesh(gen);
+  const Mesh m = Torus(12);
   const Topology t = BuildTopology(m).value();
   FitOptions o;
   o.degree = 4;
@@ -132,9 +135,7 @@ TEST(FitTest, ConditionSafeguardDropsWholeDegrees) {
 
 TEST(FitTest, SafeguardAngleFiltersFoldedNeighbours) {
   // On a coarse torus with a tiny cut-off angle, points are dropped (fewer used).
-  GeneratorOptions gen;
-  gen.n = 6;
-  const Mesh m = GenerateTorusMesh(gen);
+  const Mesh m = Torus(6);
   const Topology t = BuildTopology(m).value();
   FitOptions wide, narrow;
   wide.degree = narrow.degree = 2;
@@ -190,9 +191,7 @@ TEST(FitTest, RejectsBadOptionsNamingTheField) {
 }
 
 TEST(FitTest, CancellationStopsTheFit) {
-  GeneratorOptions gen;
-  gen.n = 40;
-  const Mesh m = GenerateTorusMesh(gen);
+  const Mesh m = Torus(40);
   const Topology t = BuildTopology(m).value();
   CancellationToken token;
   token.Cancel();
@@ -206,9 +205,7 @@ TEST(FitTest, CancellationStopsTheFit) {
 }
 
 TEST(FitTest, TwoPassRefitsInFittedFrames) {
-  GeneratorOptions gen;
-  gen.n = 16;
-  const Mesh m = GenerateTorusMesh(gen);
+  const Mesh m = Torus(16);
   const Topology t = BuildTopology(m).value();
   FitOptions o;
   o.degree = 4;
