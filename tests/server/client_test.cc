@@ -83,17 +83,7 @@ TEST(ClientTest, ReuploadsWhenTheServerLostTheMesh) {
   EXPECT_EQ(other->ComputeDifferentials(info->mesh_id, FitOptions()).status().code(), absl::StatusCode::kNotFound);
 }
 
-int FreePort() {
-  const int fd = socket(AF_INET, SOCK_STREAM, 0);
-  sockaddr_in addr{};
-  addr.sin_family = AF_INET;
-  addr.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
-  bind(fd, reinterpret_cast<sockaddr*>(&addr), sizeof(addr));
-  socklen_t len = sizeof(addr);
-  getsockname(fd, reinterpret_cast<sockaddr*>(&addr), &len);
-  close(fd);
-  return ntohs(addr.sin_port);
-}
+using server::testing::FreePort;
 
 TEST(ClientTest, RetriesWhileTheServerIsUnavailable) {
   const int port = FreePort();

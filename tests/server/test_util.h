@@ -20,6 +20,8 @@ Mesh TestSphere(int n = 6);
 
 /// Options for a throwaway loopback server (memory store, free port).
 ServerOptions LoopbackOptions();
+/// A loopback TCP port that was free a moment ago.
+int FreePort();
 
 /// A server in this process and a channel to it. Stops the server on destruction.
 class InProcessServer {
