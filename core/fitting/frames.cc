@@ -34,11 +34,11 @@ Positions ApproximateVertexNormals(const Mesh& mesh, const Topology& topo,
     Eigen::Vector3d sum = Eigen::Vector3d::Zero();
     const Eigen::Vector3d x = mesh.positions.row(v).transpose();
     for (int i = 0; i < topo.NumVertexFaces(v); ++i) {
-      const int f = topo.VertexFaces(v)[i], n = mesh.FaceSize(f);
+      const int f = topo.VertexFaces(v)[i];
       int c = 0;
       while (mesh.faces(f, c) != v) ++c;
-      const Eigen::Vector3d a = mesh.positions.row(mesh.faces(f, (c + 1) % n)).transpose() - x;
-      const Eigen::Vector3d b = mesh.positions.row(mesh.faces(f, (c + n - 1) % n)).transpose() - x;
+      const Eigen::Vector3d a = mesh.positions.row(mesh.Next(f, c)).transpose() - x;
+      const Eigen::Vector3d b = mesh.positions.row(mesh.Prev(f, c)).transpose() - x;
       const Eigen::Vector3d cr = a.cross(b);  // corner normal, |cr| = 2 x corner triangle area
       if (weighting == NormalWeighting::kArea) {
         sum += cr;

@@ -68,7 +68,9 @@ class RingGrower {
   void Step() {
     const int k2 = half_steps_ - half_steps_ % 2;  // 2k for the current integer ring k
     std::vector<int32_t>& out = *out_;
-    if (half_steps_ % 2 == 0) {
+    if (half_steps_ == 0) {
+      // 0 -> 0.5: no edge has both ends in the 0-ring; nothing to add.
+    } else if (half_steps_ % 2 == 0) {
       // k -> k + 0.5: faces on an edge (a, b) with a in layer k and b in the k-ring.
       for (size_t i = layer_begin_; i < layer_end_; ++i) {
         const int32_t a = out[i];
@@ -76,7 +78,7 @@ class RingGrower {
           const int f = t_.VertexFaces(a)[j], n = m_.FaceSize(f);
           int c = 0;
           while (m_.faces(f, c) != a) ++c;
-          if (!In(m_.faces(f, (c + 1) % n), k2) && !In(m_.faces(f, (c + n - 1) % n), k2)) continue;
+          if (!In(m_.Next(f, c), k2) && !In(m_.Prev(f, c), k2)) continue;
           for (int q = 0; q < n; ++q)
             if (!Marked(m_.faces(f, q))) Add(m_.faces(f, q), k2 + 1);
         }

@@ -21,6 +21,9 @@ struct Mesh {
   int NumVertices() const { return static_cast<int>(positions.rows()); }
   int NumFaces() const { return static_cast<int>(faces.rows()); }
   int FaceSize(int f) const { return faces(f, 3) < 0 ? 3 : 4; }
+  /// The corners after and before corner c of face f (no integer division: hot loops).
+  int32_t Next(int f, int c) const { return faces(f, c + 1 < FaceSize(f) ? c + 1 : 0); }
+  int32_t Prev(int f, int c) const { return faces(f, c > 0 ? c - 1 : FaceSize(f) - 1); }
   bool HasQuads() const {
     for (int f = 0; f < NumFaces(); ++f)
       if (faces(f, 3) >= 0) return true;
