@@ -21,10 +21,9 @@ void Encode(const T* data, int64_t rows, int64_t cols, Array* out) {
   out->mutable_data()->assign(reinterpret_cast<const char*>(data), bytes);
 }
 
-template <typename Matrix, typename Array>
-absl::StatusOr<Matrix> Decode(const Array& a, absl::string_view field,
-                              std::initializer_list<int64_t> allowed_cols) {
-  using T = typename Matrix::Scalar;
+template <typename T, typename Array>
+absl::StatusOr<ArrayView<T>> View(const Array& a, absl::string_view field,
+                                  std::initializer_list<int64_t> allowed_cols) {
   const bool one_d = allowed_cols.size() == 1 && *allowed_cols.begin() == 0;
   const int want_dims = one_d ? 1 : 2;
   if (a.shape_size() != want_dims) {
@@ -46,8 +45,15 @@ absl::StatusOr<Matrix> Decode(const Array& a, absl::string_view field,
                                                    " bytes, shape [", absl::StrJoin(a.shape(), ", "),
                                                    "] needs ", want));
   }
-  Matrix m(rows, cols);
-  if (want > 0) std::memcpy(m.data(), a.data().data(), want);
+  return ArrayView<T>{a.data().data(), rows, cols};
+}
+
+template <typename Matrix, typename Array>
+absl::StatusOr<Matrix> Decode(const Array& a, absl::string_view field,
+                              std::initializer_list<int64_t> allowed_cols) {
+  GF_ASSIGN_OR_RETURN(const auto v, (View<typename Matrix::Scalar>(a, field, allowed_cols)));
+  Matrix m(v.rows, v.cols);
+  v.CopyTo(m.data());
   return m;
 }
 
@@ -60,6 +66,14 @@ void EncodeInts(const int32_t* data, int64_t rows, int64_t cols, v1::Int32Array*
   Encode(data, rows, cols, out);
 }
 
+absl::StatusOr<ArrayView<double>> ViewDoubles(const v1::DoubleArray& a, absl::string_view field,
+                                              std::initializer_list<int64_t> allowed_cols) {
+  return View<double>(a, field, allowed_cols);
+}
+absl::StatusOr<ArrayView<int32_t>> ViewInts(const v1::Int32Array& a, absl::string_view field,
+                                            std::initializer_list<int64_t> allowed_cols) {
+  return View<int32_t>(a, field, allowed_cols);
+}
 absl::StatusOr<RowsXd> DecodeDoubles(const v1::DoubleArray& a, absl::string_view field,
                                      std::initializer_list<int64_t> allowed_cols) {
   return Decode<RowsXd>(a, field, allowed_cols);

@@ -2,6 +2,7 @@
 // Conversions between geomfit.v1 wire messages and core types, shared by the server
 // and the C++ client. Arrays are little-endian bytes plus a row-major shape.
 #include <cstdint>
+#include <cstring>
 #include <initializer_list>
 #include <vector>
 #include "absl/strings/string_view.h"
@@ -25,6 +26,30 @@ using RowsXi = Eigen::Matrix<int32_t, Eigen::Dynamic, Eigen::Dynamic, Eigen::Row
 /// Writes rows x cols doubles (cols == 0: a 1-D array of `rows`).
 void EncodeDoubles(const double* data, int64_t rows, int64_t cols, v1::DoubleArray* out);
 void EncodeInts(const int32_t* data, int64_t rows, int64_t cols, v1::Int32Array* out);
+
+/// A validated wire array, still in the message's bytes (which need not be aligned
+/// for T, so read it with CopyTo or CopyRows).
+template <typename T>
+struct ArrayView {
+  const char* bytes;
+  int64_t rows, cols;
+  void CopyTo(T* out) const { CopyRows(out, cols); }
+  /// Row r goes to out + r * stride (stride >= cols; the rest of each row is untouched).
+  void CopyRows(T* out, int64_t stride) const {
+    if (stride == cols) {
+      if (rows > 0) std::memcpy(out, bytes, sizeof(T) * static_cast<size_t>(rows * cols));
+      return;
+    }
+    for (int64_t r = 0; r < rows; ++r) std::memcpy(out + r * stride, bytes + sizeof(T) * r * cols, sizeof(T) * cols);
+  }
+};
+
+/// Checks a 2-D array whose column count must be one of `allowed_cols` (or a 1-D
+/// array when allowed_cols is {0}) without copying it. Errors as DecodeDoubles.
+absl::StatusOr<ArrayView<double>> ViewDoubles(const v1::DoubleArray& a, absl::string_view field,
+                                              std::initializer_list<int64_t> allowed_cols);
+absl::StatusOr<ArrayView<int32_t>> ViewInts(const v1::Int32Array& a, absl::string_view field,
+                                            std::initializer_list<int64_t> allowed_cols);
 
 /// Decodes a 2-D array whose column count must be one of `allowed_cols` (or a 1-D
 /// array when allowed_cols is {0}). Errors name `field` and say what is wrong.

@@ -17,8 +17,8 @@ absl::Status TooManyVertices(int64_t n, int64_t limit) {
 }  // namespace
 
 template <typename T, int kWidth>
-absl::Status RowBuffer<T, kWidth>::Append(int64_t offset, const T* data, int64_t rows, int64_t width,
-                                          int64_t limit) {
+absl::Status RowBuffer<T, kWidth>::Append(int64_t offset, const wire::ArrayView<T>& data, int64_t limit) {
+  const int64_t rows = data.rows;
   const int64_t chunk = chunks_++;
   if (offset != this->rows()) {
     return absl::InvalidArgumentError(absl::StrCat(field_, " chunk ", chunk, ": ", offset_name_, " is ",
@@ -31,8 +31,7 @@ absl::Status RowBuffer<T, kWidth>::Append(int64_t offset, const T* data, int64_t
   }
   const size_t old = values_.size();
   values_.resize(old + static_cast<size_t>(rows) * kWidth, T(-1));
-  for (int64_t r = 0; r < rows; ++r)
-    std::memcpy(&values_[old + r * kWidth], data + r * width, sizeof(T) * width);
+  data.CopyRows(&values_[old], kWidth);
   return absl::OkStatus();
 }
 
@@ -63,14 +62,14 @@ absl::Status UploadAssembler::Add(const v1::UploadMeshRequest& request) {
     case v1::UploadMeshRequest::kPositions: {
       if (!has_header_) return absl::InvalidArgumentError("positions chunk before the header (send the header first)");
       const v1::PositionsChunk& c = request.positions();
-      GF_ASSIGN_OR_RETURN(auto m, wire::DecodeDoubles(c.positions(), "positions", {3}));
-      return positions_.Append(c.vertex_offset(), m.data(), m.rows(), 3, header_.num_vertices());
+      GF_ASSIGN_OR_RETURN(auto m, wire::ViewDoubles(c.positions(), "positions", {3}));
+      return positions_.Append(c.vertex_offset(), m, header_.num_vertices());
     }
     case v1::UploadMeshRequest::kFaces: {
       if (!has_header_) return absl::InvalidArgumentError("faces chunk before the header (send the header first)");
       const v1::FacesChunk& c = request.faces();
-      GF_ASSIGN_OR_RETURN(auto m, wire::DecodeInts(c.faces(), "faces", {3, 4}));
-      return faces_.Append(c.face_offset(), m.data(), m.rows(), m.cols(), header_.num_faces());
+      GF_ASSIGN_OR_RETURN(auto m, wire::ViewInts(c.faces(), "faces", {3, 4}));
+      return faces_.Append(c.face_offset(), m, header_.num_faces());
     }
     case v1::UploadMeshRequest::CHUNK_NOT_SET:
       break;
@@ -110,8 +109,8 @@ absl::Status PositionsAssembler::Add(const v1::UpdatePositionsRequest& request) 
     case v1::UpdatePositionsRequest::kPositions: {
       if (!has_header_) return absl::InvalidArgumentError("positions chunk before the header (send the header first)");
       const v1::PositionsChunk& c = request.positions();
-      GF_ASSIGN_OR_RETURN(auto m, wire::DecodeDoubles(c.positions(), "positions", {3}));
-      return positions_.Append(c.vertex_offset(), m.data(), m.rows(), 3, max_vertices_);
+      GF_ASSIGN_OR_RETURN(auto m, wire::ViewDoubles(c.positions(), "positions", {3}));
+      return positions_.Append(c.vertex_offset(), m, max_vertices_);
     }
     case v1::UpdatePositionsRequest::CHUNK_NOT_SET:
       break;

@@ -9,6 +9,7 @@
 #include "absl/status/statusor.h"
 #include "core/mesh/mesh.h"
 #include "geomfit/v1/geomfit.pb.h"
+#include "proto/wire.h"
 
 namespace geomfit::server {
 
@@ -17,8 +18,9 @@ template <typename T, int kWidth>
 class RowBuffer {
  public:
   RowBuffer(const char* field, const char* offset_name) : field_(field), offset_name_(offset_name) {}
-  /// Appends `rows` rows of `width` (<= kWidth) values; checks offset and `limit`.
-  absl::Status Append(int64_t offset, const T* data, int64_t rows, int64_t width, int64_t limit);
+  /// Appends the rows of `data` (width <= kWidth; short rows padded with -1); checks
+  /// the offset and `limit`.
+  absl::Status Append(int64_t offset, const wire::ArrayView<T>& data, int64_t limit);
   int64_t rows() const { return static_cast<int64_t>(values_.size()) / kWidth; }
   const std::vector<T>& values() const { return values_; }
 

@@ -196,7 +196,7 @@ absl::StatusOr<v1::MeshInfo> Handlers::UpdatePositions(const PositionsAssembler&
   GF_RETURN_IF_ERROR(ValidateGeometry(*mesh));
   std::optional<int64_t> expected;  // the store checks again under its lock
   if (header.has_expected_revision()) expected = header.expected_revision();
-  GF_ASSIGN_OR_RETURN(v1::MeshInfo info, store_->UpdatePositions(header.mesh_id(), expected, mesh->positions));
+  GF_ASSIGN_OR_RETURN(v1::MeshInfo info, store_->UpdatePositions(header.mesh_id(), expected, mesh));
   // Requests holding the previous revision finish on it; the cache lets it go.
   cache_->ErasePrefix(absl::StrCat(header.mesh_id(), "/r", info.revision() - 1, "/"));
   cache_->Put(Tier::kGeometry, GeometryKey(info.mesh_id(), info.revision()), mesh, MeshBytes(*mesh));

@@ -34,7 +34,15 @@ void AmendForPositions(const Positions& positions, int64_t revision, v1::MeshInf
   v1::BoundingBox* box = info->mutable_bounding_box();
   box->Clear();
   if (positions.rows() == 0) return;
-  const Eigen::RowVector3d lo = positions.colwise().minCoeff(), hi = positions.colwise().maxCoeff();
+  double lo[3], hi[3];
+  const double* p = positions.data();
+  for (int i = 0; i < 3; ++i) lo[i] = hi[i] = p[i];
+  for (int64_t k = 3; k < positions.size(); k += 3) {  // one pass over the row-major array
+    for (int i = 0; i < 3; ++i) {
+      lo[i] = std::min(lo[i], p[k + i]);
+      hi[i] = std::max(hi[i], p[k + i]);
+    }
+  }
   for (int i = 0; i < 3; ++i) {
     box->add_min(lo[i]);
     box->add_max(hi[i]);
@@ -59,18 +67,15 @@ class MemoryStore final : public MeshStore {
   }
 
   absl::StatusOr<v1::MeshInfo> UpdatePositions(const std::string& id, std::optional<int64_t> expected,
-                                               const Positions& positions) override {
+                                               std::shared_ptr<const Mesh> moved) override {
     std::lock_guard<std::mutex> lock(mu_);
     auto it = meshes_.find(id);
     if (it == meshes_.end()) return MeshNotFound(id);
     StoredMesh& s = it->second;
     if (expected && *expected != s.info.revision()) return StaleRevision(id, *expected, s.info.revision());
-    if (absl::Status c = CheckVertexCount(id, positions.rows(), s.info.num_vertices()); !c.ok()) return c;
-    auto mesh = std::make_shared<Mesh>();
-    mesh->faces = s.mesh->faces;
-    mesh->positions = positions;
-    s.mesh = std::move(mesh);
-    AmendForPositions(positions, s.info.revision() + 1, &s.info);
+    if (absl::Status c = CheckVertexCount(id, moved->positions.rows(), s.info.num_vertices()); !c.ok()) return c;
+    AmendForPositions(moved->positions, s.info.revision() + 1, &s.info);
+    s.mesh = std::move(moved);
     return s.info;
   }
 

@@ -32,11 +32,12 @@ class MeshStore {
   /// Stores a new mesh (info.mesh_id set, revision 1). If the id exists already,
   /// nothing is written and the existing info is returned (idempotent upload).
   virtual absl::StatusOr<v1::MeshInfo> Insert(const v1::MeshInfo& info, const Mesh& mesh) = 0;
-  /// Replaces the positions and makes revision + 1. NOT_FOUND for an unknown id;
-  /// ABORTED when expected_revision is set and differs from the stored revision.
+  /// Makes `moved` (the stored faces, new positions) revision + 1. NOT_FOUND for an
+  /// unknown id; ABORTED when expected_revision is set and differs from the stored
+  /// revision. The memory store keeps `moved` itself, so an update copies nothing.
   virtual absl::StatusOr<v1::MeshInfo> UpdatePositions(const std::string& id,
                                                        std::optional<int64_t> expected_revision,
-                                                       const Positions& positions) = 0;
+                                                       std::shared_ptr<const Mesh> moved) = 0;
   virtual absl::StatusOr<v1::MeshInfo> GetInfo(const std::string& id) = 0;
   virtual absl::StatusOr<StoredMesh> Get(const std::string& id) = 0;
   /// Up to `limit` meshes with id > after_id, in id order.

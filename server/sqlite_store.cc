@@ -83,10 +83,10 @@ class SqliteStore final : public MeshStore {
   }
 
   absl::StatusOr<v1::MeshInfo> UpdatePositions(const std::string& id, std::optional<int64_t> expected,
-                                               const Positions& positions) override {
+                                               std::shared_ptr<const Mesh> moved) override {
     std::lock_guard<std::mutex> lock(mu_);
     GF_RETURN_IF_ERROR(Exec("BEGIN IMMEDIATE"));
-    return Commit(UpdateLocked(id, expected, positions));
+    return Commit(UpdateLocked(id, expected, moved->positions));
   }
 
   absl::StatusOr<v1::MeshInfo> GetInfo(const std::string& id) override {

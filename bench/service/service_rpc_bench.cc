@@ -18,6 +18,8 @@
 #include "core/quantities/differentials.h"
 #include "core/surfaces/analytic.h"
 #include "core/util/timer.h"
+#include "proto/wire.h"
+#include "server/handlers.h"
 #include "server/server.h"
 
 namespace geomfit {
@@ -165,12 +167,39 @@ void BM_FsiUpdatePositionsOnly(benchmark::State& state) {
   state.counters["vertices"] = mesh.NumVertices();
 }
 
+/// The server side of UpdatePositions without a network: assemble the chunks the
+/// client sends, then the handler (validate, store, cache). Memory store.
+void BM_HandlerUpdatePositions(benchmark::State& state) {
+  const Mesh& mesh = TorusWith(static_cast<int>(state.range(0)));
+  auto store = server::NewMemoryStore();
+  server::Cache cache(int64_t{1} << 30);
+  server::RequestStats stats;
+  server::HandlerOptions ho;
+  ho.threads = Threads();
+  server::Handlers handlers(store.get(), &cache, &stats, ho);
+  server::UploadAssembler upload(int64_t{1} << 30);
+  for (const auto& r : wire::UploadChunks(mesh, v1::MeshHeader(), ho.chunk_rows)) (void)upload.Add(r);
+  const std::string id = handlers.UploadMesh(upload).value().mesh_id();
+  Positions p = mesh.positions;
+  v1::UpdateHeader header;
+  header.set_mesh_id(id);
+  int step = 0;
+  for (auto _ : state) {
+    p.col(0).array() += 1e-4 * (++step % 2 ? 1 : -1);
+    server::PositionsAssembler a(int64_t{1} << 30);
+    for (const auto& r : wire::UpdateChunks(p, header, ho.chunk_rows)) (void)a.Add(r);
+    if (!handlers.UpdatePositions(a).ok()) state.SkipWithError("update failed");
+  }
+  state.counters["vertices"] = mesh.NumVertices();
+}
+
 #define SIZES Arg(1000)->Arg(10000)->Arg(100000)->Unit(benchmark::kMillisecond)->UseRealTime()
 BENCHMARK(BM_InProcessEvaluateCachedFits)->SIZES;
 BENCHMARK(BM_RpcCurvatureCachedFits)->SIZES;
 BENCHMARK(BM_InProcessFitAndEvaluate)->SIZES;
 BENCHMARK(BM_InProcessFsiCompute)->Arg(1000)->Arg(10000)->Unit(benchmark::kMillisecond)->UseRealTime();
 BENCHMARK(BM_FsiStep)->Arg(1000)->Arg(10000)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_HandlerUpdatePositions)->Arg(1000)->Arg(10000)->Arg(100000)->Unit(benchmark::kMillisecond)->UseRealTime();
 BENCHMARK(BM_FsiUpdatePositionsOnly)->Arg(1000)->Arg(10000)->Arg(100000)->Unit(benchmark::kMillisecond)->UseRealTime();
 
 }  // namespace

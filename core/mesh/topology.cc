@@ -160,6 +160,17 @@ inline bool FaceOk(const Mesh& mesh, int f) {
     if (idx[i] < 0 || idx[i] >= nv) return false;
   const double* P = mesh.positions.data();
   const double* p0 = P + 3 * idx[0];
+  if (n == 3) {  // the common case, unrolled: |e1 x e2|^2 against the longest edge^4
+    const double* p1 = P + 3 * idx[1];
+    const double* p2 = P + 3 * idx[2];
+    const double a0 = p1[0] - p0[0], a1 = p1[1] - p0[1], a2 = p1[2] - p0[2];
+    const double b0 = p2[0] - p0[0], b1 = p2[1] - p0[1], b2 = p2[2] - p0[2];
+    const double c0 = b0 - a0, c1 = b1 - a1, c2 = b2 - a2;
+    const double x = a1 * b2 - a2 * b1, y = a2 * b0 - a0 * b2, z = a0 * b1 - a1 * b0;
+    const double longest2 = std::max({a0 * a0 + a1 * a1 + a2 * a2, b0 * b0 + b1 * b1 + b2 * b2,
+                                      c0 * c0 + c1 * c1 + c2 * c2});
+    return x * x + y * y + z * z > 1e-24 * longest2 * longest2;
+  }
   double ax = 0, ay = 0, az = 0, longest2 = 0;
   for (int i = 0; i < n; ++i) {
     const double* pa = P + 3 * idx[i];
@@ -192,7 +203,8 @@ absl::Status ValidateGeometry(const Mesh& mesh) {
         return absl::InvalidArgumentError(absl::StrFormat(
             "vertex %d: coordinate %c is not finite (%g)", v, "xyz"[c], mesh.positions(v, c)));
   // Faces in parallel blocks; the error reported is always the lowest-numbered face's.
-  const int threads = ResolveThreads(0);
+  // A few nanoseconds a face: below ~10^5 faces waking a thread team costs more.
+  const int threads = mesh.NumFaces() < 100'000 ? 1 : ResolveThreads(0);
   std::vector<int> first_bad(threads, std::numeric_limits<int>::max());
   ParallelForBlocks(mesh.NumFaces(), threads, [&](int64_t begin, int64_t end, int b) {
     for (int64_t f = begin; f < end; ++f)

@@ -25,6 +25,13 @@ v1::MeshInfo InfoFor(const std::string& id, const Mesh& m) {
   return info;
 }
 
+/// `mesh` with new positions, as UpdatePositions hands it to a store.
+std::shared_ptr<const Mesh> Moved(const Mesh& mesh, const Positions& positions) {
+  auto moved = std::make_shared<Mesh>(mesh);
+  moved->positions = positions;
+  return moved;
+}
+
 class StoreTest : public ::testing::TestWithParam<std::string> {
  protected:
   void SetUp() override {
@@ -59,11 +66,11 @@ TEST_P(StoreTest, InsertGetUpdateListDelete) {
   EXPECT_EQ(got->info.labels().at("case"), "store");
 
   const Positions moved = mesh.positions * 3.0;
-  auto updated = store_->UpdatePositions("m-1", 1, moved);
+  auto updated = store_->UpdatePositions("m-1", 1, Moved(mesh, moved));
   ASSERT_TRUE(updated.ok()) << updated.status();
   EXPECT_EQ(updated->revision(), 2);
-  EXPECT_EQ(store_->UpdatePositions("m-1", 1, moved).status().code(), absl::StatusCode::kAborted);
-  EXPECT_EQ(store_->UpdatePositions("nope", std::nullopt, moved).status().code(), absl::StatusCode::kNotFound);
+  EXPECT_EQ(store_->UpdatePositions("m-1", 1, Moved(mesh, moved)).status().code(), absl::StatusCode::kAborted);
+  EXPECT_EQ(store_->UpdatePositions("nope", std::nullopt, Moved(mesh, moved)).status().code(), absl::StatusCode::kNotFound);
   got = store_->Get("m-1");
   ASSERT_TRUE(got.ok());
   EXPECT_EQ(got->mesh->positions, moved);
@@ -91,7 +98,7 @@ TEST(SqliteStoreTest, SurvivesReopen) {
     auto s = OpenSqliteStore(dir);
     ASSERT_TRUE(s.ok());
     ASSERT_TRUE((*s)->Insert(InfoFor("m-x", mesh), mesh).ok());
-    ASSERT_TRUE((*s)->UpdatePositions("m-x", 1, mesh.positions * 2.0).ok());
+    ASSERT_TRUE((*s)->UpdatePositions("m-x", 1, Moved(mesh, mesh.positions * 2.0)).ok());
   }
   auto s = OpenSqliteStore(dir);
   ASSERT_TRUE(s.ok());

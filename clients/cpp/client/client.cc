@@ -12,6 +12,17 @@
 namespace geomfit {
 namespace {
 
+/// Writes a client stream and finishes it. Every chunk but the last may be buffered,
+/// and the last carries the half-close, so a one-chunk update is a single flush.
+template <typename Request>
+grpc::Status SendAll(grpc::ClientWriter<Request>* writer, const std::vector<Request>& chunks) {
+  for (size_t i = 0; i + 1 < chunks.size(); ++i) {
+    if (!writer->Write(chunks[i], grpc::WriteOptions().set_buffer_hint())) return writer->Finish();
+  }
+  if (chunks.empty() || !writer->Write(chunks.back(), grpc::WriteOptions().set_last_message())) writer->WritesDone();
+  return writer->Finish();
+}
+
 absl::Status ToAbsl(const grpc::Status& s) {
   if (s.ok()) return absl::OkStatus();
   return absl::Status(static_cast<absl::StatusCode>(s.error_code()), s.error_message());
@@ -94,10 +105,7 @@ struct Client::Impl {
     v1::MeshInfo info;
     GF_RETURN_IF_ERROR(Call([&](grpc::ClientContext& ctx) {
       auto writer = stub->UploadMesh(&ctx, &info);
-      for (const auto& c : chunks)
-        if (!writer->Write(c)) break;
-      writer->WritesDone();
-      return writer->Finish();
+      return SendAll(writer.get(), chunks);
     }));
     return info;
   }
@@ -162,10 +170,7 @@ absl::StatusOr<RemoteMesh> Client::UpdatePositions(const std::string& mesh_id, c
     v1::MeshInfo info;
     GF_RETURN_IF_ERROR(impl_->Call([&](grpc::ClientContext& ctx) {
       auto writer = impl_->stub->UpdatePositions(&ctx, &info);
-      for (const auto& c : chunks)
-        if (!writer->Write(c)) break;
-      writer->WritesDone();
-      return writer->Finish();
+      return SendAll(writer.get(), chunks);
     }));
     return FromProto(info);
   })));
