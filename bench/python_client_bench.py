@@ -1,14 +1,22 @@
 #!/usr/bin/python3
-"""Python client timings against a real geomfit-server: curvature on cached fits at
-1k, 10k and 100k vertices, and an FSI-style loop (update_positions + curvature).
+"""Python client against a real geomfit-server, and the same against the C++ client.
 
-    PYTHONPATH=clients/python /usr/bin/python3 bench/python_client_bench.py \
-        build/server/geomfit-server [--store memory|sqlite] [--reps 20] [--threads 1]
+Times, per mesh size (tori of 1k, 10k and 100k vertices):
+  curvature  ComputeDifferentials on cached fits and quantities (all transport);
+  update     UpdatePositions alone;
+  fsi step   UpdatePositions + ComputeDifferentials (a new revision each step), whose
+             overhead is the step minus the server's compute (summary fit_ms + evaluate_ms).
 
-Compare the "rpc ms" column with BM_RpcCurvatureCachedFits of service_rpc_bench
-(the C++ client) to get the Python client's overhead.
+With --cpp-bench (build/bench/service/service_rpc_bench) the C++ client is timed against
+the same server process, in rounds interleaved with the Python rounds so that a
+drifting machine affects both alike; the last columns give Python's overhead over C++'s.
+
+    PYTHONPATH=clients/python /usr/bin/python3 bench/python_client_bench.py \\
+        build/server/geomfit-server --cpp-bench build/bench/service/service_rpc_bench \\
+        [--store memory|sqlite] [--rounds 5] [--reps 20] [--threads 1]
 """
 import argparse
+import json
 import os
 import re
 import signal
@@ -23,8 +31,12 @@ import numpy as np
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "clients", "python"))
 import geomfit  # noqa: E402
 
+SIZES = (1000, 10000, 100000)
+FSI_SIZES = (1000, 10000)
+
 
 def torus(vertices, R=1.0, r=0.3):
+    """The torus of GenerateTorusMesh's grid (3m x m vertices) without its jitter."""
     m = max(4, int(round(np.sqrt(vertices / 3.0))))
     n = 3 * m
     u = 2 * np.pi * np.arange(n) / n
@@ -38,49 +50,97 @@ def torus(vertices, R=1.0, r=0.3):
     return pos.reshape(-1, 3), tris.astype(np.int32)
 
 
-def median_ms(fn, reps):
-    times = []
-    for _ in range(reps):
-        t = time.perf_counter()
-        fn()
-        times.append(1e3 * (time.perf_counter() - t))
-    return statistics.median(times)
+def python_round(client, meshes, reps):
+    """One round of Python timings: {(what, n): [ms, ...]} (FSI entries are overheads)."""
+    out = {}
+    for n, (pos, mesh_id) in meshes.items():
+        client.curvature(mesh_id)  # fits and quantities cached
+        t = []
+        for _ in range(reps):
+            a = time.perf_counter()
+            client.curvature(mesh_id)
+            t.append(1e3 * (time.perf_counter() - a))
+        out[("curvature", n)] = t
+        t = []
+        for k in range(reps):
+            a = time.perf_counter()
+            client.update_positions(mesh_id, pos + 1e-4 * (k % 2))
+            t.append(1e3 * (time.perf_counter() - a))
+        out[("update", n)] = t
+        if n in FSI_SIZES:
+            step, over = [], []
+            for k in range(max(3, reps // 2)):
+                a = time.perf_counter()
+                info = client.update_positions(mesh_id, pos + 1e-4 * (k % 2))
+                d = client.curvature(mesh_id, revision=info.revision)
+                ms = 1e3 * (time.perf_counter() - a)
+                step.append(ms)
+                over.append(ms - d.summary.fit_ms - d.summary.evaluate_ms)
+            out[("fsi step", n)] = step
+            out[("fsi overhead", n)] = over
+    return out
+
+
+def cpp_round(cpp_bench, target, threads):
+    """One round of the C++ client (service_rpc_bench against `target`)."""
+    env = dict(os.environ, GEOMFIT_BENCH_TARGET=target, GEOMFIT_BENCH_THREADS=str(threads))
+    res = subprocess.run([cpp_bench, "--benchmark_filter=BM_(RpcCurvatureCachedFits|FsiStep|FsiUpdatePositionsOnly)/",
+                          "--benchmark_min_time=0.3", "--benchmark_format=json"],
+                         env=env, capture_output=True, text=True, check=True)
+    out = {}
+    for b in json.loads(res.stdout)["benchmarks"]:
+        name, n = b["run_name"].split("/")[:2]
+        n = int(n)
+        if name == "BM_RpcCurvatureCachedFits":
+            out[("curvature", n)] = [b["real_time"]]
+        elif name == "BM_FsiUpdatePositionsOnly":
+            out[("update", n)] = [b["real_time"]]
+        elif name == "BM_FsiStep":
+            out[("fsi step", n)] = [b["real_time"]]
+            out[("fsi overhead", n)] = [b["real_time"] - b["server_compute_ms"]]
+    return out
 
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("server_binary")
+    ap.add_argument("--cpp-bench", help="service_rpc_bench, to time the C++ client against the same server")
     ap.add_argument("--store", default="memory", choices=["memory", "sqlite"])
-    ap.add_argument("--reps", type=int, default=20)
+    ap.add_argument("--rounds", type=int, default=5)
+    ap.add_argument("--reps", type=int, default=20, help="Python calls per quantity per round")
     ap.add_argument("--threads", type=int, default=1,
-                    help="server --threads (numeric threads per computation); 1 matches "
-                         "GEOMFIT_BENCH_THREADS=1 of service_rpc_bench")
+                    help="server --threads (numeric threads per computation)")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="geomfit_pybench_") as data_dir:
-        proc = subprocess.Popen([args.server_binary, "--host=127.0.0.1", "--port=0", "--log-level=warn",
+        proc = subprocess.Popen([args.server_binary, "--host=127.0.0.1", "--port=0", "--log-level=error",
                                  "--store=" + args.store, "--data-dir=" + data_dir,
                                  "--threads=%d" % args.threads],
                                 stdout=subprocess.PIPE, text=True)
         try:
-            port = re.search(r"port (\d+)", proc.stdout.readline()).group(1)
-            with geomfit.Client("127.0.0.1:" + port) as client:
-                print("%-8s %10s %14s %12s" % ("vertices", "rpc ms", "server eval ms", "fsi ms/step"))
-                for n in (1000, 10000, 100000):
+            target = "127.0.0.1:" + re.search(r"port (\d+)", proc.stdout.readline()).group(1)
+            py, cpp = {}, {}
+            with geomfit.Client(target) as client:
+                meshes = {}
+                for n in SIZES:
                     pos, tris = torus(n)
-                    mesh_id = client.upload(pos, tris, name="bench").mesh_id
-                    eval_ms = client.curvature(mesh_id).summary.evaluate_ms  # fit once
-                    rpc = median_ms(lambda: client.curvature(mesh_id), args.reps)
-                    step = [0]
-
-                    def fsi():
-                        step[0] += 1
-                        info = client.update_positions(mesh_id, pos + 1e-4 * (step[0] % 2))
-                        client.curvature(mesh_id, revision=info.revision)
-                    fsi_ms = median_ms(fsi, max(3, args.reps // 4)) if n <= 10000 else float("nan")
-                    print("%-8d %10.3f %14.3f %12.3f" % (len(pos), rpc, eval_ms, fsi_ms))
+                    meshes[n] = (pos, client.upload(pos, tris, name="bench").mesh_id)
+                for r in range(args.rounds):
+                    for k, v in python_round(client, meshes, args.reps).items():
+                        py.setdefault(k, []).append(statistics.median(v))
+                    if args.cpp_bench:
+                        for k, v in cpp_round(args.cpp_bench, target, args.threads).items():
+                            cpp.setdefault(k, []).append(statistics.median(v))
+                    print("round %d/%d done" % (r + 1, args.rounds), file=sys.stderr)
         finally:
             proc.send_signal(signal.SIGTERM)
             proc.wait(timeout=30)
+    print("median over %d rounds of the per-round medians, ms (store %s, server --threads=%d)"
+          % (args.rounds, args.store, args.threads))
+    print("%-13s %8s %10s %10s %10s" % ("what", "vertices", "python", "c++", "py / c++"))
+    for key in sorted(py, key=lambda k: (k[0], k[1])):
+        p = statistics.median(py[key])
+        c = statistics.median(cpp[key]) if key in cpp else float("nan")
+        print("%-13s %8d %10.3f %10.3f %10.2f" % (key[0], key[1], p, c, p / c))
 
 
 if __name__ == "__main__":

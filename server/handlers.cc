@@ -112,6 +112,18 @@ std::vector<v1::ComputeDifferentialsResponse> EncodeDifferentials(const Differen
   return out;
 }
 
+/// Bytes per vertex of a ComputeDifferentials response.
+int64_t RowBytes(uint32_t mask, bool diagnostics) {
+  int64_t doubles = 0;
+  if (mask & kNormals) doubles += 3;
+  if (mask & kMeanCurvature) doubles += 1;
+  if (mask & kGaussianCurvature) doubles += 1;
+  if (mask & kPrincipalCurvatures) doubles += 2;
+  if (mask & kPrincipalDirections) doubles += 6;
+  if (mask & kCurvatureTensor) doubles += 9;
+  return std::max<int64_t>(8, 8 * doubles + (diagnostics ? 20 : 0));
+}
+
 v1::FitSummary Summarize(const SurfaceFits& fits, const FitOptions& options) {
   v1::FitSummary s;
   s.set_num_vertices(fits.num_vertices());
@@ -327,7 +339,7 @@ absl::StatusOr<std::vector<v1::ComputeDifferentialsResponse>> Handlers::ComputeD
 
   std::vector<v1::ComputeDifferentialsResponse> out =
       EncodeDifferentials(*d, fitted.fits->num_vertices(), mask, request.diagnostics(),
-                          ChunkRows(request.chunk_rows(), 8 * 24 + 20));
+                          ChunkRows(request.chunk_rows(), RowBytes(mask, request.diagnostics())));
   v1::FitSummary* summary = out[0].mutable_summary();
   *summary = Summarize(*fitted.fits, options);
   summary->set_mesh_id(request.mesh_id());
@@ -350,6 +362,7 @@ v1::ServerInfo Handlers::GetServerInfo() const {
   info.set_max_degree(kMaxDegree);
   info.set_compute_workers(options_.workers);
   info.set_default_chunk_rows(options_.chunk_rows);
+  info.set_default_chunk_bytes(options_.chunk_bytes);
   for (const char* c : {"UploadMesh", "UpdatePositions", "GetMesh", "DownloadMesh", "ListMeshes", "DeleteMesh",
                         "ComputeDifferentials", "GetServerInfo", "GetStatistics", "ProjectPoints",
                         "HighOrderNodes", "RefineMesh", "Integrate", "reconstruction:WALF",
@@ -434,8 +447,10 @@ absl::StatusOr<std::shared_ptr<const Topology>> Handlers::TopologyOf(const std::
 }
 
 int64_t Handlers::ChunkRows(int64_t requested, int64_t bytes_per_row) const {
-  const int64_t by_size = std::max<int64_t>(1, options_.max_message_bytes / 2 / bytes_per_row);
-  return std::min(requested > 0 ? requested : options_.chunk_rows, by_size);
+  const int64_t by_limit = std::max<int64_t>(1, options_.max_message_bytes / 2 / bytes_per_row);
+  if (requested <= 0) requested = options_.chunk_rows;
+  if (requested <= 0) requested = std::max<int64_t>(1, options_.chunk_bytes / bytes_per_row);
+  return std::min(requested, by_limit);
 }
 
 }  // namespace geomfit::server

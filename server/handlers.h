@@ -21,7 +21,8 @@ namespace geomfit::server {
 struct HandlerOptions {
   int64_t max_vertices = 20'000'000;
   int64_t max_message_bytes = int64_t{64} << 20;
-  int64_t chunk_rows = 16384;  ///< default rows per streamed chunk
+  int64_t chunk_rows = 0;            ///< default rows per streamed chunk; 0 = by chunk_bytes
+  int64_t chunk_bytes = 128 << 10;   ///< target chunk size when no row count is set
   int threads = 0;             ///< numeric threads per computation
   int workers = 2;             ///< reported by GetServerInfo
 };
@@ -79,6 +80,8 @@ class Handlers {
   absl::StatusOr<std::shared_ptr<const Mesh>> Geometry(const std::string& id, int64_t revision,
                                                        int64_t* resolved_revision);
   absl::StatusOr<std::shared_ptr<const Topology>> TopologyOf(const std::string& id, const Mesh& mesh);
+  /// Rows per streamed chunk: the request's, else the server's, else as many as fill
+  /// chunk_bytes; never more than half the message limit.
   int64_t ChunkRows(int64_t requested, int64_t bytes_per_row) const;
 
   MeshStore* store_;

@@ -93,8 +93,10 @@ const std::vector<Flag>& Flags() {
          o->drain_seconds = s;
          return absl::OkStatus();
        }},
-      {"chunk-rows", "rows per streamed response chunk",
-       IntSetter(&ServerOptions::chunk_rows, "chunk-rows", 1, int64_t{1} << 24)},
+      {"chunk-rows", "rows per streamed response chunk; 0 = as many as fit in --chunk-bytes",
+       IntSetter(&ServerOptions::chunk_rows, "chunk-rows", 0, int64_t{1} << 24)},
+      {"chunk-bytes", "target bytes per streamed response chunk (messages of ~100 KiB stream fastest)",
+       IntSetter(&ServerOptions::chunk_bytes, "chunk-bytes", 1024, int64_t{1} << 30)},
       {"log-level", "trace|debug|info|warn|error|off",
        [](const std::string& v, ServerOptions* o) {
          for (const char* level : {"trace", "debug", "info", "warn", "error", "off"}) {
@@ -128,7 +130,7 @@ std::string ServerUsage() {
   absl::StrAppend(&s, "defaults: --port=", d.port, " --store=", d.store, " --data-dir=", d.data_dir,
                   " --cache-bytes=", d.cache_bytes, " --max-message-bytes=", d.max_message_bytes,
                   " --max-vertices=", d.max_vertices, " --workers=", d.workers, " --drain-seconds=",
-                  d.drain_seconds, "\n");
+                  d.drain_seconds, " --chunk-bytes=", d.chunk_bytes, "\n");
   return s;
 }
 

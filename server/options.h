@@ -22,7 +22,8 @@ struct ServerOptions {
   int queue = 256;                         ///< pending tasks beyond which RESOURCE_EXHAUSTED
   int metrics_port = 0;                    ///< Prometheus exposition port; 0 = off
   double drain_seconds = 10;               ///< SIGTERM: finish in-flight calls within this
-  int64_t chunk_rows = 16384;              ///< rows per streamed response chunk
+  int64_t chunk_rows = 0;                  ///< rows per streamed response chunk; 0 = by chunk_bytes
+  int64_t chunk_bytes = 128 << 10;         ///< target bytes per streamed chunk when chunk_rows = 0
   std::string log_level = "info";
 
   std::string Address() const { return host + ":" + std::to_string(port); }

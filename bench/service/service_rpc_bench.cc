@@ -3,6 +3,7 @@
 // a loopback port through geomfit::Client. Store: --store via GEOMFIT_BENCH_STORE
 // (memory | sqlite; default memory). Numeric threads: GEOMFIT_BENCH_THREADS (0 = all).
 // Rows per response chunk: GEOMFIT_BENCH_CHUNK_ROWS (server default otherwise).
+// GEOMFIT_BENCH_TARGET: see Service.
 #include <cstdlib>
 #include <filesystem>
 #include <map>
@@ -44,10 +45,18 @@ const Mesh& TorusWith(int vertices) {
   return it->second;
 }
 
-/// One server + client for the whole run.
+/// One server + client for the whole run. GEOMFIT_BENCH_TARGET=HOST:PORT uses a running
+/// geomfit-server instead of an in-process one (to compare with the Python client
+/// against the same server process).
 struct Service {
   Service() {
     spdlog::set_level(spdlog::level::warn);
+    ClientOptions c;
+    if (const char* target = std::getenv("GEOMFIT_BENCH_TARGET")) {
+      c.target = target;
+      client = Client::Connect(c);
+      return;
+    }
     server::ServerOptions o;
     o.host = "127.0.0.1";
     o.port = 0;
@@ -59,11 +68,11 @@ struct Service {
     if (const char* rows = std::getenv("GEOMFIT_BENCH_CHUNK_ROWS")) o.chunk_rows = std::atoll(rows);
     o.cache_bytes = int64_t{4} << 30;
     server = std::move(server::Server::Start(o)).value();
-    ClientOptions c;
     c.target = "127.0.0.1:" + std::to_string(server->port());
     client = Client::Connect(c);
   }
   ~Service() {
+    if (!server) return;
     server->Shutdown(1);
     std::filesystem::remove_all(data_dir);
   }

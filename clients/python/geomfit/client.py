@@ -4,6 +4,7 @@ import time
 from typing import Dict, Iterable, List, Optional, Tuple
 
 import grpc
+import grpc.experimental
 import numpy as np
 
 from geomfit.v1 import geomfit_pb2 as pb
@@ -194,15 +195,20 @@ class Client:
     raise GeomfitError. Use as a context manager to close the channel."""
 
     def __init__(self, target: str = "127.0.0.1:50051", timeout: float = 120.0, max_attempts: int = 4,
-                 backoff: float = 0.1, chunk_rows: int = 16384, max_message_bytes: int = 64 << 20):
+                 backoff: float = 0.1, chunk_rows: int = 0, max_message_bytes: int = 64 << 20):
         self.target = target
         self.timeout = timeout
         self.max_attempts = max(1, max_attempts)
         self.backoff = backoff
-        self.chunk_rows = max(1, chunk_rows)
+        # Rows per upload/update message. grpcio pays per message when sending, so by
+        # default a message carries up to a quarter of the message limit (the whole
+        # mesh, up to ~700k vertices).
+        self.chunk_rows = chunk_rows if chunk_rows > 0 else max(1, max_message_bytes // 4 // 24)
         self._channel = grpc.insecure_channel(target, options=[
             ("grpc.max_receive_message_length", max_message_bytes),
             ("grpc.max_send_message_length", max_message_bytes),
+            # Server-streaming calls run on the calling thread: no hand-off per call.
+            (grpc.experimental.ChannelOptions.SingleThreadedUnaryStream, 1),
         ])
         self._stub = pb_grpc.GeomFitStub(self._channel)
         # ComputeDifferentials responses are read as raw bytes and their arrays viewed
