@@ -5,6 +5,8 @@
 #include <map>
 #include <optional>
 
+#include <spdlog/spdlog.h>
+
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "core/fitting/neighborhood.h"
@@ -266,6 +268,8 @@ absl::StatusOr<v1::DeleteMeshResponse> Handlers::DeleteMesh(const v1::DeleteMesh
   GF_RETURN_IF_ERROR(RequireId(request.mesh_id()));
   GF_RETURN_IF_ERROR(store_->Delete(request.mesh_id()));
   cache_->ErasePrefix(request.mesh_id() + "/");
+  std::lock_guard<std::mutex> lock(recipes_mu_);
+  recipes_.erase(request.mesh_id());
   return v1::DeleteMeshResponse();
 }
 
@@ -319,26 +323,16 @@ absl::StatusOr<std::vector<v1::ComputeDifferentialsResponse>> Handlers::ComputeD
   FitOptions options = *parsed;
   options.num_threads = options_.threads;
   GF_ASSIGN_OR_RETURN(const uint32_t mask, wire::QuantityMask(request.quantities()));
-  GF_ASSIGN_OR_RETURN(const Fitted fitted, Fit(request.mesh_id(), request.revision(), options, cancel));
-
-  // Derived quantities belong to the fitting tier too: a repeated request only
-  // serializes.
-  bool eval_hit = false;
-  Stopwatch eval_watch;
-  GF_ASSIGN_OR_RETURN(
-      std::shared_ptr<const Differentials> d,
-      cache_->Get<Differentials>(
-          Tier::kFitting, absl::StrCat(fitted.key, "/q", mask),
-          [&]() -> absl::StatusOr<std::pair<std::shared_ptr<const Differentials>, int64_t>> {
-            auto e = std::make_shared<const Differentials>(
-                geomfit::ComputeDifferentials(*fitted.fits, mask, options_.threads));
-            return std::make_pair(e, DifferentialsBytes(*e));
-          },
-          &cancel, &eval_hit));
-  const double eval_ms = eval_hit ? 0 : eval_watch.Millis();
+  GF_ASSIGN_OR_RETURN(const Evaluated e, Evaluate(request.mesh_id(), request.revision(), options, mask, cancel));
+  const Fitted& fitted = e.fitted;
+  {
+    std::lock_guard<std::mutex> lock(recipes_mu_);
+    Recipe& r = recipes_[request.mesh_id()];
+    if (fitted.revision >= r.revision) r = Recipe{options, mask, fitted.revision};
+  }
 
   std::vector<v1::ComputeDifferentialsResponse> out =
-      EncodeDifferentials(*d, fitted.fits->num_vertices(), mask, request.diagnostics(),
+      EncodeDifferentials(*e.values, fitted.fits->num_vertices(), mask, request.diagnostics(),
                           ChunkRows(request.chunk_rows(), RowBytes(mask, request.diagnostics())));
   v1::FitSummary* summary = out[0].mutable_summary();
   *summary = Summarize(*fitted.fits, options);
@@ -346,9 +340,43 @@ absl::StatusOr<std::vector<v1::ComputeDifferentialsResponse>> Handlers::ComputeD
   summary->set_revision(fitted.revision);
   summary->set_fit_cache_hit(fitted.hit);
   summary->set_fit_ms(fitted.ms);
-  summary->set_evaluate_ms(eval_ms);
-  summary->set_quantities_cache_hit(eval_hit);
+  summary->set_evaluate_ms(e.ms);
+  summary->set_quantities_cache_hit(e.hit);
   return out;
+}
+
+absl::StatusOr<Handlers::Evaluated> Handlers::Evaluate(const std::string& id, int64_t revision,
+                                                       const FitOptions& options, uint32_t mask,
+                                                       const CancellationToken& cancel) {
+  Evaluated e;
+  GF_ASSIGN_OR_RETURN(e.fitted, Fit(id, revision, options, cancel));
+  // Derived quantities belong to the fitting tier too: a repeated request only
+  // serializes.
+  Stopwatch watch;
+  GF_ASSIGN_OR_RETURN(
+      e.values, cache_->Get<Differentials>(
+                    Tier::kFitting, absl::StrCat(e.fitted.key, "/q", mask),
+                    [&]() -> absl::StatusOr<std::pair<std::shared_ptr<const Differentials>, int64_t>> {
+                      auto d = std::make_shared<const Differentials>(
+                          geomfit::ComputeDifferentials(*e.fitted.fits, mask, options_.threads));
+                      return std::make_pair(d, DifferentialsBytes(*d));
+                    },
+                    &cancel, &e.hit));
+  e.ms = e.hit ? 0 : watch.Millis();
+  return e;
+}
+
+void Handlers::Prefetch(const std::string& id, int64_t revision, const CancellationToken& cancel) {
+  if (!options_.prefetch) return;
+  Recipe recipe;
+  {
+    std::lock_guard<std::mutex> lock(recipes_mu_);
+    auto it = recipes_.find(id);
+    if (it == recipes_.end() || it->second.revision != revision - 1) return;
+    recipe = it->second;
+  }
+  const absl::StatusOr<Evaluated> e = Evaluate(id, revision, recipe.options, recipe.mask, cancel);
+  if (!e.ok()) spdlog::debug("prefetch of {} revision {}: {}", id, revision, e.status().ToString());
 }
 
 v1::ServerInfo Handlers::GetServerInfo() const {

@@ -2,7 +2,9 @@
 // The RPC logic: proto in -> absl::StatusOr<proto> out. No gRPC types here, so every
 // handler is testable without a network; service.cc adapts them to the callback API.
 #include <chrono>
+#include <map>
 #include <memory>
+#include <mutex>
 #include <string>
 #include <vector>
 
@@ -24,6 +26,7 @@ struct HandlerOptions {
   int64_t chunk_rows = 0;            ///< default rows per streamed chunk; 0 = by chunk_bytes
   int64_t chunk_bytes = 128 << 10;   ///< target chunk size when no row count is set
   int threads = 0;             ///< numeric threads per computation
+  bool prefetch = true;        ///< Prefetch after UpdatePositions (--prefetch)
   int workers = 2;             ///< reported by GetServerInfo
 };
 
@@ -43,6 +46,11 @@ class Handlers {
   /// Fits (or reuses cached fits) and evaluates; polls `cancel` during the fit.
   absl::StatusOr<std::vector<v1::ComputeDifferentialsResponse>> ComputeDifferentials(
       const v1::ComputeDifferentialsRequest& request, const CancellationToken& cancel);
+  /// Time stepping: once UpdatePositions made `revision`, recomputes into the cache the
+  /// differentials last requested on revision - 1, so the step's ComputeDifferentials
+  /// finds them ready or joins the computation instead of starting it a round trip
+  /// later. Does nothing unless the previous revision had such a request.
+  void Prefetch(const std::string& id, int64_t revision, const CancellationToken& cancel);
   v1::ServerInfo GetServerInfo() const;
   v1::Statistics GetStatistics() const;
 
@@ -66,6 +74,21 @@ class Handlers {
     bool hit = false;
     double ms = 0;
   };
+  /// Fits plus differential quantities, each from the cache or computed.
+  struct Evaluated {
+    Fitted fitted;
+    std::shared_ptr<const Differentials> values;
+    bool hit = false;
+    double ms = 0;
+  };
+  absl::StatusOr<Evaluated> Evaluate(const std::string& id, int64_t revision, const FitOptions& options,
+                                     uint32_t mask, const CancellationToken& cancel);
+  /// What ComputeDifferentials last computed per mesh (for Prefetch).
+  struct Recipe {
+    FitOptions options;
+    uint32_t mask = 0;
+    int64_t revision = 0;
+  };
   /// `stencils`: fits that also carry their stencil operators (field integration).
   absl::StatusOr<Fitted> Fit(const std::string& id, int64_t revision, const FitOptions& options,
                              const CancellationToken& cancel, bool stencils = false);
@@ -88,6 +111,8 @@ class Handlers {
   Cache* cache_;
   const RequestStats* stats_;
   const HandlerOptions options_;
+  std::mutex recipes_mu_;
+  std::map<std::string, Recipe> recipes_;
   const std::chrono::steady_clock::time_point started_ = std::chrono::steady_clock::now();
 };
 

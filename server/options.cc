@@ -97,6 +97,9 @@ const std::vector<Flag>& Flags() {
        IntSetter(&ServerOptions::chunk_rows, "chunk-rows", 0, int64_t{1} << 24)},
       {"chunk-bytes", "target bytes per streamed response chunk (messages of ~100 KiB stream fastest)",
        IntSetter(&ServerOptions::chunk_bytes, "chunk-bytes", 1024, int64_t{1} << 30)},
+      {"prefetch", "1: right after UpdatePositions, compute the differentials last requested on the previous "
+                   "revision, so a time-stepping client's next request finds them under way; 0: off",
+       IntSetter(&ServerOptions::prefetch, "prefetch", 0, 1)},
       {"log-level", "trace|debug|info|warn|error|off",
        [](const std::string& v, ServerOptions* o) {
          for (const char* level : {"trace", "debug", "info", "warn", "error", "off"}) {

@@ -37,6 +37,7 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   h.max_message_bytes = options.max_message_bytes;
   h.chunk_rows = options.chunk_rows;
   h.chunk_bytes = options.chunk_bytes;
+  h.prefetch = options.prefetch != 0;
   h.threads = options.threads;
   h.workers = options.workers;
   s->handlers_ = std::make_unique<Handlers>(s->store_.get(), s->cache_.get(), s->stats_.get(), h);

@@ -34,11 +34,13 @@ template <typename Request, typename Assembler>
 class ReadReactor final : public grpc::ServerReadReactor<Request> {
  public:
   using FinishFn = std::function<absl::StatusOr<v1::MeshInfo>(const Assembler&)>;
+  /// Runs on the compute thread once the call is answered (OK only).
+  using AfterFn = std::function<void(const v1::MeshInfo&)>;
 
   ReadReactor(Service* service, grpc::CallbackServerContext* ctx, v1::MeshInfo* response, const char* method,
-              FinishFn finish)
+              FinishFn finish, AfterFn after = nullptr)
       : service_(service), ctx_(ctx), response_(response), assembler_(service->handlers()->options().max_vertices),
-        finish_(std::move(finish)) {
+        finish_(std::move(finish)), after_(std::move(after)) {
     service_->Begin();
     call_.method = method;
     if (absl::Status s = service_->Admit(); !s.ok()) {
@@ -62,9 +64,11 @@ class ReadReactor final : public grpc::ServerReadReactor<Request> {
       absl::StatusOr<v1::MeshInfo> info = finish_(assembler_);
       if (info.ok()) {
         call_.mesh_id = info->mesh_id();
-        *response_ = std::move(*info);
+        *response_ = *info;
       }
+      AfterFn after = std::move(after_);  // `this` may be gone once Done returns
       Done(info.status());
+      if (after && info.ok()) after(*info);
     });
     if (!queued) Done(QueueFull("compute"));
   }
@@ -83,6 +87,7 @@ class ReadReactor final : public grpc::ServerReadReactor<Request> {
   Request request_;
   Assembler assembler_;
   FinishFn finish_;
+  AfterFn after_;
   Service::Call call_{};
 };
 
@@ -191,7 +196,12 @@ grpc::ServerReadReactor<v1::UpdatePositionsRequest>* Service::UpdatePositions(gr
                                                                               v1::MeshInfo* response) {
   return new ReadReactor<v1::UpdatePositionsRequest, PositionsAssembler>(
       this, ctx, response, "UpdatePositions",
-      [this](const PositionsAssembler& a) { return handlers_->UpdatePositions(a); });
+      [this](const PositionsAssembler& a) { return handlers_->UpdatePositions(a); },
+      [this](const v1::MeshInfo& info) {
+        CancellationToken cancel;
+        cancel.SetPoll([this] { return draining(); });
+        handlers_->Prefetch(info.mesh_id(), info.revision(), cancel);
+      });
 }
 
 grpc::ServerUnaryReactor* Service::GetMesh(grpc::CallbackServerContext* ctx, const v1::GetMeshRequest* request,

@@ -137,6 +137,48 @@ TEST_F(HandlersTest, SecondRequestHitsTheFittingCache) {
   EXPECT_FALSE(other_degree.fit_cache_hit());
 }
 
+TEST_F(HandlersTest, PrefetchComputesTheNextStepOfATimeSteppingClient) {
+  const Mesh mesh = TestTorus();
+  auto info = Upload(mesh);
+  ASSERT_TRUE(info.ok());
+  const std::string id = info->mesh_id();
+  CancellationToken token;
+  v1::FitSummary s;
+  // Nothing was computed on revision 1: nothing to prefetch for revision 2.
+  ASSERT_TRUE(Update(id, 1.5 * mesh.positions, 1).ok());
+  handlers_.Prefetch(id, 2, token);
+  ASSERT_TRUE(Compute(id, &s, 3).ok());
+  EXPECT_FALSE(s.fit_cache_hit());
+
+  // Revision 2 had a request: revision 3 gets the same fits and quantities ahead.
+  ASSERT_TRUE(Update(id, 2.0 * mesh.positions, 2).ok());
+  handlers_.Prefetch(id, 3, token);
+  auto prefetched = Compute(id, &s, 3);
+  ASSERT_TRUE(prefetched.ok()) << prefetched.status();
+  EXPECT_EQ(s.revision(), 3);
+  EXPECT_TRUE(s.fit_cache_hit());
+  EXPECT_TRUE(s.quantities_cache_hit());
+  Mesh moved = mesh;
+  moved.positions = 2.0 * mesh.positions;
+  FitOptions options;
+  options.degree = 3;
+  options.num_threads = 1;
+  auto local = ComputeDifferentials(moved, options, kAllQuantities);
+  ASSERT_TRUE(local.ok());
+  EXPECT_EQ(prefetched->mean, local->mean) << "the prefetched values are revision 3's";
+  EXPECT_EQ(prefetched->normals, local->normals);
+
+  // A step without a request ends it: revision 4 is prefetched (3 had a request),
+  // revision 5 is not (4 had none).
+  ASSERT_TRUE(Update(id, 2.5 * mesh.positions, 3).ok());
+  handlers_.Prefetch(id, 4, token);
+  ASSERT_TRUE(Update(id, 3.0 * mesh.positions, 4).ok());
+  handlers_.Prefetch(id, 5, token);
+  ASSERT_TRUE(Compute(id, &s, 3).ok());
+  EXPECT_EQ(s.revision(), 5);
+  EXPECT_FALSE(s.fit_cache_hit());
+}
+
 TEST_F(HandlersTest, UpdatePositionsKeepsTopologyAndMakesNewRevision) {
   const Mesh mesh = TestTorus();
   auto info = Upload(mesh);
