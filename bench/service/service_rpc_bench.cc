@@ -194,7 +194,7 @@ void BM_HandlerUpdatePositions(benchmark::State& state) {
   ho.threads = Threads();
   server::Handlers handlers(store.get(), &cache, &stats, ho);
   server::UploadAssembler upload(int64_t{1} << 30);
-  for (const auto& r : wire::UploadChunks(mesh, v1::MeshHeader(), ho.chunk_rows)) (void)upload.Add(r);
+  for (const auto& r : wire::UploadChunks(mesh, v1::MeshHeader(), ClientOptions().chunk_rows)) (void)upload.Add(r);
   const std::string id = handlers.UploadMesh(upload).value().mesh_id();
   Positions p = mesh.positions;
   v1::UpdateHeader header;
@@ -203,7 +203,7 @@ void BM_HandlerUpdatePositions(benchmark::State& state) {
   for (auto _ : state) {
     p.col(0).array() += 1e-4 * (++step % 2 ? 1 : -1);
     server::PositionsAssembler a(int64_t{1} << 30);
-    for (const auto& r : wire::UpdateChunks(p, header, ho.chunk_rows)) (void)a.Add(r);
+    for (const auto& r : wire::UpdateChunks(p, header, ClientOptions().chunk_rows)) (void)a.Add(r);
     if (!handlers.UpdatePositions(a).ok()) state.SkipWithError("update failed");
   }
   state.counters["vertices"] = mesh.NumVertices();
