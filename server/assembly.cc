@@ -98,30 +98,34 @@ absl::StatusOr<Mesh> UploadAssembler::Finish() const {
 }
 
 absl::Status PositionsAssembler::Add(const v1::UpdatePositionsRequest& request) {
-  bytes_ += static_cast<int64_t>(request.ByteSizeLong());
   switch (request.chunk_case()) {
-    case v1::UpdatePositionsRequest::kHeader:
-      if (has_header_) return absl::InvalidArgumentError("header: sent twice");
-      if (request.header().mesh_id().empty()) return absl::InvalidArgumentError("header.mesh_id: empty");
-      header_ = request.header();
-      has_header_ = true;
-      return absl::OkStatus();
-    case v1::UpdatePositionsRequest::kPositions: {
-      if (!has_header_) return absl::InvalidArgumentError("positions chunk before the header (send the header first)");
-      const v1::PositionsChunk& c = request.positions();
-      GF_ASSIGN_OR_RETURN(auto m, wire::ViewDoubles(c.positions(), "positions", {3}));
-      return positions_.Append(c.vertex_offset(), m, max_vertices_);
-    }
-    case v1::UpdatePositionsRequest::CHUNK_NOT_SET:
-      break;
+    case v1::UpdatePositionsRequest::kHeader: return AddHeader(request.header());
+    case v1::UpdatePositionsRequest::kPositions: return AddPositions(request.positions());
+    case v1::UpdatePositionsRequest::CHUNK_NOT_SET: break;
   }
   return absl::InvalidArgumentError("UpdatePositionsRequest: empty chunk (set header or positions)");
+}
+
+absl::Status PositionsAssembler::AddHeader(const v1::UpdateHeader& header) {
+  bytes_ += static_cast<int64_t>(header.ByteSizeLong());
+  if (has_header_) return absl::InvalidArgumentError("header: sent twice");
+  if (header.mesh_id().empty()) return absl::InvalidArgumentError("header.mesh_id: empty");
+  header_ = header;
+  has_header_ = true;
+  return absl::OkStatus();
+}
+
+absl::Status PositionsAssembler::AddPositions(const v1::PositionsChunk& chunk) {
+  bytes_ += static_cast<int64_t>(chunk.ByteSizeLong());
+  if (!has_header_) return absl::InvalidArgumentError("positions chunk before the header (send the header first)");
+  GF_ASSIGN_OR_RETURN(auto m, wire::ViewDoubles(chunk.positions(), "positions", {3}));
+  return positions_.Append(chunk.vertex_offset(), m, max_vertices_);
 }
 
 absl::StatusOr<Positions> PositionsAssembler::Finish(int64_t num_vertices) const {
   if (!has_header_) return absl::InvalidArgumentError("update stream ended without a header");
   if (positions_.rows() != num_vertices) {
-    return absl::InvalidArgumentError(absl::StrCat("update stream carried ", positions_.rows(),
+    return absl::InvalidArgumentError(absl::StrCat("update carried ", positions_.rows(),
                                                    " vertices; mesh '", header_.mesh_id(), "' has ",
                                                    num_vertices));
   }

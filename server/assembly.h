@@ -56,6 +56,8 @@ class PositionsAssembler {
  public:
   explicit PositionsAssembler(int64_t max_vertices) : max_vertices_(max_vertices) {}
   absl::Status Add(const v1::UpdatePositionsRequest& request);
+  absl::Status AddHeader(const v1::UpdateHeader& header);
+  absl::Status AddPositions(const v1::PositionsChunk& chunk);
   /// The positions; INVALID_ARGUMENT if the header is missing or rows != num_vertices.
   absl::StatusOr<Positions> Finish(int64_t num_vertices) const;
   const v1::UpdateHeader& header() const { return header_; }

@@ -217,6 +217,13 @@ absl::StatusOr<v1::MeshInfo> Handlers::UpdatePositions(const PositionsAssembler&
   return info;
 }
 
+absl::StatusOr<v1::MeshInfo> Handlers::SetPositions(const v1::SetPositionsRequest& request) {
+  PositionsAssembler update(options_.max_vertices);
+  GF_RETURN_IF_ERROR(update.AddHeader(request.header()));
+  GF_RETURN_IF_ERROR(update.AddPositions(request.positions()));
+  return UpdatePositions(update);
+}
+
 absl::StatusOr<v1::MeshInfo> Handlers::GetMesh(const v1::GetMeshRequest& request) {
   GF_RETURN_IF_ERROR(RequireId(request.mesh_id()));
   return store_->GetInfo(request.mesh_id());
@@ -391,7 +398,7 @@ v1::ServerInfo Handlers::GetServerInfo() const {
   info.set_compute_workers(options_.workers);
   info.set_default_chunk_rows(options_.chunk_rows);
   info.set_default_chunk_bytes(options_.chunk_bytes);
-  for (const char* c : {"UploadMesh", "UpdatePositions", "GetMesh", "DownloadMesh", "ListMeshes", "DeleteMesh",
+  for (const char* c : {"UploadMesh", "UpdatePositions", "SetPositions", "GetMesh", "DownloadMesh", "ListMeshes", "DeleteMesh",
                         "ComputeDifferentials", "GetServerInfo", "GetStatistics", "ProjectPoints",
                         "HighOrderNodes", "RefineMesh", "Integrate", "reconstruction:WALF",
                         "reconstruction:CMF", "fit_method:LHF",

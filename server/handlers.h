@@ -39,6 +39,8 @@ class Handlers {
 
   absl::StatusOr<v1::MeshInfo> UploadMesh(const UploadAssembler& upload);
   absl::StatusOr<v1::MeshInfo> UpdatePositions(const PositionsAssembler& update);
+  /// UpdatePositions in one message.
+  absl::StatusOr<v1::MeshInfo> SetPositions(const v1::SetPositionsRequest& request);
   absl::StatusOr<v1::MeshInfo> GetMesh(const v1::GetMeshRequest& request);
   absl::StatusOr<std::vector<v1::DownloadMeshResponse>> DownloadMesh(const v1::DownloadMeshRequest& request);
   absl::StatusOr<v1::ListMeshesResponse> ListMeshes(const v1::ListMeshesRequest& request);

@@ -165,23 +165,25 @@ grpc::Status Service::Finish(const Call& call, const absl::Status& status) {
 
 template <typename Response>
 grpc::ServerUnaryReactor* Service::Unary(grpc::CallbackServerContext* ctx, Call call, ThreadPool* pool,
-                                         Response* response, std::function<absl::StatusOr<Response>()> work) {
+                                         Response* response, std::function<absl::StatusOr<Response>()> work,
+                                         std::function<void(const Response&)> after) {
   grpc::ServerUnaryReactor* reactor = ctx->DefaultReactor();
   Begin();
-  auto run = [this, reactor, response, work = std::move(work), call]() mutable {
+  auto run = [this, reactor, response, work = std::move(work), after = std::move(after), call]() mutable {
     absl::StatusOr<Response> r = work();
     if (r.ok()) {
-      *response = std::move(*r);
-      call.bytes_out = static_cast<int64_t>(response->ByteSizeLong());
+      call.bytes_out = static_cast<int64_t>(r->ByteSizeLong());
+      *response = *r;  // `response` is gone once Finish is called; `r` stays for `after`
     }
     reactor->Finish(Finish(call, r.status()));
+    if (after && r.ok()) after(*r);
   };
   if (absl::Status s = Admit(); !s.ok()) {
     reactor->Finish(Finish(call, s));
   } else if (pool == nullptr) {
     run();
   } else if (!pool->TrySubmit(std::move(run))) {
-    reactor->Finish(Finish(call, QueueFull("io")));
+    reactor->Finish(Finish(call, QueueFull(pool == compute_ ? "compute" : "io")));
   }
   return reactor;
 }
@@ -197,11 +199,22 @@ grpc::ServerReadReactor<v1::UpdatePositionsRequest>* Service::UpdatePositions(gr
   return new ReadReactor<v1::UpdatePositionsRequest, PositionsAssembler>(
       this, ctx, response, "UpdatePositions",
       [this](const PositionsAssembler& a) { return handlers_->UpdatePositions(a); },
-      [this](const v1::MeshInfo& info) {
-        CancellationToken cancel;
-        cancel.SetPoll([this] { return draining(); });
-        handlers_->Prefetch(info.mesh_id(), info.revision(), cancel);
-      });
+      [this](const v1::MeshInfo& info) { AfterUpdate(info); });
+}
+
+grpc::ServerUnaryReactor* Service::SetPositions(grpc::CallbackServerContext* ctx,
+                                                const v1::SetPositionsRequest* request, v1::MeshInfo* response) {
+  Call call{"SetPositions", request->header().mesh_id()};
+  call.bytes_in = static_cast<int64_t>(request->ByteSizeLong());
+  return Unary<v1::MeshInfo>(
+      ctx, std::move(call), compute_, response, [this, request] { return handlers_->SetPositions(*request); },
+      [this](const v1::MeshInfo& info) { AfterUpdate(info); });
+}
+
+void Service::AfterUpdate(const v1::MeshInfo& info) {
+  CancellationToken cancel;
+  cancel.SetPoll([this] { return draining(); });
+  handlers_->Prefetch(info.mesh_id(), info.revision(), cancel);
 }
 
 grpc::ServerUnaryReactor* Service::GetMesh(grpc::CallbackServerContext* ctx, const v1::GetMeshRequest* request,

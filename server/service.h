@@ -34,6 +34,8 @@ class Service final : public v1::GeomFit::CallbackService {
                                                              v1::MeshInfo* response) override;
   grpc::ServerReadReactor<v1::UpdatePositionsRequest>* UpdatePositions(grpc::CallbackServerContext* ctx,
                                                                        v1::MeshInfo* response) override;
+  grpc::ServerUnaryReactor* SetPositions(grpc::CallbackServerContext* ctx, const v1::SetPositionsRequest* request,
+                                         v1::MeshInfo* response) override;
   grpc::ServerUnaryReactor* GetMesh(grpc::CallbackServerContext* ctx, const v1::GetMeshRequest* request,
                                     v1::MeshInfo* response) override;
   grpc::ServerWriteReactor<v1::DownloadMeshResponse>* DownloadMesh(grpc::CallbackServerContext* ctx,
@@ -74,10 +76,13 @@ class Service final : public v1::GeomFit::CallbackService {
   ThreadPool* io() { return io_; }
 
  private:
+  /// `after` (optional) runs on the pool thread once an OK response is sent.
   template <typename Response>
   grpc::ServerUnaryReactor* Unary(grpc::CallbackServerContext* ctx, Call call, ThreadPool* pool,
-                                  Response* response,
-                                  std::function<absl::StatusOr<Response>()> work);
+                                  Response* response, std::function<absl::StatusOr<Response>()> work,
+                                  std::function<void(const Response&)> after = nullptr);
+  /// What follows a stored update: Prefetch on the calling (compute) thread.
+  void AfterUpdate(const v1::MeshInfo& info);
 
   Handlers* handlers_;
   ThreadPool* compute_;

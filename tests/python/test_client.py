@@ -63,6 +63,15 @@ def test_errors_carry_code_and_message(server, torus_mesh):
         with pytest.raises(geomfit.GeomfitError) as e:
             client.update_positions(info.mesh_id, positions, expected_revision=5)
         assert e.value.code == grpc.StatusCode.ABORTED
+        bad = positions.copy()
+        bad[4, 0] = np.inf
+        with pytest.raises(geomfit.GeomfitError) as e:
+            client.update_positions(info.mesh_id, bad)
+        assert e.value.code == grpc.StatusCode.INVALID_ARGUMENT
+        assert "vertex 4" in e.value.details
+        # Both went as one message (SetPositions), not as a stream.
+        calls = {m.method: m.count for m in client.statistics().methods}
+        assert calls.get("SetPositions", 0) >= 2
 
         bad = positions.copy()
         bad[7, 2] = np.nan

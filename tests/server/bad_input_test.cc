@@ -173,6 +173,40 @@ TEST_F(BadInputTest, UpdatePositions) {
   });
 }
 
+TEST_F(BadInputTest, SetPositions) {
+  auto set = [](const Positions& p, std::optional<int64_t> expected, const std::string& id,
+                 std::function<void(v1::SetPositionsRequest&)> edit = nullptr) {
+    return [=](v1::GeomFit::Stub& s) {
+      v1::SetPositionsRequest r;
+      r.mutable_header()->set_mesh_id(id);
+      if (expected) r.mutable_header()->set_expected_revision(*expected);
+      wire::EncodeDoubles(p.data(), p.rows(), 3, r.mutable_positions()->mutable_positions());
+      if (edit) edit(r);
+      grpc::ClientContext ctx;
+      v1::MeshInfo info;
+      return s.SetPositions(&ctx, r, &info);
+    };
+  };
+  Positions nan = mesh_.positions;
+  nan(5, 1) = std::nan("");
+  Run({
+      {"unknown mesh", set(mesh_.positions, std::nullopt, "m-nope"), Code::NOT_FOUND, "m-nope"},
+      {"stale revision", set(mesh_.positions * 2.0, 7, id_), Code::ABORTED, "expected_revision 7"},
+      {"too few vertices", set(mesh_.positions.topRows(10), std::nullopt, id_), Code::INVALID_ARGUMENT,
+       "carried 10 vertices"},
+      {"NaN coordinate", set(nan, std::nullopt, id_), Code::INVALID_ARGUMENT, "vertex 5"},
+      {"no mesh id", set(mesh_.positions, std::nullopt, ""), Code::INVALID_ARGUMENT, "header.mesh_id"},
+      {"wrong byte length",
+       set(mesh_.positions, std::nullopt, id_,
+           [](v1::SetPositionsRequest& r) { r.mutable_positions()->mutable_positions()->mutable_data()->pop_back(); }),
+       Code::INVALID_ARGUMENT, "bytes"},
+      {"offset not 0",
+       set(mesh_.positions, std::nullopt, id_,
+           [](v1::SetPositionsRequest& r) { r.mutable_positions()->set_vertex_offset(3); }),
+       Code::INVALID_ARGUMENT, "vertex_offset is 3, expected 0"},
+  });
+}
+
 TEST_F(BadInputTest, ReadsAndDeletes) {
   auto get = [](const std::string& id) {
     return [id](v1::GeomFit::Stub& s) {

@@ -26,6 +26,33 @@ std::unique_ptr<Client> ClientFor(int port, bool reupload = false) {
   return Client::Connect(o);
 }
 
+int64_t CallsOf(Client& client, const std::string& method) {
+  auto stats = client.GetStatistics();
+  if (!stats.ok()) return -1;
+  for (const auto& m : stats->methods())
+    if (m.method() == method) return m.count();
+  return 0;
+}
+
+TEST(ClientTest, UpdatesWithinOneMessageUseSetPositions) {
+  InProcessServer server;
+  ClientOptions o;
+  o.target = "127.0.0.1:" + std::to_string(server.port());
+  auto client = Client::Connect(o);  // default chunk_rows: the mesh fits in one message
+  const Mesh mesh = server::testing::TestTorus(10);
+  auto info = client->Upload(mesh, "torus");
+  ASSERT_TRUE(info.ok()) << info.status();
+  auto updated = client->UpdatePositions(info->mesh_id, mesh.positions * 3.0, 1);
+  ASSERT_TRUE(updated.ok()) << updated.status();
+  EXPECT_EQ(updated->revision, 2);
+  EXPECT_EQ(client->UpdatePositions(info->mesh_id, mesh.positions, 1).status().code(), absl::StatusCode::kAborted);
+  auto downloaded = client->Download(info->mesh_id);
+  ASSERT_TRUE(downloaded.ok());
+  EXPECT_EQ(downloaded->positions, Positions(mesh.positions * 3.0));
+  EXPECT_EQ(CallsOf(*client, "SetPositions"), 2);
+  EXPECT_EQ(CallsOf(*client, "UpdatePositions"), 0);
+}
+
 TEST(ClientTest, RoundTrip) {
   InProcessServer server;
   auto client = ClientFor(server.port());

@@ -1,5 +1,6 @@
 #include "clients/cpp/client/client.h"
 
+#include <atomic>
 #include <thread>
 
 #include <grpcpp/grpcpp.h>
@@ -77,6 +78,7 @@ struct Client::Impl {
   ClientOptions options;
   std::shared_ptr<grpc::Channel> channel;
   std::unique_ptr<v1::GeomFit::Stub> stub;
+  std::atomic<bool> stream_updates{false};  ///< the server lacks SetPositions
   mutable std::mutex mu;
   std::map<std::string, Kept> kept;
 
@@ -166,8 +168,20 @@ absl::StatusOr<RemoteMesh> Client::UpdatePositions(const std::string& mesh_id, c
     v1::UpdateHeader header;
     header.set_mesh_id(id);
     if (expected_revision) header.set_expected_revision(*expected_revision);
-    const auto chunks = wire::UpdateChunks(positions, header, impl_->options.chunk_rows);
     v1::MeshInfo info;
+    if (positions.rows() <= impl_->options.chunk_rows && !impl_->stream_updates.load()) {
+      v1::SetPositionsRequest request;  // one message: no stream to set up
+      *request.mutable_header() = header;
+      wire::EncodeDoubles(positions.data(), positions.rows(), 3, request.mutable_positions()->mutable_positions());
+      const absl::Status s =
+          impl_->Call([&](grpc::ClientContext& ctx) { return impl_->stub->SetPositions(&ctx, request, &info); });
+      if (!absl::IsUnimplemented(s)) {
+        GF_RETURN_IF_ERROR(s);
+        return FromProto(info);
+      }
+      impl_->stream_updates = true;  // a server without SetPositions
+    }
+    const auto chunks = wire::UpdateChunks(positions, header, impl_->options.chunk_rows);
     GF_RETURN_IF_ERROR(impl_->Call([&](grpc::ClientContext& ctx) {
       auto writer = impl_->stub->UpdatePositions(&ctx, &info);
       return SendAll(writer.get(), chunks);

@@ -211,6 +211,7 @@ class Client:
             (grpc.experimental.ChannelOptions.SingleThreadedUnaryStream, 1),
         ])
         self._stub = pb_grpc.GeomFitStub(self._channel)
+        self._stream_updates = False
         # ComputeDifferentials responses are read as raw bytes and their arrays viewed
         # in place (_parse_chunk): the generated parser would copy every array twice.
         self._compute = self._channel.unary_stream(
@@ -281,6 +282,15 @@ class Client:
         header = pb.UpdateHeader(mesh_id=mesh_id)
         if expected_revision is not None:
             header.expected_revision = expected_revision
+        if 0 < len(positions) <= self.chunk_rows and not self._stream_updates:
+            # One message (SetPositions): grpcio's client streams start a thread per call.
+            request = pb.SetPositionsRequest(header=header, positions=next(iter(self._position_chunks(positions))))
+            try:
+                return self._call(lambda: self._stub.SetPositions(request, timeout=self.timeout))
+            except GeomfitError as e:
+                if e.code != grpc.StatusCode.UNIMPLEMENTED:
+                    raise
+                self._stream_updates = True  # a server without SetPositions
         requests = [pb.UpdatePositionsRequest(header=header)]
         requests += [pb.UpdatePositionsRequest(positions=c) for c in self._position_chunks(positions)]
         return self._call(lambda: self._stub.UpdatePositions(iter(requests), timeout=self.timeout))
