@@ -1,5 +1,6 @@
 """The geomfit Client: numpy arrays in and out over the geomfit.v1 gRPC API."""
 import dataclasses
+import math
 import time
 from typing import Dict, Iterable, List, Optional, Tuple
 
@@ -71,8 +72,11 @@ _DIAGNOSTIC_ARRAYS = {1: ("points", "<i4"), 2: ("degree_used", "<i4"), 3: ("flag
                       4: ("condition", "<f8")}
 
 
-def _varint(buf, i):
-    result = shift = 0
+def _varint(buf: bytes, i: int) -> Tuple[int, int]:
+    b = buf[i]
+    if b < 0x80:  # one byte: field keys, small shapes
+        return b, i + 1
+    result, shift, i = b & 0x7F, 7, i + 1
     while True:
         b = buf[i]
         i += 1
@@ -82,27 +86,26 @@ def _varint(buf, i):
         shift += 7
 
 
-def _fields(buf, start, end):
-    """Yields (field number, value): an int for varints, a (begin, end) range for
-    length-delimited fields; fixed-width fields are skipped."""
-    i = start
+def _fields(buf: bytes, i: int, end: int):
+    """Yields (field number, value, position after it) for the fields in buf[i:end]:
+    an int for varints, a (begin, end) range for length-delimited fields, None for
+    fixed-width ones."""
     while i < end:
         key, i = _varint(buf, i)
-        number, wire = key >> 3, key & 7
+        wire = key & 7
         if wire == 0:
             value, i = _varint(buf, i)
-            yield number, value
         elif wire == 2:
             n, i = _varint(buf, i)
-            yield number, (i, i + n)
-            i += n
+            value, i = (i, i + n), i + n
         elif wire in (1, 5):
-            i += 8 if wire == 1 else 4
+            value, i = None, i + (8 if wire == 1 else 4)
         else:
             raise GeomfitError(grpc.StatusCode.DATA_LOSS, "malformed response (wire type %d)" % wire)
+        yield key >> 3, value
 
 
-def _array(buf, span, dtype):
+def _array(buf: bytes, span: Tuple[int, int], dtype: np.dtype) -> np.ndarray:
     """A DoubleArray / Int32Array message as a numpy view of `buf`."""
     data, shape = (0, 0), []
     for number, value in _fields(buf, *span):
@@ -115,27 +118,29 @@ def _array(buf, span, dtype):
                 shape.append(dim)
         elif number == 2:
             shape.append(value)
-    a = np.frombuffer(buf[data[0]:data[1]], dtype=dtype)
-    if a.size != int(np.prod(shape)):
-        raise GeomfitError(grpc.StatusCode.DATA_LOSS, "array of %d values, shape %s" % (a.size, shape))
-    return a.reshape(shape)
+    count, rest = divmod(data[1] - data[0], dtype.itemsize)
+    if rest or count != math.prod(shape):
+        raise GeomfitError(grpc.StatusCode.DATA_LOSS, "array of %d bytes, shape %s" % (data[1] - data[0], shape))
+    return np.frombuffer(buf, dtype, count, data[0]).reshape(shape)
+
+
+_F8, _I4 = np.dtype("<f8"), np.dtype("<i4")
 
 
 def _parse_chunk(raw: bytes) -> dict:
-    buf = memoryview(raw)
-    out = {"summary": None, "arrays": {}, "diagnostics": {}}
-    for number, value in _fields(buf, 0, len(buf)):
+    out = {"summary": None, "vertex_offset": 0, "arrays": {}, "diagnostics": {}}
+    for number, value in _fields(raw, 0, len(raw)):
         if number == 1:
-            out["summary"] = bytes(buf[value[0]:value[1]])
+            out["summary"] = raw[value[0]:value[1]]
         elif number == 2:
             out["vertex_offset"] = value
         elif number in _RESPONSE_ARRAYS:
-            out["arrays"][_RESPONSE_ARRAYS[number]] = _array(buf, value, "<f8")
+            out["arrays"][_RESPONSE_ARRAYS[number]] = _array(raw, value, _F8)
         elif number == 12:
-            for n, v in _fields(buf, *value):
+            for n, v in _fields(raw, *value):
                 if n in _DIAGNOSTIC_ARRAYS:
                     name, dtype = _DIAGNOSTIC_ARRAYS[n]
-                    out["diagnostics"][name] = _array(buf, v, dtype)
+                    out["diagnostics"][name] = _array(raw, v, np.dtype(dtype))
     return out
 
 
