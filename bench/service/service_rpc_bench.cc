@@ -139,6 +139,25 @@ void BM_InProcessFsiCompute(benchmark::State& state) {
   state.counters["vertices"] = mesh.NumVertices();
 }
 
+/// BM_InProcessFsiCompute on a new copy of the mesh every step, as the server sees a
+/// new revision (positions and faces in memory the fit has not touched yet).
+void BM_InProcessFsiComputeFreshCopy(benchmark::State& state) {
+  const Mesh& mesh = TorusWith(static_cast<int>(state.range(0)));
+  const Topology topo = ValidateMesh(mesh).value();
+  const FitOptions options = Options();
+  auto nbhd = std::make_shared<const Neighborhoods>(BuildNeighborhoods(topo, mesh, RingSpecFor(options), Threads()));
+  int step = 0;
+  for (auto _ : state) {
+    state.PauseTiming();
+    auto moved = std::make_shared<Mesh>(mesh);
+    moved->positions.col(0).array() += 1e-4 * (++step % 2);
+    state.ResumeTiming();
+    const auto fits = FitSurface(*moved, topo, options, nbhd).value();
+    benchmark::DoNotOptimize(ComputeDifferentials(*fits, kQuantities, Threads()));
+  }
+  state.counters["vertices"] = mesh.NumVertices();
+}
+
 /// FSI step: new positions (a small rigid shift per step), then curvature.
 void BM_FsiStep(benchmark::State& state) {
   const Mesh& mesh = TorusWith(static_cast<int>(state.range(0)));
@@ -214,6 +233,7 @@ BENCHMARK(BM_InProcessEvaluateCachedFits)->SIZES;
 BENCHMARK(BM_RpcCurvatureCachedFits)->SIZES;
 BENCHMARK(BM_InProcessFitAndEvaluate)->SIZES;
 BENCHMARK(BM_InProcessFsiCompute)->Arg(1000)->Arg(10000)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_InProcessFsiComputeFreshCopy)->Arg(1000)->Arg(10000)->Unit(benchmark::kMillisecond)->UseRealTime();
 BENCHMARK(BM_FsiStep)->Arg(1000)->Arg(10000)->Unit(benchmark::kMillisecond)->UseRealTime();
 BENCHMARK(BM_HandlerUpdatePositions)->Arg(1000)->Arg(10000)->Arg(100000)->Unit(benchmark::kMillisecond)->UseRealTime();
 BENCHMARK(BM_FsiUpdatePositionsOnly)->Arg(1000)->Arg(10000)->Arg(100000)->Unit(benchmark::kMillisecond)->UseRealTime();
