@@ -106,32 +106,6 @@ TEST(CacheTest, WaiterGivesUpWithItsOwnToken) {
   leader.join();
 }
 
-TEST(CacheTest, RunWhenDoneRunsOnTheComputingThreadAfterTheValueIsCached) {
-  Cache cache(1 << 20);
-  EXPECT_FALSE(cache.RunWhenDone("k", [] {})) << "nothing in flight";
-  std::atomic<bool> release{false};
-  std::thread::id computing, ran_on;
-  bool value_was_cached = false;
-  std::thread leader([&] {
-    computing = std::this_thread::get_id();
-    (void)cache.GetOrCompute(Tier::kFitting, "k", [&]() -> absl::StatusOr<Cache::Computed> {
-      while (!release) std::this_thread::sleep_for(std::chrono::milliseconds(1));
-      return Cache::Computed{std::make_shared<const int>(5), 1};
-    });
-  });
-  while (cache.Stats(Tier::kFitting).misses == 0) std::this_thread::sleep_for(std::chrono::milliseconds(1));
-  EXPECT_TRUE(cache.RunWhenDone("k", [&] {
-    ran_on = std::this_thread::get_id();
-    bool hit = false;
-    value_was_cached = Get(cache, Tier::kFitting, "k", 9, 1, &hit) == 5 && hit;
-  }));
-  release = true;
-  leader.join();
-  EXPECT_EQ(ran_on, computing);
-  EXPECT_TRUE(value_was_cached);
-  EXPECT_FALSE(cache.RunWhenDone("k", [] {})) << "done: nothing in flight any more";
-}
-
 TEST(CacheTest, ErasePrefixDropsOneMesh) {
   Cache cache(1000);
   Get(cache, Tier::kTopology, "a/topo", 1, 10);

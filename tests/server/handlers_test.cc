@@ -1,7 +1,6 @@
 // Handlers without a network: proto in, StatusOr<proto> out.
 #include "server/handlers.h"
 
-#include <atomic>
 #include <mutex>
 #include <set>
 #include <thread>
@@ -178,40 +177,6 @@ TEST_F(HandlersTest, PrefetchComputesTheNextStepOfATimeSteppingClient) {
   ASSERT_TRUE(Compute(id, &s, 3).ok());
   EXPECT_EQ(s.revision(), 5);
   EXPECT_FALSE(s.fit_cache_hit());
-}
-
-TEST_F(HandlersTest, ARequestJoinsARunningPrefetchWithoutAThread) {
-  const Mesh mesh = TestTorus(40);
-  auto info = Upload(mesh);
-  ASSERT_TRUE(info.ok());
-  const std::string id = info->mesh_id();
-  v1::FitSummary s;
-  ASSERT_TRUE(Compute(id, &s, 6).ok());  // the recipe: degree 6, long enough to catch in flight
-  ASSERT_TRUE(Update(id, 1.1 * mesh.positions, 1).ok());
-
-  v1::ComputeDifferentialsRequest same, other;
-  same.set_mesh_id(id);
-  same.mutable_options()->set_degree(6);
-  other = same;
-  other.mutable_options()->set_degree(5);
-  std::atomic<bool> prefetch_done{false};
-  std::thread::id prefetch_thread, ran_on;
-  std::thread prefetcher([&] {
-    prefetch_thread = std::this_thread::get_id();
-    handlers_.Prefetch(id, 2, CancellationToken());
-    prefetch_done = true;
-  });
-  bool joined = false;
-  while (!joined && !prefetch_done) {
-    EXPECT_FALSE(handlers_.WhenPrefetched(other, [] {})) << "other options: not the prefetch's fit";
-    joined = handlers_.WhenPrefetched(same, [&] { ran_on = std::this_thread::get_id(); });
-  }
-  prefetcher.join();
-  ASSERT_TRUE(joined) << "the degree-6 prefetch finished before it could be joined";
-  EXPECT_EQ(ran_on, prefetch_thread);
-  EXPECT_FALSE(handlers_.WhenPrefetched(same, [] {})) << "no prefetch runs any more";
-  ASSERT_TRUE(Compute(id, &s, 6).ok());
-  EXPECT_TRUE(s.fit_cache_hit());
 }
 
 TEST_F(HandlersTest, UpdatePositionsKeepsTopologyAndMakesNewRevision) {
