@@ -58,19 +58,7 @@ absl::StatusOr<Cache::Value> Cache::GetOrCompute(Tier tier, const std::string& k
     flight->result = computed.status();
   }
   flight_done_.notify_all();
-  std::vector<std::function<void()>> then = std::move(flight->then);
-  absl::StatusOr<Value> result = flight->result;
-  lock.unlock();
-  for (auto& fn : then) fn();
-  return result;
-}
-
-bool Cache::RunWhenDone(const std::string& key, std::function<void()> fn) {
-  std::lock_guard<std::mutex> lock(mu_);
-  auto it = flights_.find(key);
-  if (it == flights_.end()) return false;
-  it->second->then.push_back(std::move(fn));
-  return true;
+  return flight->result;
 }
 
 void Cache::Put(Tier tier, const std::string& key, Value value, int64_t bytes) {

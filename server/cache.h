@@ -8,7 +8,6 @@
 #include <mutex>
 #include <string>
 #include <utility>
-#include <vector>
 
 #include "absl/status/statusor.h"
 #include "core/util/cancel.h"
@@ -64,11 +63,6 @@ class Cache {
     return std::static_pointer_cast<const T>(*r);
   }
 
-  /// If `key` is being computed, `fn` runs on the computing thread once it is done
-  /// (whatever the outcome) and this returns true; otherwise false and `fn` is dropped.
-  /// Lets a request wait for a computation without holding a thread.
-  bool RunWhenDone(const std::string& key, std::function<void()> fn);
-
   /// Inserts (or replaces) a value computed elsewhere.
   void Put(Tier tier, const std::string& key, Value value, int64_t bytes);
   /// Drops every entry whose key starts with `prefix`.
@@ -88,7 +82,6 @@ class Cache {
   struct Flight {
     bool done = false;
     absl::StatusOr<Value> result;
-    std::vector<std::function<void()>> then;  ///< RunWhenDone callbacks
   };
 
   void InsertLocked(Tier tier, const std::string& key, Value value, int64_t bytes);

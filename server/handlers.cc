@@ -280,10 +280,6 @@ absl::StatusOr<v1::DeleteMeshResponse> Handlers::DeleteMesh(const v1::DeleteMesh
   return v1::DeleteMeshResponse();
 }
 
-std::string Handlers::FitKey(const std::string& id, int64_t revision, const FitOptions& options, bool stencils) {
-  return absl::StrCat(id, "/r", revision, "/fit/", FitOptionsKey(options), stencils ? "/stencils" : "");
-}
-
 absl::StatusOr<Handlers::Fitted> Handlers::Fit(const std::string& id, int64_t revision, const FitOptions& options,
                                                const CancellationToken& cancel, bool stencils) {
   Fitted f;
@@ -305,7 +301,7 @@ absl::StatusOr<Handlers::Fitted> Handlers::Fit(const std::string& id, int64_t re
             return std::make_pair(n, static_cast<int64_t>(n->Bytes()));
           },
           &cancel));
-  f.key = FitKey(id, f.revision, options, stencils);
+  f.key = absl::StrCat(id, "/r", f.revision, "/fit/", FitOptionsKey(options), stencils ? "/stencils" : "");
   Stopwatch watch;
   GF_ASSIGN_OR_RETURN(
       f.fits, cache_->Get<SurfaceFits>(
@@ -385,26 +381,9 @@ void Handlers::Prefetch(const std::string& id, int64_t revision, const Cancellat
     auto it = recipes_.find(id);
     if (it == recipes_.end() || it->second.revision != revision - 1) return;
     recipe = it->second;
-    prefetching_[id] = revision;
   }
   const absl::StatusOr<Evaluated> e = Evaluate(id, revision, recipe.options, recipe.mask, cancel);
   if (!e.ok()) spdlog::debug("prefetch of {} revision {}: {}", id, revision, e.status().ToString());
-  std::lock_guard<std::mutex> lock(recipes_mu_);
-  if (auto it = prefetching_.find(id); it != prefetching_.end() && it->second == revision) prefetching_.erase(it);
-}
-
-bool Handlers::WhenPrefetched(const v1::ComputeDifferentialsRequest& request, std::function<void()> fn) {
-  absl::StatusOr<FitOptions> options = wire::FromProto(request.options());
-  if (!options.ok() || request.revision() < 0) return false;  // the request itself reports it
-  options->num_threads = options_.threads;
-  int64_t revision = request.revision();
-  {
-    std::lock_guard<std::mutex> lock(recipes_mu_);
-    auto it = prefetching_.find(request.mesh_id());
-    if (it == prefetching_.end()) return false;
-    if (revision == 0) revision = it->second;
-  }
-  return cache_->RunWhenDone(FitKey(request.mesh_id(), revision, *options, false), std::move(fn));
 }
 
 v1::ServerInfo Handlers::GetServerInfo() const {

@@ -53,9 +53,6 @@ class Handlers {
   /// finds them ready or joins the computation instead of starting it a round trip
   /// later. Does nothing unless the previous revision had such a request.
   void Prefetch(const std::string& id, int64_t revision, const CancellationToken& cancel);
-  /// If a Prefetch is computing the fit `request` needs, `fn` runs on its thread once
-  /// the fit is done (so the request holds no thread meanwhile) and this returns true.
-  bool WhenPrefetched(const v1::ComputeDifferentialsRequest& request, std::function<void()> fn);
   v1::ServerInfo GetServerInfo() const;
   v1::Statistics GetStatistics() const;
 
@@ -95,7 +92,6 @@ class Handlers {
     int64_t revision = 0;
   };
   /// `stencils`: fits that also carry their stencil operators (field integration).
-  static std::string FitKey(const std::string& id, int64_t revision, const FitOptions& options, bool stencils);
   absl::StatusOr<Fitted> Fit(const std::string& id, int64_t revision, const FitOptions& options,
                              const CancellationToken& cancel, bool stencils = false);
   /// Validates, hashes and stores a new mesh (UploadMesh, RefineMesh).
@@ -119,7 +115,6 @@ class Handlers {
   const HandlerOptions options_;
   std::mutex recipes_mu_;
   std::map<std::string, Recipe> recipes_;
-  std::map<std::string, int64_t> prefetching_;  ///< mesh -> revision a Prefetch is computing
   const std::chrono::steady_clock::time_point started_ = std::chrono::steady_clock::now();
 };
 

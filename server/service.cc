@@ -98,19 +98,14 @@ class WriteReactor final : public grpc::ServerWriteReactor<Response> {
  public:
   using WorkFn = std::function<absl::StatusOr<std::vector<Response>>(const CancellationToken&)>;
 
-  /// `defer` (optional) may take the work instead of the pool: it returns true if it
-  /// will call its argument later on a thread of its own (see Handlers::WhenPrefetched).
-  using DeferFn = std::function<bool(std::function<void()>)>;
-
   WriteReactor(Service* service, grpc::CallbackServerContext* ctx, ThreadPool* pool, Service::Call call,
-               WorkFn work, const DeferFn& defer = nullptr)
+               WorkFn work)
       : service_(service), token_(TokenFor(ctx)), work_(std::move(work)), call_(std::move(call)) {
     service_->Begin();
     if (absl::Status s = service_->Admit(); !s.ok()) {
       Done(s);
       return;
     }
-    if (defer && defer([this] { Run(); })) return;
     if (!pool->TrySubmit([this] { Run(); })) Done(QueueFull(pool == service->compute() ? "compute" : "io"));
   }
 
@@ -251,8 +246,7 @@ grpc::ServerWriteReactor<v1::ComputeDifferentialsResponse>* Service::ComputeDiff
     grpc::CallbackServerContext* ctx, const v1::ComputeDifferentialsRequest* request) {
   return new WriteReactor<v1::ComputeDifferentialsResponse>(
       this, ctx, compute_, {"ComputeDifferentials", request->mesh_id()},
-      [this, request](const CancellationToken& cancel) { return handlers_->ComputeDifferentials(*request, cancel); },
-      [this, request](std::function<void()> run) { return handlers_->WhenPrefetched(*request, std::move(run)); });
+      [this, request](const CancellationToken& cancel) { return handlers_->ComputeDifferentials(*request, cancel); });
 }
 
 grpc::ServerUnaryReactor* Service::GetServerInfo(grpc::CallbackServerContext* ctx, const v1::GetServerInfoRequest*,
