@@ -31,7 +31,7 @@ absl::Status RowBuffer<T, kWidth>::Append(int64_t offset, const wire::ArrayView<
   }
   const size_t old = values_.size();
   values_.resize(old + static_cast<size_t>(rows) * kWidth, T(-1));
-  data.CopyRows(&values_[old], kWidth);
+  data.CopyRows(values_.data() + old, kWidth);
   return absl::OkStatus();
 }
 

@@ -173,7 +173,11 @@ grpc::ServerUnaryReactor* Service::Unary(grpc::CallbackServerContext* ctx, Call 
     absl::StatusOr<Response> r = work();
     if (r.ok()) {
       call.bytes_out = static_cast<int64_t>(r->ByteSizeLong());
-      *response = *r;  // `response` is gone once Finish is called; `r` stays for `after`
+      if (after) {
+        *response = *r;  // `response` is gone once Finish is called; `r` stays for `after`
+      } else {
+        *response = std::move(*r);
+      }
     }
     reactor->Finish(Finish(call, r.status()));
     if (after && r.ok()) after(*r);

@@ -201,3 +201,21 @@ def test_chapter4_project_nodes_refine_integrate(server, torus_mesh):
         assert err.value.code == grpc.StatusCode.INVALID_ARGUMENT
         with pytest.raises(ValueError):
             client.integrate(mesh_id, surface="spline")
+
+
+def test_messages_fit_the_servers_limit():
+    """A server with a small message limit: uploads and updates are cut to fit it."""
+    small = ServerProcess("--store=memory", "--max-message-bytes=262144")
+    try:
+        positions, faces = torus(160, 80)  # 12,800 vertices: 307 KB of positions
+        with geomfit.Client(small.address) as client:
+            assert client.chunk_rows == 262144 // 4 // 24
+            info = client.upload(positions, faces)
+            assert info.num_vertices == len(positions)
+            assert client.update_positions(info.mesh_id, 1.5 * positions, expected_revision=1).revision == 2
+            back, _, _ = client.download(info.mesh_id)
+            assert back.tobytes() == (1.5 * positions).tobytes()
+            calls = {m.method: m.count for m in client.statistics().methods}
+            assert calls.get("UpdatePositions") == 1 and "SetPositions" not in calls
+    finally:
+        small.kill(signal.SIGTERM)

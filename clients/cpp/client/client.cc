@@ -20,7 +20,12 @@ grpc::Status SendAll(grpc::ClientWriter<Request>* writer, const std::vector<Requ
   for (size_t i = 0; i + 1 < chunks.size(); ++i) {
     if (!writer->Write(chunks[i], grpc::WriteOptions().set_buffer_hint())) return writer->Finish();
   }
-  if (chunks.empty() || !writer->Write(chunks.back(), grpc::WriteOptions().set_last_message())) writer->WritesDone();
+  // A last-message write half-closes even when it fails: no WritesDone after it.
+  if (chunks.empty()) {
+    writer->WritesDone();
+  } else {
+    writer->Write(chunks.back(), grpc::WriteOptions().set_last_message());
+  }
   return writer->Finish();
 }
 

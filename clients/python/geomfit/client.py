@@ -87,9 +87,8 @@ def _varint(buf: bytes, i: int) -> Tuple[int, int]:
 
 
 def _fields(buf: bytes, i: int, end: int):
-    """Yields (field number, value, position after it) for the fields in buf[i:end]:
-    an int for varints, a (begin, end) range for length-delimited fields, None for
-    fixed-width ones."""
+    """Yields (field number, value) for the fields in buf[i:end]: an int for varints,
+    a (begin, end) range for length-delimited fields, None for fixed-width ones."""
     while i < end:
         key, i = _varint(buf, i)
         wire = key & 7
@@ -205,10 +204,10 @@ class Client:
         self.timeout = timeout
         self.max_attempts = max(1, max_attempts)
         self.backoff = backoff
-        # Rows per upload/update message. grpcio pays per message when sending, so by
-        # default a message carries up to a quarter of the message limit (the whole
-        # mesh, up to ~700k vertices).
-        self.chunk_rows = chunk_rows if chunk_rows > 0 else max(1, max_message_bytes // 4 // 24)
+        # Rows per upload/update message; 0: as many as fill a quarter of the smaller of
+        # this client's and the server's message limits (grpcio pays per message sent).
+        self._chunk_rows = chunk_rows if chunk_rows > 0 else None
+        self._max_message_bytes = max_message_bytes
         self._channel = grpc.insecure_channel(target, options=[
             ("grpc.max_receive_message_length", max_message_bytes),
             ("grpc.max_send_message_length", max_message_bytes),
@@ -233,6 +232,18 @@ class Client:
         self.close()
 
     # ------------------------------------------------------------------ plumbing
+    @property
+    def chunk_rows(self) -> int:
+        """Rows per upload/update message (asks the server for its limit once)."""
+        if self._chunk_rows is None:
+            try:
+                server = self.server_info().max_message_bytes
+            except GeomfitError:
+                return 16384  # the server's limit is unknown (the call itself will say why)
+            limit = min(self._max_message_bytes, server or self._max_message_bytes)
+            self._chunk_rows = max(1, limit // 4 // 24)
+        return self._chunk_rows
+
     def _call(self, fn):
         delay = self.backoff
         for attempt in range(1, self.max_attempts + 1):
