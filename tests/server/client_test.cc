@@ -53,6 +53,22 @@ TEST(ClientTest, UpdatesWithinOneMessageUseSetPositions) {
   EXPECT_EQ(CallsOf(*client, "UpdatePositions"), 0);
 }
 
+TEST(ClientTest, AStreamTheServerRefusesEndsInItsStatus) {
+  server::ServerOptions so = server::testing::LoopbackOptions();
+  so.max_vertices = 50;  // the header is refused while the client is still writing
+  InProcessServer server(so);
+  for (int64_t rows : {int64_t{100}, int64_t{16384}}) {
+    ClientOptions o;
+    o.target = "127.0.0.1:" + std::to_string(server.port());
+    o.chunk_rows = rows;
+    auto client = Client::Connect(o);
+    for (int i = 0; i < 10; ++i) {
+      auto info = client->Upload(server::testing::TestTorus(10), "too big");
+      EXPECT_EQ(info.status().code(), absl::StatusCode::kResourceExhausted) << info.status();
+    }
+  }
+}
+
 TEST(ClientTest, RoundTrip) {
   InProcessServer server;
   auto client = ClientFor(server.port());
