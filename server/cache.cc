@@ -1,5 +1,6 @@
 #include "server/cache.h"
 
+#include <algorithm>
 #include <chrono>
 
 namespace geomfit::server {
@@ -87,7 +88,48 @@ int64_t Cache::bytes() const {
   return bytes_;
 }
 
+namespace {
+
+/// "<id>/r<N>/..." -> (id, N); N = -1 for keys of no revision ("<id>/topo", ...).
+std::pair<std::string, int64_t> MeshRevision(const std::string& key) {
+  const size_t slash = key.find('/');
+  if (slash == std::string::npos || slash + 2 >= key.size() || key[slash + 1] != 'r') return {key, -1};
+  int64_t n = 0;
+  size_t i = slash + 2;
+  for (; i < key.size() && key[i] >= '0' && key[i] <= '9'; ++i) n = 10 * n + (key[i] - '0');
+  if (i == slash + 2 || i == key.size() || key[i] != '/') return {key, -1};
+  return {key.substr(0, slash), n};
+}
+
+}  // namespace
+
+bool Cache::RetiredLocked(const std::string& key) const {
+  const auto [id, revision] = MeshRevision(key);
+  if (revision < 0) return false;
+  const auto it = floors_.find(id);
+  return it != floors_.end() && revision < it->second;
+}
+
+void Cache::RetireRevisionsBelow(const std::string& id, int64_t revision) {
+  std::lock_guard<std::mutex> lock(mu_);
+  int64_t& floor = floors_[id];
+  floor = std::max(floor, revision);
+  const std::string prefix = id + "/r";
+  for (auto it = entries_.lower_bound(prefix); it != entries_.end() && it->first.compare(0, prefix.size(), prefix) == 0;) {
+    auto next = std::next(it);
+    if (RetiredLocked(it->first)) EraseLocked(it);
+    it = next;
+  }
+}
+
+void Cache::EraseMesh(const std::string& id) {
+  ErasePrefix(id + "/");
+  std::lock_guard<std::mutex> lock(mu_);
+  floors_.erase(id);
+}
+
 void Cache::InsertLocked(Tier tier, const std::string& key, Value value, int64_t bytes) {
+  if (RetiredLocked(key)) return;
   const int t = static_cast<int>(tier);
   lru_[t].push_front(key);
   entries_[key] = Entry{std::move(value), bytes, tier, lru_[t].begin()};

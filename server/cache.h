@@ -67,6 +67,12 @@ class Cache {
   void Put(Tier tier, const std::string& key, Value value, int64_t bytes);
   /// Drops every entry whose key starts with `prefix`.
   void ErasePrefix(const std::string& prefix);
+  /// Drops the entries of mesh `id`'s revisions below `revision` ("<id>/r<N>/...") and
+  /// keeps them out from now on: a computation that finishes after its revision was
+  /// replaced returns its value to its callers but does not cache it.
+  void RetireRevisionsBelow(const std::string& id, int64_t revision);
+  /// Drops every entry of mesh `id` and forgets its retired revisions.
+  void EraseMesh(const std::string& id);
 
   TierStats Stats(Tier tier) const;
   int64_t bytes() const;
@@ -85,6 +91,8 @@ class Cache {
   };
 
   void InsertLocked(Tier tier, const std::string& key, Value value, int64_t bytes);
+  /// Whether `key` names a revision below its mesh's retirement floor.
+  bool RetiredLocked(const std::string& key) const;
   void EraseLocked(std::map<std::string, Entry>::iterator it);
   void EvictLocked(const std::string& keep);
 
@@ -94,6 +102,7 @@ class Cache {
   std::map<std::string, Entry> entries_;
   std::map<std::string, std::shared_ptr<Flight>> flights_;
   std::list<std::string> lru_[kNumTiers];
+  std::map<std::string, int64_t> floors_;  ///< mesh id -> lowest live revision
   TierStats stats_[kNumTiers];
   int64_t bytes_ = 0;
 };

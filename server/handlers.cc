@@ -212,7 +212,7 @@ absl::StatusOr<v1::MeshInfo> Handlers::UpdatePositions(const PositionsAssembler&
   if (header.has_expected_revision()) expected = header.expected_revision();
   GF_ASSIGN_OR_RETURN(v1::MeshInfo info, store_->UpdatePositions(header.mesh_id(), expected, mesh));
   // Requests holding the previous revision finish on it; the cache lets it go.
-  cache_->ErasePrefix(absl::StrCat(header.mesh_id(), "/r", info.revision() - 1, "/"));
+  cache_->RetireRevisionsBelow(header.mesh_id(), info.revision());
   cache_->Put(Tier::kGeometry, GeometryKey(info.mesh_id(), info.revision()), mesh, MeshBytes(*mesh));
   return info;
 }
@@ -274,7 +274,7 @@ absl::StatusOr<v1::ListMeshesResponse> Handlers::ListMeshes(const v1::ListMeshes
 absl::StatusOr<v1::DeleteMeshResponse> Handlers::DeleteMesh(const v1::DeleteMeshRequest& request) {
   GF_RETURN_IF_ERROR(RequireId(request.mesh_id()));
   GF_RETURN_IF_ERROR(store_->Delete(request.mesh_id()));
-  cache_->ErasePrefix(request.mesh_id() + "/");
+  cache_->EraseMesh(request.mesh_id());
   std::lock_guard<std::mutex> lock(recipes_mu_);
   recipes_.erase(request.mesh_id());
   return v1::DeleteMeshResponse();

@@ -106,6 +106,33 @@ TEST(CacheTest, WaiterGivesUpWithItsOwnToken) {
   leader.join();
 }
 
+TEST(CacheTest, RetiredRevisionsAreDroppedAndKeptOut) {
+  Cache cache(1 << 20);
+  for (const char* key : {"m/r1/fit/a", "m/r2/fit/a", "m/r2/fit/a/q3", "m/r3/fit/a", "m/topo", "n/r1/fit/a"})
+    cache.Put(Tier::kFitting, key, std::make_shared<const int>(1), 10);
+  cache.RetireRevisionsBelow("m", 3);
+  bool hit = false;
+  EXPECT_EQ(Get(cache, Tier::kFitting, "m/r3/fit/a", 2, 10, &hit), 1);
+  EXPECT_TRUE(hit) << "the live revision stays";
+  EXPECT_EQ(Get(cache, Tier::kFitting, "m/topo", 2, 10, &hit), 1);
+  EXPECT_TRUE(hit) << "revision-free entries stay";
+  EXPECT_EQ(Get(cache, Tier::kFitting, "n/r1/fit/a", 2, 10, &hit), 1);
+  EXPECT_TRUE(hit) << "other meshes stay";
+  EXPECT_EQ(cache.Stats(Tier::kFitting).entries, 3);
+  // A computation for a retired revision still answers its caller, but is not kept.
+  EXPECT_EQ(Get(cache, Tier::kFitting, "m/r2/fit/a", 5, 10, &hit), 5);
+  EXPECT_FALSE(hit);
+  EXPECT_EQ(Get(cache, Tier::kFitting, "m/r2/fit/a", 6, 10, &hit), 6);
+  EXPECT_FALSE(hit);
+  EXPECT_EQ(cache.bytes(), 30);
+  // A deleted mesh may come back at revision 1.
+  cache.EraseMesh("m");
+  EXPECT_EQ(cache.Stats(Tier::kFitting).entries, 1);
+  cache.Put(Tier::kFitting, "m/r1/fit/a", std::make_shared<const int>(7), 10);
+  EXPECT_EQ(Get(cache, Tier::kFitting, "m/r1/fit/a", 2, 10, &hit), 7);
+  EXPECT_TRUE(hit);
+}
+
 TEST(CacheTest, ErasePrefixDropsOneMesh) {
   Cache cache(1000);
   Get(cache, Tier::kTopology, "a/topo", 1, 10);
