@@ -219,3 +219,17 @@ def test_messages_fit_the_servers_limit():
             assert calls.get("UpdatePositions") == 1 and "SetPositions" not in calls
     finally:
         small.kill(signal.SIGTERM)
+
+
+def test_hand_serialized_set_positions_matches_protobuf():
+    from geomfit.client import pb, _set_positions_request
+    rng = np.random.default_rng(1)
+    for n in (1, 5, 127, 128, 20000):  # one- and multi-byte varints
+        p = rng.standard_normal((n, 3))
+        header = pb.UpdateHeader(mesh_id="m-abc", expected_revision=7)
+        ours = pb.SetPositionsRequest.FromString(_set_positions_request(header, p))
+        ref = pb.SetPositionsRequest(header=header, positions=pb.PositionsChunk(
+            positions=pb.DoubleArray(data=p.tobytes(), shape=[n, 3])))
+        assert ours == ref
+    with pytest.raises(ValueError):
+        _set_positions_request(pb.UpdateHeader(mesh_id="m"), np.zeros((4, 2)))

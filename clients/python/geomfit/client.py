@@ -126,6 +126,35 @@ def _array(buf: bytes, span: Tuple[int, int], dtype: np.dtype) -> np.ndarray:
 _F8, _I4 = np.dtype("<f8"), np.dtype("<i4")
 
 
+def _varint_bytes(n: int) -> bytes:
+    out = bytearray()
+    while n >= 0x80:
+        out.append((n & 0x7F) | 0x80)
+        n >>= 7
+    out.append(n)
+    return bytes(out)
+
+
+def _len_prefix(number: int, length: int) -> bytes:
+    """Key and length of a length-delimited field."""
+    return _varint_bytes((number << 3) | 2) + _varint_bytes(length)
+
+
+def _set_positions_request(header: "pb.UpdateHeader", positions: np.ndarray) -> bytes:
+    """A serialized SetPositionsRequest, the array copied once: header = 1,
+    positions = 2 { vertex_offset = 1 (0, omitted), positions = 2 { shape = 2, data = 1 } }."""
+    p = np.ascontiguousarray(positions, dtype="<f8")
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise ValueError("positions must be #V x 3, got shape %s" % (p.shape,))
+    shape = _varint_bytes(p.shape[0]) + _varint_bytes(3)
+    array_head = _len_prefix(2, len(shape)) + shape + _len_prefix(1, p.nbytes)
+    array_len = len(array_head) + p.nbytes
+    chunk_head = _len_prefix(2, array_len)
+    h = header.SerializeToString()
+    return b"".join([_len_prefix(1, len(h)), h, _len_prefix(2, len(chunk_head) + array_len), chunk_head,
+                     array_head, memoryview(p).cast("B")])
+
+
 def _parse_chunk(raw: bytes) -> dict:
     out = {"summary": None, "vertex_offset": 0, "arrays": {}, "diagnostics": {}}
     for number, value in _fields(raw, 0, len(raw)):
@@ -221,6 +250,10 @@ class Client:
         self._compute = self._channel.unary_stream(
             "/geomfit.v1.GeomFit/ComputeDifferentials",
             request_serializer=pb.ComputeDifferentialsRequest.SerializeToString, response_deserializer=None)
+        # SetPositions requests are serialized by _set_positions_request (one copy of the
+        # array instead of three).
+        self._set_positions = self._channel.unary_unary(
+            "/geomfit.v1.GeomFit/SetPositions", request_serializer=None, response_deserializer=pb.MeshInfo.FromString)
 
     def close(self) -> None:
         self._channel.close()
@@ -300,9 +333,9 @@ class Client:
             header.expected_revision = expected_revision
         if 0 < len(positions) <= self.chunk_rows and not self._stream_updates:
             # One message (SetPositions): grpcio's client streams start a thread per call.
-            request = pb.SetPositionsRequest(header=header, positions=next(iter(self._position_chunks(positions))))
+            request = _set_positions_request(header, positions)
             try:
-                return self._call(lambda: self._stub.SetPositions(request, timeout=self.timeout))
+                return self._call(lambda: self._set_positions(request, timeout=self.timeout))
             except GeomfitError as e:
                 if e.code != grpc.StatusCode.UNIMPLEMENTED:
                     raise
