@@ -140,12 +140,18 @@ def _len_prefix(number: int, length: int) -> bytes:
     return _varint_bytes((number << 3) | 2) + _varint_bytes(length)
 
 
-def _set_positions_request(header: "pb.UpdateHeader", positions: np.ndarray) -> bytes:
-    """A serialized SetPositionsRequest, the array copied once: header = 1,
-    positions = 2 { vertex_offset = 1 (0, omitted), positions = 2 { shape = 2, data = 1 } }."""
+def _positions_array(positions) -> np.ndarray:
+    """Positions as a contiguous little-endian #V x 3 float64 array (ValueError otherwise)."""
     p = np.ascontiguousarray(positions, dtype="<f8")
     if p.ndim != 2 or p.shape[1] != 3:
         raise ValueError("positions must be #V x 3, got shape %s" % (p.shape,))
+    return p
+
+
+def _set_positions_request(header: "pb.UpdateHeader", positions: np.ndarray) -> bytes:
+    """A serialized SetPositionsRequest, the array copied once: header = 1,
+    positions = 2 { vertex_offset = 1 (0, omitted), positions = 2 { shape = 2, data = 1 } }."""
+    p = _positions_array(positions)
     shape = _varint_bytes(p.shape[0]) + _varint_bytes(3)
     array_head = _len_prefix(2, len(shape)) + shape + _len_prefix(1, p.nbytes)
     array_len = len(array_head) + p.nbytes
@@ -292,9 +298,7 @@ class Client:
         raise AssertionError("unreachable")
 
     def _position_chunks(self, positions: np.ndarray) -> Iterable["pb.PositionsChunk"]:
-        p = np.ascontiguousarray(positions, dtype="<f8")
-        if p.ndim != 2 or p.shape[1] != 3:
-            raise ValueError("positions must be #V x 3, got shape %s" % (p.shape,))
+        p = _positions_array(positions)
         for b in range(0, p.shape[0], self.chunk_rows):
             c = pb.PositionsChunk(vertex_offset=b)
             _encode(p[b:b + self.chunk_rows], "<f8", c.positions)
