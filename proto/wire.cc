@@ -259,6 +259,12 @@ absl::Status DifferentialsReader::Add(const v1::ComputeDifferentialsResponse& c)
     if (!c.has_summary()) return absl::DataLossError(where + ": the first chunk carries no summary");
     summary_ = c.summary();
     started_ = true;
+  } else if (c.has_summary()) {  // the last chunk completes the first one's summary
+    if (c.summary().num_vertices() != summary_.num_vertices()) {
+      return absl::DataLossError(absl::StrCat(where, ": summary of ", c.summary().num_vertices(),
+                                              " vertices after one of ", summary_.num_vertices()));
+    }
+    summary_ = c.summary();
   }
   const int64_t total = summary_.num_vertices();
   if (c.vertex_offset() != rows_ || c.num_vertices() < 0 || rows_ + c.num_vertices() > total) {

@@ -1,6 +1,7 @@
 #include "server/handlers.h"
 
 #include <algorithm>
+#include <atomic>
 #include <limits>
 #include <map>
 #include <optional>
@@ -86,33 +87,81 @@ void EncodeDiagnostics(const std::vector<VertexDiagnostics>& d, int64_t begin, i
   wire::EncodeDoubles(condition.data(), rows, 0, out->mutable_condition());
 }
 
-/// Chunks of `rows` of the `n` vertices; the first carries the summary (filled by
-/// the caller).
-std::vector<v1::ComputeDifferentialsResponse> EncodeDifferentials(const Differentials& d, int64_t n, uint32_t mask,
-                                                                  bool diagnostics, int64_t rows) {
-  std::vector<v1::ComputeDifferentialsResponse> out;
-  out.reserve(static_cast<size_t>(std::max<int64_t>(1, (n + rows - 1) / rows)));
-  for (int64_t b = 0; b == 0 || b < n; b += rows) {
-    const int64_t m = std::min<int64_t>(rows, n - b);
-    v1::ComputeDifferentialsResponse& r = out.emplace_back();
-    r.set_vertex_offset(b);
-    r.set_num_vertices(m);
-    if (mask & kNormals) EncodeRows(d.normals, b, m, r.mutable_normals());
-    if (mask & kMeanCurvature) EncodeRows(d.mean, b, m, r.mutable_mean());
-    if (mask & kGaussianCurvature) EncodeRows(d.gaussian, b, m, r.mutable_gaussian());
-    if (mask & kPrincipalCurvatures) {
-      EncodeRows(d.k1, b, m, r.mutable_k1());
-      EncodeRows(d.k2, b, m, r.mutable_k2());
-    }
-    if (mask & kPrincipalDirections) {
-      EncodeRows(d.dir1, b, m, r.mutable_dir1());
-      EncodeRows(d.dir2, b, m, r.mutable_dir2());
-    }
-    if (mask & kCurvatureTensor) EncodeRows(d.tensor, b, m, r.mutable_tensor());
-    if (diagnostics) EncodeDiagnostics(d.diagnostics, b, m, r.mutable_diagnostics());
+/// Rows [b, b + m) of `d` as one response chunk.
+v1::ComputeDifferentialsResponse EncodeChunk(const Differentials& d, int64_t b, int64_t m, uint32_t mask,
+                                             bool diagnostics) {
+  v1::ComputeDifferentialsResponse r;
+  r.set_vertex_offset(b);
+  r.set_num_vertices(m);
+  if (mask & kNormals) EncodeRows(d.normals, b, m, r.mutable_normals());
+  if (mask & kMeanCurvature) EncodeRows(d.mean, b, m, r.mutable_mean());
+  if (mask & kGaussianCurvature) EncodeRows(d.gaussian, b, m, r.mutable_gaussian());
+  if (mask & kPrincipalCurvatures) {
+    EncodeRows(d.k1, b, m, r.mutable_k1());
+    EncodeRows(d.k2, b, m, r.mutable_k2());
   }
-  return out;
+  if (mask & kPrincipalDirections) {
+    EncodeRows(d.dir1, b, m, r.mutable_dir1());
+    EncodeRows(d.dir2, b, m, r.mutable_dir2());
+  }
+  if (mask & kCurvatureTensor) EncodeRows(d.tensor, b, m, r.mutable_tensor());
+  if (diagnostics) EncodeDiagnostics(d.diagnostics, b, m, r.mutable_diagnostics());
+  return r;
 }
+
+/// One ComputeDifferentials response: chunks of `rows` vertices, sent as soon as their
+/// rows are final. The first chunk's summary is `header`; the last one's is complete.
+class DifferentialsStream {
+ public:
+  DifferentialsStream(uint32_t mask, bool diagnostics, int64_t n, int64_t rows, v1::FitSummary header,
+                      ChunkSink<v1::ComputeDifferentialsResponse>* sink)
+      : mask_(mask), diagnostics_(diagnostics), n_(n), rows_(rows), header_(std::move(header)), sink_(sink) {}
+
+  /// The row count that completes the next chunk.
+  int64_t next() const {
+    std::lock_guard<std::mutex> lock(mu_);
+    return std::min(n_, sent_ + rows_);
+  }
+  /// Sends every whole chunk of rows [0, filled) not sent yet, except the last one.
+  void Emit(const Differentials* d, int64_t filled) {
+    std::lock_guard<std::mutex> lock(mu_);
+    while (d && sent_ + rows_ <= filled && sent_ + rows_ < n_) Send(*d, rows_, nullptr);
+  }
+  /// Sends the remaining rows; the last chunk carries `summary`.
+  void Finish(const Differentials& d, const v1::FitSummary& summary) {
+    std::lock_guard<std::mutex> lock(mu_);
+    while (sent_ + rows_ < n_) Send(d, rows_, nullptr);
+    Send(d, n_ - sent_, &summary);
+  }
+
+ private:
+  void Send(const Differentials& d, int64_t m, const v1::FitSummary* summary) {
+    v1::ComputeDifferentialsResponse chunk = EncodeChunk(d, sent_, m, mask_, diagnostics_);
+    if (summary) {
+      *chunk.mutable_summary() = *summary;
+    } else if (sent_ == 0) {
+      *chunk.mutable_summary() = header_;
+    }
+    sent_ += m;
+    sink_->Push(std::move(chunk), summary != nullptr);
+  }
+
+  const uint32_t mask_;
+  const bool diagnostics_;
+  const int64_t n_, rows_;
+  const v1::FitSummary header_;
+  ChunkSink<v1::ComputeDifferentialsResponse>* sink_;
+  mutable std::mutex mu_;
+  int64_t sent_ = 0;
+};
+
+/// Fitting-tier key of a fit.
+std::string FitKey(const std::string& id, int64_t revision, const FitOptions& options, bool stencils) {
+  return absl::StrCat(id, "/r", revision, "/fit/", FitOptionsKey(options), stencils ? "/stencils" : "");
+}
+
+/// Fitting-tier key of the differentials `mask` of a fit.
+std::string DifferentialsKey(const std::string& fit_key, uint32_t mask) { return absl::StrCat(fit_key, "/q", mask); }
 
 /// Bytes per vertex of a ComputeDifferentials response.
 int64_t RowBytes(uint32_t mask, bool diagnostics) {
@@ -126,10 +175,25 @@ int64_t RowBytes(uint32_t mask, bool diagnostics) {
   return std::max<int64_t>(8, 8 * doubles + (diagnostics ? 20 : 0));
 }
 
-v1::FitSummary Summarize(const SurfaceFits& fits, const FitOptions& options) {
+/// What a response's first chunk says before the fit is done.
+v1::FitSummary SummaryHeader(const std::string& id, int64_t revision, int64_t n, const FitOptions& options) {
   v1::FitSummary s;
-  s.set_num_vertices(fits.num_vertices());
+  s.set_mesh_id(id);
+  s.set_revision(revision);
+  s.set_num_vertices(n);
   s.set_degree_requested(options.degree);
+  s.set_options_key(FitOptionsKey(options));
+  return s;
+}
+
+/// The complete summary of an evaluation.
+v1::FitSummary Summarize(const std::string& id, const Evaluated& e, const FitOptions& options) {
+  const SurfaceFits& fits = *e.fitted.fits;
+  v1::FitSummary s = SummaryHeader(id, e.fitted.revision, fits.num_vertices(), options);
+  s.set_fit_cache_hit(e.fitted.hit);
+  s.set_fit_ms(e.fitted.ms);
+  s.set_evaluate_ms(e.ms);
+  s.set_quantities_cache_hit(e.hit);
   int min_degree = options.degree;
   std::vector<int64_t> by_degree(kMaxDegree + 1, 0);
   for (const VertexDiagnostics& d : fits.diagnostics()) {
@@ -146,7 +210,6 @@ v1::FitSummary Summarize(const SurfaceFits& fits, const FitOptions& options) {
   }
   s.set_min_degree_used(min_degree);
   for (int64_t n : by_degree) s.add_vertices_by_degree(n);
-  s.set_options_key(FitOptionsKey(options));
   return s;
 }
 
@@ -280,8 +343,9 @@ absl::StatusOr<v1::DeleteMeshResponse> Handlers::DeleteMesh(const v1::DeleteMesh
   return v1::DeleteMeshResponse();
 }
 
-absl::StatusOr<Handlers::Fitted> Handlers::Fit(const std::string& id, int64_t revision, const FitOptions& options,
-                                               const CancellationToken& cancel, bool stencils) {
+absl::StatusOr<Fitted> Handlers::Fit(const std::string& id, int64_t revision, const FitOptions& options,
+                                     const CancellationToken& cancel, bool stencils,
+                                     const decltype(FitRequest::on_fitted)& on_fitted) {
   Fitted f;
   GF_ASSIGN_OR_RETURN(std::shared_ptr<const Mesh> mesh, Geometry(id, revision, &f.revision));
   GF_ASSIGN_OR_RETURN(std::shared_ptr<const Topology> topo, TopologyOf(id, *mesh));
@@ -301,7 +365,7 @@ absl::StatusOr<Handlers::Fitted> Handlers::Fit(const std::string& id, int64_t re
             return std::make_pair(n, static_cast<int64_t>(n->Bytes()));
           },
           &cancel));
-  f.key = absl::StrCat(id, "/r", f.revision, "/fit/", FitOptionsKey(options), stencils ? "/stencils" : "");
+  f.key = FitKey(id, f.revision, options, stencils);
   Stopwatch watch;
   GF_ASSIGN_OR_RETURN(
       f.fits, cache_->Get<SurfaceFits>(
@@ -310,6 +374,7 @@ absl::StatusOr<Handlers::Fitted> Handlers::Fit(const std::string& id, int64_t re
                     FitRequest fit_request;
                     fit_request.cancel = &cancel;
                     fit_request.stencils = stencils;
+                    fit_request.on_fitted = on_fitted;
                     GF_ASSIGN_OR_RETURN(auto fits, FitSurface(*mesh, *topo, options, nbhd, fit_request));
                     return std::make_pair(fits, static_cast<int64_t>(fits->Bytes()));
                   },
@@ -319,9 +384,11 @@ absl::StatusOr<Handlers::Fitted> Handlers::Fit(const std::string& id, int64_t re
   return f;
 }
 
-absl::StatusOr<std::vector<v1::ComputeDifferentialsResponse>> Handlers::ComputeDifferentials(
-    const v1::ComputeDifferentialsRequest& request, const CancellationToken& cancel) {
-  GF_RETURN_IF_ERROR(RequireId(request.mesh_id()));
+absl::Status Handlers::ComputeDifferentials(const v1::ComputeDifferentialsRequest& request,
+                                           const CancellationToken& cancel,
+                                           ChunkSink<v1::ComputeDifferentialsResponse>* sink) {
+  const std::string& id = request.mesh_id();
+  GF_RETURN_IF_ERROR(RequireId(id));
   if (request.revision() < 0 || request.chunk_rows() < 0) {
     return absl::InvalidArgumentError("revision and chunk_rows must not be negative");
   }
@@ -330,42 +397,101 @@ absl::StatusOr<std::vector<v1::ComputeDifferentialsResponse>> Handlers::ComputeD
   FitOptions options = *parsed;
   options.num_threads = options_.threads;
   GF_ASSIGN_OR_RETURN(const uint32_t mask, wire::QuantityMask(request.quantities()));
-  GF_ASSIGN_OR_RETURN(const Evaluated e, Evaluate(request.mesh_id(), request.revision(), options, mask, cancel));
-  const Fitted& fitted = e.fitted;
+  int64_t revision = 0;
+  int64_t n = 0;
+  {
+    GF_ASSIGN_OR_RETURN(std::shared_ptr<const Mesh> mesh, Geometry(id, request.revision(), &revision));
+    n = mesh->NumVertices();
+  }
+  DifferentialsStream stream(mask, request.diagnostics(), n,
+                             ChunkRows(request.chunk_rows(), RowBytes(mask, request.diagnostics())),
+                             SummaryHeader(id, revision, n, options), sink);
+  bool owner = false;
+  const std::shared_ptr<Evaluation> ev = JoinEvaluation(id, revision, options, mask, n, &owner);
+  absl::StatusOr<Evaluated> e;
+  if (owner) {
+    ev->SetListener([&stream, raw = ev.get()] { stream.Emit(raw->values(), raw->filled()); });
+    e = Run(ev, id, revision, options, cancel);
+  } else {  // follow the running evaluation
+    while (!ev->ended()) {
+      GF_ASSIGN_OR_RETURN(const int64_t filled, ev->WaitFor(stream.next(), cancel));
+      stream.Emit(ev->values(), filled);
+    }
+    e = ev->result();
+    if (e.ok()) {  // shared, not computed for this request: a hit, as for a joined cache flight
+      e->fitted.hit = e->hit = true;
+      e->fitted.ms = e->ms = 0;
+    } else {  // its owner gave up (cancelled): compute the rest here. Values are
+              // deterministic, so the rows already sent agree.
+      e = Evaluate(id, revision, options, mask, cancel);
+    }
+  }
+  GF_RETURN_IF_ERROR(e.status());
   {
     std::lock_guard<std::mutex> lock(recipes_mu_);
-    Recipe& r = recipes_[request.mesh_id()];
-    if (fitted.revision >= r.revision) r = Recipe{options, mask, fitted.revision};
+    Recipe& r = recipes_[id];
+    if (revision >= r.revision) r = Recipe{options, mask, revision};
   }
-
-  std::vector<v1::ComputeDifferentialsResponse> out =
-      EncodeDifferentials(*e.values, fitted.fits->num_vertices(), mask, request.diagnostics(),
-                          ChunkRows(request.chunk_rows(), RowBytes(mask, request.diagnostics())));
-  v1::FitSummary* summary = out[0].mutable_summary();
-  *summary = Summarize(*fitted.fits, options);
-  summary->set_mesh_id(request.mesh_id());
-  summary->set_revision(fitted.revision);
-  summary->set_fit_cache_hit(fitted.hit);
-  summary->set_fit_ms(fitted.ms);
-  summary->set_evaluate_ms(e.ms);
-  summary->set_quantities_cache_hit(e.hit);
-  return out;
+  stream.Finish(*e->values, Summarize(id, *e, options));
+  return absl::OkStatus();
 }
 
-absl::StatusOr<Handlers::Evaluated> Handlers::Evaluate(const std::string& id, int64_t revision,
-                                                       const FitOptions& options, uint32_t mask,
-                                                       const CancellationToken& cancel) {
+absl::StatusOr<std::vector<v1::ComputeDifferentialsResponse>> Handlers::ComputeDifferentials(
+    const v1::ComputeDifferentialsRequest& request, const CancellationToken& cancel) {
+  ChunkCollector<v1::ComputeDifferentialsResponse> out;
+  GF_RETURN_IF_ERROR(ComputeDifferentials(request, cancel, &out));
+  return std::move(out.chunks);
+}
+
+std::shared_ptr<Evaluation> Handlers::JoinEvaluation(const std::string& id, int64_t revision,
+                                                     const FitOptions& options, uint32_t mask, int64_t num_vertices,
+                                                     bool* owner) {
+  const std::string key = DifferentialsKey(FitKey(id, revision, options, false), mask);
+  std::lock_guard<std::mutex> lock(evaluations_mu_);
+  std::shared_ptr<Evaluation>& ev = evaluations_[key];
+  *owner = ev == nullptr;
+  if (*owner) ev = std::make_shared<Evaluation>(num_vertices, mask);
+  return ev;
+}
+
+absl::StatusOr<Evaluated> Handlers::Run(const std::shared_ptr<Evaluation>& ev, const std::string& id,
+                                        int64_t revision, const FitOptions& options,
+                                        const CancellationToken& cancel) {
+  absl::StatusOr<Evaluated> e = Evaluate(id, revision, options, ev->mask(), cancel, ev.get());
+  ev->Finish(e);  // before unregistering: a request arriving now finds the values
+  std::lock_guard<std::mutex> lock(evaluations_mu_);
+  const auto it = evaluations_.find(DifferentialsKey(FitKey(id, revision, options, false), ev->mask()));
+  if (it != evaluations_.end() && it->second == ev) evaluations_.erase(it);
+  return e;
+}
+
+absl::StatusOr<Evaluated> Handlers::Evaluate(const std::string& id, int64_t revision, const FitOptions& options,
+                                             uint32_t mask, const CancellationToken& cancel, Evaluation* progress) {
   Evaluated e;
-  GF_ASSIGN_OR_RETURN(e.fitted, Fit(id, revision, options, cancel));
+  std::atomic<int64_t> evaluated{0};  // rows `progress` received during the fit
+  decltype(FitRequest::on_fitted) on_fitted;
+  if (progress) {
+    on_fitted = [&](const SurfaceFits& fits, int64_t begin, int64_t end) {
+      EvaluateDifferentials(fits, mask, begin, end, progress->filling().get());
+      evaluated += end - begin;
+      progress->Filled(begin, end);
+    };
+  }
+  GF_ASSIGN_OR_RETURN(e.fitted, Fit(id, revision, options, cancel, false, on_fitted));
   // Derived quantities belong to the fitting tier too: a repeated request only
   // serializes.
   Stopwatch watch;
   GF_ASSIGN_OR_RETURN(
       e.values, cache_->Get<Differentials>(
-                    Tier::kFitting, absl::StrCat(e.fitted.key, "/q", mask),
+                    Tier::kFitting, DifferentialsKey(e.fitted.key, mask),
                     [&]() -> absl::StatusOr<std::pair<std::shared_ptr<const Differentials>, int64_t>> {
-                      auto d = std::make_shared<const Differentials>(
-                          geomfit::ComputeDifferentials(*e.fitted.fits, mask, options_.threads));
+                      std::shared_ptr<const Differentials> d;
+                      if (progress && evaluated == e.fitted.fits->num_vertices()) {
+                        d = progress->filling();  // evaluated during the fit
+                      } else {
+                        d = std::make_shared<const Differentials>(
+                            geomfit::ComputeDifferentials(*e.fitted.fits, mask, options_.threads));
+                      }
                       return std::make_pair(d, DifferentialsBytes(*d));
                     },
                     &cancel, &e.hit));
@@ -382,7 +508,14 @@ void Handlers::Prefetch(const std::string& id, int64_t revision, const Cancellat
     if (it == recipes_.end() || it->second.revision != revision - 1) return;
     recipe = it->second;
   }
-  const absl::StatusOr<Evaluated> e = Evaluate(id, revision, recipe.options, recipe.mask, cancel);
+  int64_t resolved = 0;
+  absl::StatusOr<std::shared_ptr<const Mesh>> mesh = Geometry(id, revision, &resolved);
+  if (!mesh.ok()) return;
+  bool owner = false;
+  const std::shared_ptr<Evaluation> ev =
+      JoinEvaluation(id, resolved, recipe.options, recipe.mask, (*mesh)->NumVertices(), &owner);
+  if (!owner) return;  // a request got there first
+  const absl::StatusOr<Evaluated> e = Run(ev, id, resolved, recipe.options, cancel);
   if (!e.ok()) spdlog::debug("prefetch of {} revision {}: {}", id, revision, e.status().ToString());
 }
 

@@ -15,6 +15,7 @@
 #include "geomfit/v1/geomfit.pb.h"
 #include "server/assembly.h"
 #include "server/cache.h"
+#include "server/evaluation.h"
 #include "server/mesh_store.h"
 #include "server/request_stats.h"
 
@@ -28,6 +29,22 @@ struct HandlerOptions {
   int threads = 0;             ///< numeric threads per computation
   bool prefetch = true;        ///< Prefetch after UpdatePositions (--prefetch)
   int workers = 2;             ///< reported by GetServerInfo
+};
+
+/// Receives a server-streaming handler's chunks as soon as each is ready (from any
+/// thread; calls are serialized).
+template <typename Response>
+class ChunkSink {
+ public:
+  virtual ~ChunkSink() = default;
+  /// `last`: no chunk follows; the handler then returns OK.
+  virtual void Push(Response chunk, bool last) = 0;
+};
+
+template <typename Response>
+struct ChunkCollector final : ChunkSink<Response> {
+  std::vector<Response> chunks;
+  void Push(Response chunk, bool) override { chunks.push_back(std::move(chunk)); }
 };
 
 /// INVALID_ARGUMENT for an empty mesh id.
@@ -45,7 +62,14 @@ class Handlers {
   absl::StatusOr<std::vector<v1::DownloadMeshResponse>> DownloadMesh(const v1::DownloadMeshRequest& request);
   absl::StatusOr<v1::ListMeshesResponse> ListMeshes(const v1::ListMeshesRequest& request);
   absl::StatusOr<v1::DeleteMeshResponse> DeleteMesh(const v1::DeleteMeshRequest& request);
-  /// Fits (or reuses cached fits) and evaluates; polls `cancel` during the fit.
+  /// Fits (or reuses cached fits) and evaluates, polling `cancel`. Chunks go to `sink`
+  /// as soon as their rows are evaluated: a fresh fit streams while it runs, and a
+  /// request that finds the same computation running (another request's, or a
+  /// prefetch) streams from it. The first chunk's summary names the mesh, revision and
+  /// vertex count; the last chunk's is complete. After an error some chunks may be out.
+  absl::Status ComputeDifferentials(const v1::ComputeDifferentialsRequest& request, const CancellationToken& cancel,
+                                    ChunkSink<v1::ComputeDifferentialsResponse>* sink);
+  /// The same, collected.
   absl::StatusOr<std::vector<v1::ComputeDifferentialsResponse>> ComputeDifferentials(
       const v1::ComputeDifferentialsRequest& request, const CancellationToken& cancel);
   /// Time stepping: once UpdatePositions made `revision`, recomputes into the cache the
@@ -68,23 +92,17 @@ class Handlers {
   const HandlerOptions& options() const { return options_; }
 
  private:
-  /// The fits of a request, from the fitting tier or computed (single-flight).
-  struct Fitted {
-    std::shared_ptr<const SurfaceFits> fits;
-    int64_t revision = 0;  ///< resolved (never 0)
-    std::string key;       ///< fitting-tier key: derived entries extend it
-    bool hit = false;
-    double ms = 0;
-  };
-  /// Fits plus differential quantities, each from the cache or computed.
-  struct Evaluated {
-    Fitted fitted;
-    std::shared_ptr<const Differentials> values;
-    bool hit = false;
-    double ms = 0;
-  };
+  /// Fits and differentials from the cache or computed; a fit computed here fills
+  /// `progress` block by block (evaluating each block as soon as it is fitted).
   absl::StatusOr<Evaluated> Evaluate(const std::string& id, int64_t revision, const FitOptions& options,
-                                     uint32_t mask, const CancellationToken& cancel);
+                                     uint32_t mask, const CancellationToken& cancel, Evaluation* progress = nullptr);
+  /// The running evaluation of `revision` (resolved), `options` and `mask`, or a new
+  /// registered one the caller owns (`*owner`) and must Run.
+  std::shared_ptr<Evaluation> JoinEvaluation(const std::string& id, int64_t revision, const FitOptions& options,
+                                             uint32_t mask, int64_t num_vertices, bool* owner);
+  /// Owner: Evaluate into `ev`, end it and unregister it.
+  absl::StatusOr<Evaluated> Run(const std::shared_ptr<Evaluation>& ev, const std::string& id, int64_t revision,
+                                const FitOptions& options, const CancellationToken& cancel);
   /// What ComputeDifferentials last computed per mesh (for Prefetch).
   struct Recipe {
     FitOptions options;
@@ -92,8 +110,10 @@ class Handlers {
     int64_t revision = 0;
   };
   /// `stencils`: fits that also carry their stencil operators (field integration).
+  /// `on_fitted`: see FitRequest (runs only if the fit is computed here).
   absl::StatusOr<Fitted> Fit(const std::string& id, int64_t revision, const FitOptions& options,
-                             const CancellationToken& cancel, bool stencils = false);
+                             const CancellationToken& cancel, bool stencils = false,
+                             const decltype(FitRequest::on_fitted)& on_fitted = nullptr);
   /// Validates, hashes and stores a new mesh (UploadMesh, RefineMesh).
   absl::StatusOr<v1::MeshInfo> StoreNewMesh(Mesh mesh, const v1::MeshHeader& header);
   struct Reconstructed;
@@ -115,6 +135,8 @@ class Handlers {
   const HandlerOptions options_;
   std::mutex recipes_mu_;
   std::map<std::string, Recipe> recipes_;
+  std::mutex evaluations_mu_;
+  std::map<std::string, std::shared_ptr<Evaluation>> evaluations_;  ///< running, by differentials key
   const std::chrono::steady_clock::time_point started_ = std::chrono::steady_clock::now();
 };
 

@@ -1,6 +1,8 @@
 #include "server/service.h"
 
+#include <deque>
 #include <memory>
+#include <mutex>
 #include <utility>
 #include <vector>
 
@@ -91,12 +93,14 @@ class ReadReactor final : public grpc::ServerReadReactor<Request> {
   Service::Call call_{};
 };
 
-/// Server-streaming call: `work` produces every chunk on a pool thread (polling the
-/// call's token); the chunks are then written one by one.
+/// Server-streaming call: `work` runs on a pool thread (polling the call's token) and
+/// hands over chunks as they are ready; each is written as soon as the previous write
+/// is done, while the work goes on. The last chunk goes out together with the status,
+/// and only once the work has returned (so nothing touches the reactor after Finish).
 template <typename Response>
-class WriteReactor final : public grpc::ServerWriteReactor<Response> {
+class WriteReactor final : public grpc::ServerWriteReactor<Response>, private ChunkSink<Response> {
  public:
-  using WorkFn = std::function<absl::StatusOr<std::vector<Response>>(const CancellationToken&)>;
+  using WorkFn = std::function<absl::Status(const CancellationToken&, ChunkSink<Response>*)>;
 
   WriteReactor(Service* service, grpc::CallbackServerContext* ctx, ThreadPool* pool, Service::Call call,
                WorkFn work)
@@ -110,26 +114,58 @@ class WriteReactor final : public grpc::ServerWriteReactor<Response> {
   }
 
   void OnWriteDone(bool ok) override {
-    if (!ok) return Done(absl::CancelledError("client went away during the response stream"));
-    WriteNext();
+    std::unique_lock<std::mutex> lock(mu_);
+    writing_ = false;
+    if (!ok) {
+      broken_ = true;
+      queue_.clear();
+      token_->Cancel();
+    }
+    Pump(lock);
   }
   void OnCancel() override { token_->Cancel(); }
   void OnDone() override { delete this; }
 
  private:
   void Run() {
-    absl::StatusOr<std::vector<Response>> chunks = work_(*token_);
-    if (!chunks.ok()) return Done(chunks.status());
-    chunks_ = std::move(*chunks);
-    WriteNext();
+    const absl::Status status = work_(*token_, this);
+    std::unique_lock<std::mutex> lock(mu_);
+    work_done_ = true;
+    end_ = status;
+    Pump(lock);
   }
-  /// Writes the next chunk; the last one goes out together with the status.
-  void WriteNext() {
-    if (chunks_.empty()) return Done(absl::OkStatus());
-    Response* chunk = &chunks_[next_++];
-    call_.bytes_out += static_cast<int64_t>(chunk->ByteSizeLong());
-    if (next_ < chunks_.size()) return this->StartWrite(chunk);
-    this->StartWriteAndFinish(chunk, grpc::WriteOptions(), service_->Finish(call_, absl::OkStatus()));
+  void Push(Response chunk, bool last) override {
+    std::unique_lock<std::mutex> lock(mu_);
+    if (broken_) return;
+    queue_.push_back(std::move(chunk));
+    last_queued_ = last_queued_ || last;
+    Pump(lock);
+  }
+  /// Starts the next write, or finishes the call, if the state allows; unlocks first.
+  void Pump(std::unique_lock<std::mutex>& lock) {
+    if (writing_ || finished_) return;
+    absl::Status end;
+    if (broken_) {
+      if (!work_done_) return;
+      end = absl::CancelledError("client went away during the response stream");
+    } else if (work_done_ && (!end_.ok() || queue_.empty())) {
+      end = end_;  // an error drops the chunks not written yet
+    } else {
+      if (queue_.empty()) return;
+      const bool final = last_queued_ && queue_.size() == 1;
+      if (final && !work_done_) return;  // held back to go out with the status
+      current_ = std::move(queue_.front());
+      queue_.pop_front();
+      writing_ = true;
+      finished_ = final;
+      call_.bytes_out += static_cast<int64_t>(current_.ByteSizeLong());
+      lock.unlock();
+      if (!final) return this->StartWrite(&current_);
+      return this->StartWriteAndFinish(&current_, grpc::WriteOptions(), service_->Finish(call_, absl::OkStatus()));
+    }
+    finished_ = true;
+    lock.unlock();
+    Done(end);
   }
   void Done(const absl::Status& s) { this->Finish(service_->Finish(call_, s)); }
 
@@ -137,9 +173,24 @@ class WriteReactor final : public grpc::ServerWriteReactor<Response> {
   std::unique_ptr<CancellationToken> token_;
   WorkFn work_;
   Service::Call call_;
-  std::vector<Response> chunks_;
-  size_t next_ = 0;
+  std::mutex mu_;
+  std::deque<Response> queue_;
+  Response current_;
+  bool writing_ = false, last_queued_ = false, work_done_ = false, broken_ = false, finished_ = false;
+  absl::Status end_;
 };
+
+/// A WriteReactor work function from a handler that returns all its chunks at once.
+template <typename Response>
+typename WriteReactor<Response>::WorkFn AllAtOnce(
+    std::function<absl::StatusOr<std::vector<Response>>(const CancellationToken&)> fn) {
+  return [fn = std::move(fn)](const CancellationToken& cancel, ChunkSink<Response>* sink) -> absl::Status {
+    absl::StatusOr<std::vector<Response>> chunks = fn(cancel);
+    if (!chunks.ok()) return chunks.status();
+    for (size_t i = 0; i < chunks->size(); ++i) sink->Push(std::move((*chunks)[i]), i + 1 == chunks->size());
+    return absl::OkStatus();
+  };
+}
 
 }  // namespace
 
@@ -231,7 +282,8 @@ grpc::ServerWriteReactor<v1::DownloadMeshResponse>* Service::DownloadMesh(grpc::
                                                                           const v1::DownloadMeshRequest* request) {
   return new WriteReactor<v1::DownloadMeshResponse>(
       this, ctx, io_, {"DownloadMesh", request->mesh_id()},
-      [this, request](const CancellationToken&) { return handlers_->DownloadMesh(*request); });
+      AllAtOnce<v1::DownloadMeshResponse>(
+          [this, request](const CancellationToken&) { return handlers_->DownloadMesh(*request); }));
 }
 
 grpc::ServerUnaryReactor* Service::ListMeshes(grpc::CallbackServerContext* ctx, const v1::ListMeshesRequest* request,
@@ -250,7 +302,9 @@ grpc::ServerWriteReactor<v1::ComputeDifferentialsResponse>* Service::ComputeDiff
     grpc::CallbackServerContext* ctx, const v1::ComputeDifferentialsRequest* request) {
   return new WriteReactor<v1::ComputeDifferentialsResponse>(
       this, ctx, compute_, {"ComputeDifferentials", request->mesh_id()},
-      [this, request](const CancellationToken& cancel) { return handlers_->ComputeDifferentials(*request, cancel); });
+      [this, request](const CancellationToken& cancel, ChunkSink<v1::ComputeDifferentialsResponse>* sink) {
+        return handlers_->ComputeDifferentials(*request, cancel, sink);
+      });
 }
 
 grpc::ServerUnaryReactor* Service::GetServerInfo(grpc::CallbackServerContext* ctx, const v1::GetServerInfoRequest*,
@@ -269,7 +323,8 @@ grpc::ServerWriteReactor<v1::ProjectPointsResponse>* Service::ProjectPoints(grpc
                                                                             const v1::ProjectPointsRequest* request) {
   return new WriteReactor<v1::ProjectPointsResponse>(
       this, ctx, compute_, {"ProjectPoints", request->mesh_id()},
-      [this, request](const CancellationToken& cancel) { return handlers_->ProjectPoints(*request, cancel); });
+      AllAtOnce<v1::ProjectPointsResponse>(
+          [this, request](const CancellationToken& cancel) { return handlers_->ProjectPoints(*request, cancel); }));
 }
 
 grpc::ServerUnaryReactor* Service::HighOrderNodes(grpc::CallbackServerContext* ctx,

@@ -180,7 +180,8 @@ class SurfaceFitter {
         });
       }
       fits = std::make_shared<SurfaceFits>();
-      if (absl::Status s = FitAll(mesh, topo, o, nb, normals, req, *fits); !s.ok()) return s;
+      const bool last = pass == (o.two_pass ? 1 : 0);
+      if (absl::Status s = FitAll(mesh, topo, o, nb, normals, req, last, *fits); !s.ok()) return s;
     }
     return std::shared_ptr<const SurfaceFits>(std::move(fits));
   }
@@ -188,7 +189,7 @@ class SurfaceFitter {
  private:
   static absl::Status FitAll(const Mesh& mesh, const Topology& topo, const FitOptions& o,
                              const std::shared_ptr<const Neighborhoods>& nb, const Positions& normals,
-                             const FitRequest& req, SurfaceFits& f) {
+                             const FitRequest& req, bool last_pass, SurfaceFits& f) {
     const int nv = mesh.NumVertices();
     f.options_ = o;
     f.neighborhoods_ = nb;
@@ -218,6 +219,7 @@ class SurfaceFitter {
                       &f.diagnostics_[v], req.stencils ? f.stencils_.data() + f.stencil_offsets_[v] : nullptr};
         FitVertex(static_cast<int>(v), in, out);
       }
+      if (last_pass && req.on_fitted) req.on_fitted(f, chunk * kGrain, end);
     }, 1);
     if (stop) return req.cancel->Check().ok() ? absl::CancelledError("computation cancelled") : req.cancel->Check();
     return absl::OkStatus();

@@ -1,5 +1,6 @@
 #pragma once
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <vector>
 
@@ -92,6 +93,11 @@ class SurfaceFits {
 struct FitRequest {
   bool stencils = false;                  ///< also build the stencil operators
   const CancellationToken* cancel = nullptr;  ///< polled between blocks of vertices
+  /// Called once vertices [begin, end) of the final pass are fitted, from the fitting
+  /// thread(s): blocks arrive in any order, possibly concurrently. `fits` is still
+  /// being built; only the vertices of blocks already reported may be read. Lets a
+  /// caller evaluate and send results while the rest of the mesh is being fitted.
+  std::function<void(const SurfaceFits& fits, int64_t begin, int64_t end)> on_fitted;
 };
 
 /// Fits every vertex. `neighborhoods` may be shared with other fits of the same

@@ -52,8 +52,32 @@ PointDifferentials DifferentialsFromJet(const SurfaceJet& jet) {
   return out;
 }
 
-Differentials ComputeDifferentials(const SurfaceFits& fits, uint32_t q, int num_threads) {
-  const int nv = fits.num_vertices();
+namespace {
+
+void EvaluateVertex(const SurfaceFits& fits, uint32_t q, int64_t v, Differentials& d) {
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  PointDifferentials p;
+  const VertexDiagnostics& diag = fits.diagnostics(static_cast<int>(v));
+  if (diag.degree_used >= 1) {
+    p = DifferentialsFromJet(fits.Jet(static_cast<int>(v)));
+  } else {  // no usable fit: the frame normal (NaN if isolated), NaN curvatures
+    p.normal = (diag.flags & kFlagIsolated) ? Eigen::Vector3d::Constant(nan) : fits.frame(static_cast<int>(v)).normal;
+    p.mean = p.gaussian = p.k1 = p.k2 = nan;
+    p.e1 = p.e2 = Eigen::Vector3d::Constant(nan);
+    p.tensor = Eigen::Matrix3d::Constant(nan);
+  }
+  d.diagnostics[v] = diag;
+  if (q & kNormals) d.normals.row(v) = p.normal;
+  if (q & kMeanCurvature) d.mean(v) = p.mean;
+  if (q & kGaussianCurvature) d.gaussian(v) = p.gaussian;
+  if (q & kPrincipalCurvatures) d.k1(v) = p.k1, d.k2(v) = p.k2;
+  if (q & kPrincipalDirections) d.dir1.row(v) = p.e1, d.dir2.row(v) = p.e2;
+  if (q & kCurvatureTensor) d.tensor.row(v) = Eigen::Map<const Eigen::Matrix<double, 1, 9>>(p.tensor.data());
+}
+
+}  // namespace
+
+Differentials AllocateDifferentials(int64_t nv, uint32_t q) {
   Differentials d;
   if (q & kNormals) d.normals.resize(nv, 3);
   if (q & kMeanCurvature) d.mean.resize(nv);
@@ -61,27 +85,17 @@ Differentials ComputeDifferentials(const SurfaceFits& fits, uint32_t q, int num_
   if (q & kPrincipalCurvatures) d.k1.resize(nv), d.k2.resize(nv);
   if (q & kPrincipalDirections) d.dir1.resize(nv, 3), d.dir2.resize(nv, 3);
   if (q & kCurvatureTensor) d.tensor.resize(nv, 9);
-  d.diagnostics = fits.diagnostics();
-  const double nan = std::numeric_limits<double>::quiet_NaN();
-  ParallelFor(nv, num_threads, [&](int64_t v) {
-    PointDifferentials p;
-    if (fits.diagnostics(v).degree_used >= 1) {
-      p = DifferentialsFromJet(fits.Jet(static_cast<int>(v)));
-    } else {  // no usable fit: the frame normal (NaN if isolated), NaN curvatures
-      p.normal = (fits.diagnostics(v).flags & kFlagIsolated) ? Eigen::Vector3d::Constant(nan)
-                                                             : fits.frame(v).normal;
-      p.mean = p.gaussian = p.k1 = p.k2 = nan;
-      p.e1 = p.e2 = Eigen::Vector3d::Constant(nan);
-      p.tensor = Eigen::Matrix3d::Constant(nan);
-    }
-    if (q & kNormals) d.normals.row(v) = p.normal;
-    if (q & kMeanCurvature) d.mean(v) = p.mean;
-    if (q & kGaussianCurvature) d.gaussian(v) = p.gaussian;
-    if (q & kPrincipalCurvatures) d.k1(v) = p.k1, d.k2(v) = p.k2;
-    if (q & kPrincipalDirections) d.dir1.row(v) = p.e1, d.dir2.row(v) = p.e2;
-    if (q & kCurvatureTensor)
-      d.tensor.row(v) = Eigen::Map<const Eigen::Matrix<double, 1, 9>>(p.tensor.data());
-  });
+  d.diagnostics.resize(static_cast<size_t>(nv));
+  return d;
+}
+
+void EvaluateDifferentials(const SurfaceFits& fits, uint32_t q, int64_t begin, int64_t end, Differentials* d) {
+  for (int64_t v = begin; v < end; ++v) EvaluateVertex(fits, q, v, *d);
+}
+
+Differentials ComputeDifferentials(const SurfaceFits& fits, uint32_t q, int num_threads) {
+  Differentials d = AllocateDifferentials(fits.num_vertices(), q);
+  ParallelFor(fits.num_vertices(), num_threads, [&](int64_t v) { EvaluateVertex(fits, q, v, d); });
   return d;
 }
 

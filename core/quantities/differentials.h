@@ -44,6 +44,12 @@ struct Differentials {
   std::vector<VertexDiagnostics> diagnostics;
 };
 
+/// Differentials with the arrays of `quantities` sized for `num_vertices` rows.
+Differentials AllocateDifferentials(int64_t num_vertices, uint32_t quantities);
+/// Evaluates rows [begin, end) of `d` (from AllocateDifferentials(fits.num_vertices(),
+/// quantities)) in the calling thread; the same values as ComputeDifferentials.
+void EvaluateDifferentials(const SurfaceFits& fits, uint32_t quantities, int64_t begin, int64_t end,
+                           Differentials* d);
 /// Evaluates the quantities of every vertex from its fit (parallel, deterministic).
 Differentials ComputeDifferentials(const SurfaceFits& fits, uint32_t quantities = kAllQuantities,
                                    int num_threads = 0);

@@ -1,6 +1,9 @@
 // Handlers without a network: proto in, StatusOr<proto> out.
 #include "server/handlers.h"
 
+#include <algorithm>
+#include <condition_variable>
+#include <functional>
 #include <mutex>
 #include <set>
 #include <thread>
@@ -9,6 +12,7 @@
 
 #include "core/integration/integrate.h"
 #include "core/quantities/differentials.h"
+#include "core/util/status_macros.h"
 #include "proto/wire.h"
 #include "tests/server/test_util.h"
 
@@ -179,6 +183,159 @@ TEST_F(HandlersTest, PrefetchComputesTheNextStepOfATimeSteppingClient) {
   EXPECT_FALSE(s.fit_cache_hit());
 }
 
+/// Collects chunks; `on_push` (optional) runs on the pushing thread before each is kept.
+struct RecordingSink final : ChunkSink<v1::ComputeDifferentialsResponse> {
+  std::function<void(const v1::ComputeDifferentialsResponse&)> on_push;
+  std::mutex mu;
+  std::vector<v1::ComputeDifferentialsResponse> chunks;
+  std::vector<bool> last;
+  void Push(v1::ComputeDifferentialsResponse chunk, bool is_last) override {
+    if (on_push) on_push(chunk);
+    std::lock_guard<std::mutex> lock(mu);
+    chunks.push_back(std::move(chunk));
+    last.push_back(is_last);
+  }
+  absl::StatusOr<Differentials> Assemble(v1::FitSummary* summary) {
+    wire::DifferentialsReader reader;
+    for (const auto& c : chunks) GF_RETURN_IF_ERROR(reader.Add(c));
+    *summary = reader.summary();
+    return reader.Finish();
+  }
+};
+
+v1::ComputeDifferentialsRequest StreamedRequest(const std::string& id) {
+  v1::ComputeDifferentialsRequest request;
+  request.set_mesh_id(id);
+  request.mutable_options()->set_degree(3);
+  request.set_chunk_rows(512);  // the fit reports blocks of 512 vertices
+  request.set_diagnostics(true);
+  wire::AddQuantities(kAllQuantities, &request);
+  return request;
+}
+
+void ExpectSameAsInProcess(const Differentials& d, const Mesh& mesh) {
+  FitOptions options;
+  options.degree = 3;
+  options.num_threads = 1;
+  auto local = ComputeDifferentials(mesh, options, kAllQuantities);
+  ASSERT_TRUE(local.ok());
+  EXPECT_EQ(d.normals, local->normals);
+  EXPECT_EQ(d.mean, local->mean);
+  EXPECT_EQ(d.k2, local->k2);
+  EXPECT_EQ(d.dir1, local->dir1);
+  EXPECT_EQ(d.tensor, local->tensor);
+  ASSERT_EQ(d.diagnostics.size(), local->diagnostics.size());
+  for (size_t v = 0; v < d.diagnostics.size(); ++v) EXPECT_EQ(d.diagnostics[v].degree_used, local->diagnostics[v].degree_used);
+}
+
+TEST_F(HandlersTest, AFreshFitStreamsChunksWhileItRuns) {
+  const Mesh mesh = TestTorus(40);
+  ASSERT_GT(mesh.NumVertices(), 4 * 512);
+  auto info = Upload(mesh);
+  ASSERT_TRUE(info.ok());
+  RecordingSink sink;
+  std::vector<int64_t> fits_cached_at_push;
+  sink.on_push = [&](const v1::ComputeDifferentialsResponse&) {
+    fits_cached_at_push.push_back(cache_.Stats(Tier::kFitting).entries);
+  };
+  CancellationToken token;
+  ASSERT_TRUE(handlers_.ComputeDifferentials(StreamedRequest(info->mesh_id()), token, &sink).ok());
+
+  const size_t expected_chunks = (mesh.NumVertices() + 511) / 512;
+  ASSERT_EQ(sink.chunks.size(), expected_chunks);
+  // Every chunk but the last went out before the fit was finished (and cached).
+  for (size_t i = 0; i + 1 < expected_chunks; ++i) EXPECT_EQ(fits_cached_at_push[i], 0) << "chunk " << i;
+  EXPECT_EQ(std::count(sink.last.begin(), sink.last.end(), true), 1);
+  EXPECT_TRUE(sink.last.back());
+  // The first chunk names what is coming; the last one has the complete summary.
+  const v1::FitSummary& head = sink.chunks.front().summary();
+  EXPECT_EQ(head.num_vertices(), mesh.NumVertices());
+  EXPECT_EQ(head.revision(), 1);
+  EXPECT_EQ(head.vertices_by_degree_size(), 0);
+  for (size_t i = 1; i + 1 < expected_chunks; ++i) EXPECT_FALSE(sink.chunks[i].has_summary());
+  v1::FitSummary summary;
+  auto d = sink.Assemble(&summary);
+  ASSERT_TRUE(d.ok()) << d.status();
+  EXPECT_EQ(summary.vertices_by_degree(3), mesh.NumVertices());
+  EXPECT_FALSE(summary.fit_cache_hit());
+  EXPECT_GT(summary.fit_ms(), 0);
+  ExpectSameAsInProcess(*d, mesh);
+
+  // Again, from the cache: the same chunks, and the values were cached once.
+  RecordingSink again;
+  ASSERT_TRUE(handlers_.ComputeDifferentials(StreamedRequest(info->mesh_id()), token, &again).ok());
+  ASSERT_EQ(again.chunks.size(), expected_chunks);
+  for (size_t i = 0; i + 1 < expected_chunks; ++i) {
+    EXPECT_EQ(again.chunks[i].SerializeAsString(), sink.chunks[i].SerializeAsString()) << "chunk " << i;
+  }
+  EXPECT_TRUE(again.chunks.back().summary().fit_cache_hit());
+  EXPECT_TRUE(again.chunks.back().summary().quantities_cache_hit());
+}
+
+TEST_F(HandlersTest, AFollowerStreamsFromTheRunningFitAndFinishesItWhenItsOwnerIsCancelled) {
+  const Mesh mesh = TestTorus(40);
+  auto info = Upload(mesh);
+  ASSERT_TRUE(info.ok());
+  const v1::ComputeDifferentialsRequest request = StreamedRequest(info->mesh_id());
+  CancellationToken owner_token, follower_token;
+  RecordingSink owner, follower;
+  std::mutex mu;
+  std::condition_variable cv;
+  bool follower_started = false;
+  follower.on_push = [&](const v1::ComputeDifferentialsResponse&) {
+    std::lock_guard<std::mutex> lock(mu);
+    follower_started = true;
+    cv.notify_all();
+  };
+  std::thread second;
+  absl::Status follower_status;
+  owner.on_push = [&](const v1::ComputeDifferentialsResponse& chunk) {
+    if (chunk.vertex_offset() != 0) return;
+    // The owner has sent its first rows: a second request joins, streams them, and
+    // then the owner's caller goes away.
+    second = std::thread([&] { follower_status = handlers_.ComputeDifferentials(request, follower_token, &follower); });
+    std::unique_lock<std::mutex> lock(mu);
+    ASSERT_TRUE(cv.wait_for(lock, std::chrono::seconds(30), [&] { return follower_started; }));
+    owner_token.Cancel();
+  };
+  const absl::Status owner_status = handlers_.ComputeDifferentials(request, owner_token, &owner);
+  second.join();
+  EXPECT_EQ(owner_status.code(), absl::StatusCode::kCancelled) << owner_status;
+  EXPECT_LT(owner.chunks.size(), (mesh.NumVertices() + 511) / 512) << "the owner stopped early";
+  ASSERT_TRUE(follower_status.ok()) << follower_status;
+  v1::FitSummary summary;
+  auto d = follower.Assemble(&summary);
+  ASSERT_TRUE(d.ok()) << d.status();
+  EXPECT_EQ(summary.vertices_by_degree(3), mesh.NumVertices());
+  EXPECT_FALSE(summary.fit_cache_hit()) << "the follower computed the fit itself";
+  ExpectSameAsInProcess(*d, mesh);
+}
+
+TEST_F(HandlersTest, ARequestDuringAPrefetchStreamsFromIt) {
+  const Mesh mesh = TestTorus(40);
+  auto info = Upload(mesh);
+  ASSERT_TRUE(info.ok());
+  const std::string id = info->mesh_id();
+  const v1::ComputeDifferentialsRequest request = StreamedRequest(id);
+  CancellationToken token;
+  RecordingSink first;
+  ASSERT_TRUE(handlers_.ComputeDifferentials(request, token, &first).ok());
+  Mesh moved = mesh;
+  moved.positions = 1.25 * mesh.positions;
+  ASSERT_TRUE(Update(id, moved.positions, 1).ok());
+  std::thread prefetch([&] { handlers_.Prefetch(id, 2, token); });
+  RecordingSink sink;
+  const absl::Status s = handlers_.ComputeDifferentials(request, token, &sink);
+  prefetch.join();
+  ASSERT_TRUE(s.ok()) << s;
+  v1::FitSummary summary;
+  auto d = sink.Assemble(&summary);
+  ASSERT_TRUE(d.ok()) << d.status();
+  EXPECT_EQ(summary.revision(), 2);
+  ExpectSameAsInProcess(*d, moved);
+  EXPECT_EQ(cache_.Stats(Tier::kFitting).misses, 4) << "two fits and two evaluations: the step's was shared";
+}
+
 TEST_F(HandlersTest, UpdatePositionsKeepsTopologyAndMakesNewRevision) {
   const Mesh mesh = TestTorus();
   auto info = Upload(mesh);
@@ -337,7 +494,7 @@ TEST_F(HandlersTest, SummaryCountsOscillationDowngradesByDegree) {
   CancellationToken token;
   auto r = handlers_.ComputeDifferentials(request, token);
   ASSERT_TRUE(r.ok()) << r.status();
-  const v1::FitSummary& s = (*r)[0].summary();
+  const v1::FitSummary& s = r->back().summary();  // the complete one
   EXPECT_GT(s.num_oscillation_downgraded(), 0);
   ASSERT_EQ(s.vertices_by_degree_size(), 7);
   int64_t total = 0, below = 0;

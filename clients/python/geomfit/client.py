@@ -406,7 +406,9 @@ class Client:
                 chunk = _parse_chunk(raw)
                 if out is None:
                     out = Differentials(summary=pb.FitSummary.FromString(chunk["summary"]))
-                total = out.summary.num_vertices
+                    total = out.summary.num_vertices
+                elif chunk["summary"] is not None:  # the last chunk completes the summary
+                    out.summary = pb.FitSummary.FromString(chunk["summary"])
                 lo = chunk.get("vertex_offset", 0)
                 for name, a in chunk["arrays"].items():
                     if getattr(out, name) is None:
