@@ -414,7 +414,9 @@ absl::Status Handlers::ComputeDifferentials(const v1::ComputeDifferentialsReques
     e = Run(ev, id, revision, options, cancel);
   } else {  // follow the running evaluation
     while (!ev->ended()) {
-      GF_ASSIGN_OR_RETURN(const int64_t filled, ev->WaitFor(stream.next(), cancel));
+      // The last chunk waits for the end (its summary needs the whole fit).
+      const int64_t want = stream.next() < n ? stream.next() : n + 1;
+      GF_ASSIGN_OR_RETURN(const int64_t filled, ev->WaitFor(want, cancel));
       stream.Emit(ev->values(), filled);
     }
     e = ev->result();

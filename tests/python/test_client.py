@@ -33,6 +33,9 @@ def test_upload_curvature_update_download(server, torus_mesh):
         assert np.all(d.k1 >= d.k2)
         np.testing.assert_allclose(d.mean, exact_torus_mean(positions), rtol=0.05)
         assert d.summary.degree_requested == 3
+        # Three chunks, streamed while the fit ran: the summary is the last chunk's, complete.
+        assert sum(d.summary.vertices_by_degree) == len(positions)
+        assert d.summary.fit_ms > 0 and not d.summary.fit_cache_hit
         assert d.diagnostics["degree_used"].min() >= 1
 
         again = client.curvature(info.mesh_id, degree=3, quantities=["mean"])
