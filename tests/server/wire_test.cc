@@ -68,5 +68,28 @@ TEST(WireTest, DifferentialsReaderRejectsGapsAndShortStreams) {
   EXPECT_EQ(reader.Finish().status().code(), absl::StatusCode::kDataLoss);
 }
 
+TEST(WireTest, DifferentialsReaderTakesTheLastChunksSummary) {
+  const double mean[2] = {1, 2};
+  v1::ComputeDifferentialsResponse first, last;
+  first.mutable_summary()->set_num_vertices(4);
+  first.set_num_vertices(2);
+  EncodeDoubles(mean, 2, 0, first.mutable_mean());
+  last = first;
+  last.set_vertex_offset(2);
+  last.mutable_summary()->set_min_degree_used(3);
+  DifferentialsReader reader;
+  ASSERT_TRUE(reader.Add(first).ok());
+  ASSERT_TRUE(reader.Add(last).ok());
+  EXPECT_EQ(reader.summary().min_degree_used(), 3);
+  auto d = reader.Finish();
+  ASSERT_TRUE(d.ok()) << d.status();
+  EXPECT_EQ(d->mean(3), 2);
+
+  DifferentialsReader other;  // a last summary that disagrees on the vertex count
+  last.mutable_summary()->set_num_vertices(5);
+  ASSERT_TRUE(other.Add(first).ok());
+  EXPECT_EQ(other.Add(last).code(), absl::StatusCode::kDataLoss);
+}
+
 }  // namespace
 }  // namespace geomfit::wire
