@@ -6,7 +6,8 @@
 
 namespace geomfit::server {
 
-Evaluation::Evaluation(int64_t num_vertices, uint32_t mask) : num_vertices_(num_vertices), mask_(mask) {}
+Evaluation::Evaluation(std::shared_ptr<const Mesh> mesh, uint32_t mask)
+    : mesh_(std::move(mesh)), num_vertices_(mesh_->NumVertices()), mask_(mask) {}
 
 const std::shared_ptr<Differentials>& Evaluation::filling() {
   std::call_once(allocated_,

@@ -38,8 +38,10 @@ struct Evaluated {
 
 class Evaluation {
  public:
-  Evaluation(int64_t num_vertices, uint32_t mask);
+  /// `mesh`: the revision evaluated (held, so an update cannot take it away meanwhile).
+  Evaluation(std::shared_ptr<const Mesh> mesh, uint32_t mask);
 
+  const std::shared_ptr<const Mesh>& mesh() const { return mesh_; }
   int64_t num_vertices() const { return num_vertices_; }
   uint32_t mask() const { return mask_; }
   /// The arrays being filled (owner only; allocated on first use, thread-safe).
@@ -67,6 +69,7 @@ class Evaluation {
   const Differentials* values() const;
 
  private:
+  const std::shared_ptr<const Mesh> mesh_;
   const int64_t num_vertices_;
   const uint32_t mask_;
   std::once_flag allocated_;

@@ -8,6 +8,7 @@
 
 #include <spdlog/spdlog.h>
 
+#include "absl/strings/match.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "core/fitting/neighborhood.h"
@@ -125,7 +126,17 @@ class DifferentialsStream {
   /// Sends every whole chunk of rows [0, filled) not sent yet, except the last one.
   void Emit(const Differentials* d, int64_t filled) {
     std::lock_guard<std::mutex> lock(mu_);
-    while (d && sent_ + rows_ <= filled && sent_ + rows_ < n_) Send(*d, rows_, nullptr);
+    EmitLocked(d, filled);
+  }
+  /// Emit(ev.values(), ev.filled()) for the fitting threads of `ev`'s owner: a thread
+  /// that finds another one sending leaves its rows to it instead of waiting.
+  void EmitFrom(const Evaluation& ev) {
+    more_ = true;
+    do {
+      std::unique_lock<std::mutex> lock(mu_, std::try_to_lock);
+      if (!lock.owns_lock()) return;  // the sender checks more_ after unlocking
+      while (more_.exchange(false)) EmitLocked(ev.values(), ev.filled());
+    } while (more_);
   }
   /// Sends the remaining rows; the last chunk carries `summary`.
   void Finish(const Differentials& d, const v1::FitSummary& summary) {
@@ -135,6 +146,9 @@ class DifferentialsStream {
   }
 
  private:
+  void EmitLocked(const Differentials* d, int64_t filled) {
+    while (d && sent_ + rows_ <= filled && sent_ + rows_ < n_) Send(*d, rows_, nullptr);
+  }
   void Send(const Differentials& d, int64_t m, const v1::FitSummary* summary) {
     v1::ComputeDifferentialsResponse chunk = EncodeChunk(d, sent_, m, mask_, diagnostics_);
     if (summary) {
@@ -153,6 +167,7 @@ class DifferentialsStream {
   ChunkSink<v1::ComputeDifferentialsResponse>* sink_;
   mutable std::mutex mu_;
   int64_t sent_ = 0;
+  std::atomic<bool> more_{false};  ///< EmitFrom has rows for the thread that is sending
 };
 
 /// Fitting-tier key of a fit.
@@ -338,6 +353,13 @@ absl::StatusOr<v1::DeleteMeshResponse> Handlers::DeleteMesh(const v1::DeleteMesh
   GF_RETURN_IF_ERROR(RequireId(request.mesh_id()));
   GF_RETURN_IF_ERROR(store_->Delete(request.mesh_id()));
   cache_->EraseMesh(request.mesh_id());
+  {  // a computation still running finishes for its callers; nobody else joins it
+    std::lock_guard<std::mutex> lock(evaluations_mu_);
+    const std::string prefix = request.mesh_id() + "/";
+    for (auto it = evaluations_.lower_bound(prefix); it != evaluations_.end() && absl::StartsWith(it->first, prefix);) {
+      it = evaluations_.erase(it);
+    }
+  }
   std::lock_guard<std::mutex> lock(recipes_mu_);
   recipes_.erase(request.mesh_id());
   return v1::DeleteMeshResponse();
@@ -345,9 +367,13 @@ absl::StatusOr<v1::DeleteMeshResponse> Handlers::DeleteMesh(const v1::DeleteMesh
 
 absl::StatusOr<Fitted> Handlers::Fit(const std::string& id, int64_t revision, const FitOptions& options,
                                      const CancellationToken& cancel, bool stencils,
-                                     const decltype(FitRequest::on_fitted)& on_fitted) {
+                                     const decltype(FitRequest::on_fitted)& on_fitted,
+                                     std::shared_ptr<const Mesh> mesh) {
   Fitted f;
-  GF_ASSIGN_OR_RETURN(std::shared_ptr<const Mesh> mesh, Geometry(id, revision, &f.revision));
+  f.revision = revision;
+  if (!mesh) {
+    GF_ASSIGN_OR_RETURN(mesh, Geometry(id, revision, &f.revision));
+  }
   GF_ASSIGN_OR_RETURN(std::shared_ptr<const Topology> topo, TopologyOf(id, *mesh));
   if (const int64_t need = EstimateFitBytes(mesh->NumVertices(), options); need > cache_->budget()) {
     return absl::ResourceExhaustedError(absl::StrCat("fitting ", mesh->NumVertices(), " vertices at degree ",
@@ -397,20 +423,18 @@ absl::Status Handlers::ComputeDifferentials(const v1::ComputeDifferentialsReques
   FitOptions options = *parsed;
   options.num_threads = options_.threads;
   GF_ASSIGN_OR_RETURN(const uint32_t mask, wire::QuantityMask(request.quantities()));
+  // Held to the end: an update may replace the revision in the cache meanwhile.
   int64_t revision = 0;
-  int64_t n = 0;
-  {
-    GF_ASSIGN_OR_RETURN(std::shared_ptr<const Mesh> mesh, Geometry(id, request.revision(), &revision));
-    n = mesh->NumVertices();
-  }
+  GF_ASSIGN_OR_RETURN(const std::shared_ptr<const Mesh> mesh, Geometry(id, request.revision(), &revision));
+  const int64_t n = mesh->NumVertices();
   DifferentialsStream stream(mask, request.diagnostics(), n,
                              ChunkRows(request.chunk_rows(), RowBytes(mask, request.diagnostics())),
                              SummaryHeader(id, revision, n, options), sink);
   bool owner = false;
-  const std::shared_ptr<Evaluation> ev = JoinEvaluation(id, revision, options, mask, n, &owner);
+  const std::shared_ptr<Evaluation> ev = JoinEvaluation(id, revision, options, mask, mesh, &owner);
   absl::StatusOr<Evaluated> e;
   if (owner) {
-    ev->SetListener([&stream, raw = ev.get()] { stream.Emit(raw->values(), raw->filled()); });
+    ev->SetListener([&stream, raw = ev.get()] { stream.EmitFrom(*raw); });
     e = Run(ev, id, revision, options, cancel);
   } else {  // follow the running evaluation
     while (!ev->ended()) {
@@ -425,7 +449,7 @@ absl::Status Handlers::ComputeDifferentials(const v1::ComputeDifferentialsReques
       e->fitted.ms = e->ms = 0;
     } else {  // its owner gave up (cancelled): compute the rest here. Values are
               // deterministic, so the rows already sent agree.
-      e = Evaluate(id, revision, options, mask, cancel);
+      e = Evaluate(id, revision, options, mask, cancel, nullptr, mesh);
     }
   }
   GF_RETURN_IF_ERROR(e.status());
@@ -446,20 +470,20 @@ absl::StatusOr<std::vector<v1::ComputeDifferentialsResponse>> Handlers::ComputeD
 }
 
 std::shared_ptr<Evaluation> Handlers::JoinEvaluation(const std::string& id, int64_t revision,
-                                                     const FitOptions& options, uint32_t mask, int64_t num_vertices,
-                                                     bool* owner) {
+                                                     const FitOptions& options, uint32_t mask,
+                                                     std::shared_ptr<const Mesh> mesh, bool* owner) {
   const std::string key = DifferentialsKey(FitKey(id, revision, options, false), mask);
   std::lock_guard<std::mutex> lock(evaluations_mu_);
   std::shared_ptr<Evaluation>& ev = evaluations_[key];
   *owner = ev == nullptr;
-  if (*owner) ev = std::make_shared<Evaluation>(num_vertices, mask);
+  if (*owner) ev = std::make_shared<Evaluation>(std::move(mesh), mask);
   return ev;
 }
 
 absl::StatusOr<Evaluated> Handlers::Run(const std::shared_ptr<Evaluation>& ev, const std::string& id,
                                         int64_t revision, const FitOptions& options,
                                         const CancellationToken& cancel) {
-  absl::StatusOr<Evaluated> e = Evaluate(id, revision, options, ev->mask(), cancel, ev.get());
+  absl::StatusOr<Evaluated> e = Evaluate(id, revision, options, ev->mask(), cancel, ev.get(), ev->mesh());
   ev->Finish(e);  // before unregistering: a request arriving now finds the values
   std::lock_guard<std::mutex> lock(evaluations_mu_);
   const auto it = evaluations_.find(DifferentialsKey(FitKey(id, revision, options, false), ev->mask()));
@@ -468,7 +492,8 @@ absl::StatusOr<Evaluated> Handlers::Run(const std::shared_ptr<Evaluation>& ev, c
 }
 
 absl::StatusOr<Evaluated> Handlers::Evaluate(const std::string& id, int64_t revision, const FitOptions& options,
-                                             uint32_t mask, const CancellationToken& cancel, Evaluation* progress) {
+                                             uint32_t mask, const CancellationToken& cancel, Evaluation* progress,
+                                             std::shared_ptr<const Mesh> mesh) {
   Evaluated e;
   std::atomic<int64_t> evaluated{0};  // rows `progress` received during the fit
   decltype(FitRequest::on_fitted) on_fitted;
@@ -479,7 +504,7 @@ absl::StatusOr<Evaluated> Handlers::Evaluate(const std::string& id, int64_t revi
       progress->Filled(begin, end);
     };
   }
-  GF_ASSIGN_OR_RETURN(e.fitted, Fit(id, revision, options, cancel, false, on_fitted));
+  GF_ASSIGN_OR_RETURN(e.fitted, Fit(id, revision, options, cancel, false, on_fitted, std::move(mesh)));
   // Derived quantities belong to the fitting tier too: a repeated request only
   // serializes.
   Stopwatch watch;
@@ -514,8 +539,7 @@ void Handlers::Prefetch(const std::string& id, int64_t revision, const Cancellat
   absl::StatusOr<std::shared_ptr<const Mesh>> mesh = Geometry(id, revision, &resolved);
   if (!mesh.ok()) return;
   bool owner = false;
-  const std::shared_ptr<Evaluation> ev =
-      JoinEvaluation(id, resolved, recipe.options, recipe.mask, (*mesh)->NumVertices(), &owner);
+  const std::shared_ptr<Evaluation> ev = JoinEvaluation(id, resolved, recipe.options, recipe.mask, *mesh, &owner);
   if (!owner) return;  // a request got there first
   const absl::StatusOr<Evaluated> e = Run(ev, id, resolved, recipe.options, cancel);
   if (!e.ok()) spdlog::debug("prefetch of {} revision {}: {}", id, revision, e.status().ToString());

@@ -93,13 +93,15 @@ class Handlers {
 
  private:
   /// Fits and differentials from the cache or computed; a fit computed here fills
-  /// `progress` block by block (evaluating each block as soon as it is fitted).
+  /// `progress` block by block (evaluating each block as soon as it is fitted). `mesh`:
+  /// the revision's mesh if the caller holds it (`revision` is then resolved).
   absl::StatusOr<Evaluated> Evaluate(const std::string& id, int64_t revision, const FitOptions& options,
-                                     uint32_t mask, const CancellationToken& cancel, Evaluation* progress = nullptr);
-  /// The running evaluation of `revision` (resolved), `options` and `mask`, or a new
-  /// registered one the caller owns (`*owner`) and must Run.
+                                     uint32_t mask, const CancellationToken& cancel, Evaluation* progress = nullptr,
+                                     std::shared_ptr<const Mesh> mesh = nullptr);
+  /// The running evaluation of `revision` (resolved; its `mesh`), `options` and `mask`,
+  /// or a new registered one the caller owns (`*owner`) and must Run.
   std::shared_ptr<Evaluation> JoinEvaluation(const std::string& id, int64_t revision, const FitOptions& options,
-                                             uint32_t mask, int64_t num_vertices, bool* owner);
+                                             uint32_t mask, std::shared_ptr<const Mesh> mesh, bool* owner);
   /// Owner: Evaluate into `ev`, end it and unregister it.
   absl::StatusOr<Evaluated> Run(const std::shared_ptr<Evaluation>& ev, const std::string& id, int64_t revision,
                                 const FitOptions& options, const CancellationToken& cancel);
@@ -110,10 +112,12 @@ class Handlers {
     int64_t revision = 0;
   };
   /// `stencils`: fits that also carry their stencil operators (field integration).
-  /// `on_fitted`: see FitRequest (runs only if the fit is computed here).
+  /// `on_fitted`: see FitRequest (runs only if the fit is computed here); `mesh`: as
+  /// for Evaluate.
   absl::StatusOr<Fitted> Fit(const std::string& id, int64_t revision, const FitOptions& options,
                              const CancellationToken& cancel, bool stencils = false,
-                             const decltype(FitRequest::on_fitted)& on_fitted = nullptr);
+                             const decltype(FitRequest::on_fitted)& on_fitted = nullptr,
+                             std::shared_ptr<const Mesh> mesh = nullptr);
   /// Validates, hashes and stores a new mesh (UploadMesh, RefineMesh).
   absl::StatusOr<v1::MeshInfo> StoreNewMesh(Mesh mesh, const v1::MeshHeader& header);
   struct Reconstructed;

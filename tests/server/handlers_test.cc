@@ -272,7 +272,32 @@ TEST_F(HandlersTest, AFreshFitStreamsChunksWhileItRuns) {
   EXPECT_TRUE(again.chunks.back().summary().quantities_cache_hit());
 }
 
-TEST_F(HandlersTest, AFollowerStreamsFromTheRunningFitAndFinishesItWhenItsOwnerIsCancelled) {
+TEST(HandlersStreamTest, FittingThreadsStreamEveryChunkOnceInOrder) {
+  auto store = NewMemoryStore();
+  Cache cache(64 << 20);
+  RequestStats stats;
+  HandlerOptions options;
+  options.threads = 2;  // blocks reported concurrently and out of order
+  Handlers handlers(store.get(), &cache, &stats, options);
+  const Mesh mesh = TestTorus(40);
+  UploadAssembler a(1 << 20);
+  for (const auto& r : wire::UploadChunks(mesh, v1::MeshHeader(), 1000)) ASSERT_TRUE(a.Add(r).ok());
+  auto info = handlers.UploadMesh(a);
+  ASSERT_TRUE(info.ok()) << info.status();
+  for (int round = 0; round < 3; ++round) {
+    cache.EraseMesh(info->mesh_id());  // a fresh fit every round
+    RecordingSink sink;
+    CancellationToken token;
+    ASSERT_TRUE(handlers.ComputeDifferentials(StreamedRequest(info->mesh_id()), token, &sink).ok());
+    ASSERT_EQ(sink.chunks.size(), static_cast<size_t>((mesh.NumVertices() + 511) / 512));
+    v1::FitSummary summary;
+    auto d = sink.Assemble(&summary);  // rejects gaps, repeats and disorder
+    ASSERT_TRUE(d.ok()) << d.status();
+    ExpectSameAsInProcess(*d, mesh);
+  }
+}
+
+TEST_F(HandlersTest, AFollowerFinishesTheFitWhenItsOwnerIsCancelledEvenAfterAnUpdate) {
   const Mesh mesh = TestTorus(40);
   auto info = Upload(mesh);
   ASSERT_TRUE(info.ok());
@@ -296,6 +321,8 @@ TEST_F(HandlersTest, AFollowerStreamsFromTheRunningFitAndFinishesItWhenItsOwnerI
     second = std::thread([&] { follower_status = handlers_.ComputeDifferentials(request, follower_token, &follower); });
     std::unique_lock<std::mutex> lock(mu);
     ASSERT_TRUE(cv.wait_for(lock, std::chrono::seconds(30), [&] { return follower_started; }));
+    // Meanwhile the simulation moves on: the follower must still finish revision 1.
+    ASSERT_TRUE(Update(info->mesh_id(), 1.5 * mesh.positions, 1).ok());
     owner_token.Cancel();
   };
   const absl::Status owner_status = handlers_.ComputeDifferentials(request, owner_token, &owner);
@@ -307,6 +334,7 @@ TEST_F(HandlersTest, AFollowerStreamsFromTheRunningFitAndFinishesItWhenItsOwnerI
   auto d = follower.Assemble(&summary);
   ASSERT_TRUE(d.ok()) << d.status();
   EXPECT_EQ(summary.vertices_by_degree(3), mesh.NumVertices());
+  EXPECT_EQ(summary.revision(), 1);
   EXPECT_FALSE(summary.fit_cache_hit()) << "the follower computed the fit itself";
   ExpectSameAsInProcess(*d, mesh);
 }
