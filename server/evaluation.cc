@@ -6,8 +6,8 @@
 
 namespace geomfit::server {
 
-Evaluation::Evaluation(std::shared_ptr<const Mesh> mesh, uint32_t mask)
-    : mesh_(std::move(mesh)), num_vertices_(mesh_->NumVertices()), mask_(mask) {}
+Evaluation::Evaluation(std::string key, std::shared_ptr<const Mesh> mesh, uint32_t mask)
+    : key_(std::move(key)), mesh_(std::move(mesh)), num_vertices_(mesh_->NumVertices()), mask_(mask) {}
 
 const std::shared_ptr<Differentials>& Evaluation::filling() {
   std::call_once(allocated_,

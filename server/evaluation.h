@@ -38,9 +38,11 @@ struct Evaluated {
 
 class Evaluation {
  public:
-  /// `mesh`: the revision evaluated (held, so an update cannot take it away meanwhile).
-  Evaluation(std::shared_ptr<const Mesh> mesh, uint32_t mask);
+  /// `key`: the differentials' cache key; `mesh`: the revision evaluated (held, so an
+  /// update cannot take it away meanwhile).
+  Evaluation(std::string key, std::shared_ptr<const Mesh> mesh, uint32_t mask);
 
+  const std::string& key() const { return key_; }
   const std::shared_ptr<const Mesh>& mesh() const { return mesh_; }
   int64_t num_vertices() const { return num_vertices_; }
   uint32_t mask() const { return mask_; }
@@ -69,6 +71,7 @@ class Evaluation {
   const Differentials* values() const;
 
  private:
+  const std::string key_;
   const std::shared_ptr<const Mesh> mesh_;
   const int64_t num_vertices_;
   const uint32_t mask_;

@@ -476,7 +476,7 @@ std::shared_ptr<Evaluation> Handlers::JoinEvaluation(const std::string& id, int6
   std::lock_guard<std::mutex> lock(evaluations_mu_);
   std::shared_ptr<Evaluation>& ev = evaluations_[key];
   *owner = ev == nullptr;
-  if (*owner) ev = std::make_shared<Evaluation>(std::move(mesh), mask);
+  if (*owner) ev = std::make_shared<Evaluation>(key, std::move(mesh), mask);
   return ev;
 }
 
@@ -486,7 +486,7 @@ absl::StatusOr<Evaluated> Handlers::Run(const std::shared_ptr<Evaluation>& ev, c
   absl::StatusOr<Evaluated> e = Evaluate(id, revision, options, ev->mask(), cancel, ev.get(), ev->mesh());
   ev->Finish(e);  // before unregistering: a request arriving now finds the values
   std::lock_guard<std::mutex> lock(evaluations_mu_);
-  const auto it = evaluations_.find(DifferentialsKey(FitKey(id, revision, options, false), ev->mask()));
+  const auto it = evaluations_.find(ev->key());
   if (it != evaluations_.end() && it->second == ev) evaluations_.erase(it);
   return e;
 }
