@@ -32,11 +32,40 @@ void Evaluation::Filled(int64_t begin, int64_t end) {
 }
 
 void Evaluation::Finish(absl::StatusOr<Evaluated> result) {
+  std::map<int, EndHook> hooks;
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    ended_ = true;
+    result_ = std::move(result);
+    if (result_.ok()) filled_ = num_vertices_;
+    hooks.swap(hooks_);
+    running_hooks_ = !hooks.empty();
+    cv_.notify_all();
+  }
+  if (hooks.empty()) return;
+  for (auto& [handle, hook] : hooks) hook(result_);  // result_ no longer changes
   std::lock_guard<std::mutex> lock(mu_);
-  ended_ = true;
-  result_ = std::move(result);
-  if (result_.ok()) filled_ = num_vertices_;
+  running_hooks_ = false;
   cv_.notify_all();
+}
+
+int Evaluation::Follow(EndHook hook) {
+  std::unique_lock<std::mutex> lock(mu_);
+  const int handle = next_hook_++;
+  if (!ended_) {
+    hooks_.emplace(handle, std::move(hook));
+    return handle;
+  }
+  lock.unlock();
+  hook(result_);  // final once ended_ is set
+  return handle;
+}
+
+bool Evaluation::Unfollow(int handle) {
+  std::unique_lock<std::mutex> lock(mu_);
+  if (hooks_.erase(handle) > 0) return false;
+  cv_.wait(lock, [&] { return !running_hooks_; });
+  return true;
 }
 
 int64_t Evaluation::filled() const {

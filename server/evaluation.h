@@ -58,6 +58,15 @@ class Evaluation {
   /// Called after each Filled, on the filling thread (the owning request streams from it).
   void SetListener(std::function<void()> listener) { listener_ = std::move(listener); }
 
+  using EndHook = std::function<void(const absl::StatusOr<Evaluated>&)>;
+  /// Follower: `hook` runs once with the result, on the owner's thread, as soon as the
+  /// evaluation ends (the follower's last chunk goes out without waiting for the
+  /// follower to wake). Returns a handle for Unfollow.
+  int Follow(EndHook hook);
+  /// Follower: after this returns the hook has run to completion (true) or never will
+  /// (false). Every Follow needs an Unfollow before what its hook uses goes away.
+  bool Unfollow(int handle);
+
   /// Rows [0, filled()) are final.
   int64_t filled() const;
   /// Follower: waits until at least `rows` rows are final or the evaluation ended, or
@@ -85,6 +94,29 @@ class Evaluation {
   int64_t wake_at_ = std::numeric_limits<int64_t>::max();  ///< least row count a follower waits for
   bool ended_ = false;
   absl::StatusOr<Evaluated> result_;
+  std::map<int, EndHook> hooks_;  ///< not run yet, by handle
+  int next_hook_ = 0;
+  bool running_hooks_ = false;
+};
+
+/// Follow/Unfollow for the length of a scope.
+class FollowGuard {
+ public:
+  FollowGuard(Evaluation* ev, Evaluation::EndHook hook) : ev_(ev), handle_(ev->Follow(std::move(hook))) {}
+  ~FollowGuard() { Unfollow(); }
+  FollowGuard(const FollowGuard&) = delete;
+  FollowGuard& operator=(const FollowGuard&) = delete;
+  /// Whether the hook ran (see Evaluation::Unfollow); later calls repeat the answer.
+  bool Unfollow() {
+    if (!unfollowed_) ran_ = ev_->Unfollow(handle_);
+    unfollowed_ = true;
+    return ran_;
+  }
+
+ private:
+  Evaluation* ev_;
+  const int handle_;
+  bool unfollowed_ = false, ran_ = false;
 };
 
 }  // namespace geomfit::server

@@ -123,10 +123,12 @@ class DifferentialsStream {
     std::lock_guard<std::mutex> lock(mu_);
     return std::min(n_, sent_ + rows_);
   }
-  /// Sends every whole chunk of rows [0, filled) not sent yet, except the last one.
+  /// Sends every whole chunk of rows [0, filled) not sent yet, except the last one;
+  /// within the last chunk, rows [sent, filled) while some are still to come.
   void Emit(const Differentials* d, int64_t filled) {
     std::lock_guard<std::mutex> lock(mu_);
     EmitLocked(d, filled);
+    if (d && sent_ + rows_ >= n_ && sent_ < filled && filled < n_) Send(*d, filled - sent_, nullptr);
   }
   /// Emit(ev.values(), ev.filled()) for the fitting threads of `ev`'s owner: a thread
   /// that finds another one sending leaves its rows to it instead of waiting.
@@ -430,35 +432,39 @@ absl::Status Handlers::ComputeDifferentials(const v1::ComputeDifferentialsReques
   DifferentialsStream stream(mask, request.diagnostics(), n,
                              ChunkRows(request.chunk_rows(), RowBytes(mask, request.diagnostics())),
                              SummaryHeader(id, revision, n, options), sink);
-  bool owner = false;
-  const std::shared_ptr<Evaluation> ev = JoinEvaluation(id, revision, options, mask, mesh, &owner);
-  absl::StatusOr<Evaluated> e;
-  if (owner) {
-    ev->SetListener([&stream, raw = ev.get()] { stream.EmitFrom(*raw); });
-    e = Run(ev, id, revision, options, cancel);
-  } else {  // follow the running evaluation
-    while (!ev->ended()) {
-      // The last chunk waits for the end (its summary needs the whole fit).
-      const int64_t want = stream.next() < n ? stream.next() : n + 1;
-      GF_ASSIGN_OR_RETURN(const int64_t filled, ev->WaitFor(want, cancel));
-      stream.Emit(ev->values(), filled);
-    }
-    e = ev->result();
-    if (e.ok()) {  // shared, not computed for this request: a hit, as for a joined cache flight
-      e->fitted.hit = e->hit = true;
-      e->fitted.ms = e->ms = 0;
-    } else {  // its owner gave up (cancelled): compute the rest here. Values are
-              // deterministic, so the rows already sent agree.
-      e = Evaluate(id, revision, options, mask, cancel, nullptr, mesh);
-    }
-  }
-  GF_RETURN_IF_ERROR(e.status());
-  {
+  {  // before any chunk: the client may send its next update as soon as it has the last
     std::lock_guard<std::mutex> lock(recipes_mu_);
     Recipe& r = recipes_[id];
     if (revision >= r.revision) r = Recipe{options, mask, revision};
   }
-  stream.Finish(*e->values, Summarize(id, *e, options));
+  bool owner = false;
+  const std::shared_ptr<Evaluation> ev = JoinEvaluation(id, revision, options, mask, mesh, &owner);
+  if (owner) {
+    ev->SetListener([&stream, raw = ev.get()] { stream.EmitFrom(*raw); });
+    GF_ASSIGN_OR_RETURN(const Evaluated e, Run(ev, id, revision, options, cancel));
+    stream.Finish(*e.values, Summarize(id, e, options));
+    return absl::OkStatus();
+  }
+  // Follow the running evaluation: whole chunks as their rows are final, then within
+  // the last chunk every fitted block, so that the owner, which sends what is left as
+  // soon as it ends, has at most one block to send.
+  FollowGuard follow(ev.get(), [&](const absl::StatusOr<Evaluated>& result) {
+    if (!result.ok()) return;
+    Evaluated shared = *result;  // not computed for this request: a hit, as for a joined cache flight
+    shared.fitted.hit = shared.hit = true;
+    shared.fitted.ms = shared.ms = 0;
+    stream.Finish(*shared.values, Summarize(id, shared, options));
+  });
+  while (!ev->ended()) {
+    const int64_t next = stream.next();
+    GF_ASSIGN_OR_RETURN(const int64_t filled, ev->WaitFor(next < n ? next : ev->filled() + 1, cancel));
+    stream.Emit(ev->values(), filled);
+  }
+  if (follow.Unfollow() && ev->result().ok()) return absl::OkStatus();  // the owner sent the rest
+  // Its owner gave up (cancelled): compute the rest here. Values are deterministic, so
+  // the rows already sent agree.
+  GF_ASSIGN_OR_RETURN(const Evaluated e, Evaluate(id, revision, options, mask, cancel, nullptr, mesh));
+  stream.Finish(*e.values, Summarize(id, e, options));
   return absl::OkStatus();
 }
 
@@ -484,11 +490,15 @@ absl::StatusOr<Evaluated> Handlers::Run(const std::shared_ptr<Evaluation>& ev, c
                                         int64_t revision, const FitOptions& options,
                                         const CancellationToken& cancel) {
   absl::StatusOr<Evaluated> e = Evaluate(id, revision, options, ev->mask(), cancel, ev.get(), ev->mesh());
-  ev->Finish(e);  // before unregistering: a request arriving now finds the values
+  End(ev, e);
+  return e;
+}
+
+void Handlers::End(const std::shared_ptr<Evaluation>& ev, absl::StatusOr<Evaluated> result) {
+  ev->Finish(std::move(result));  // before unregistering: a request arriving now finds the values
   std::lock_guard<std::mutex> lock(evaluations_mu_);
   const auto it = evaluations_.find(ev->key());
   if (it != evaluations_.end() && it->second == ev) evaluations_.erase(it);
-  return e;
 }
 
 absl::StatusOr<Evaluated> Handlers::Evaluate(const std::string& id, int64_t revision, const FitOptions& options,
@@ -526,23 +536,41 @@ absl::StatusOr<Evaluated> Handlers::Evaluate(const std::string& id, int64_t revi
   return e;
 }
 
-void Handlers::Prefetch(const std::string& id, int64_t revision, const CancellationToken& cancel) {
-  if (!options_.prefetch) return;
+std::unique_ptr<Handlers::PendingPrefetch> Handlers::PlanPrefetch(const std::string& id, int64_t revision) {
+  if (!options_.prefetch) return nullptr;
   Recipe recipe;
   {
     std::lock_guard<std::mutex> lock(recipes_mu_);
     auto it = recipes_.find(id);
-    if (it == recipes_.end() || it->second.revision != revision - 1) return;
+    if (it == recipes_.end() || it->second.revision != revision - 1) return nullptr;
     recipe = it->second;
   }
   int64_t resolved = 0;
   absl::StatusOr<std::shared_ptr<const Mesh>> mesh = Geometry(id, revision, &resolved);
-  if (!mesh.ok()) return;
+  if (!mesh.ok()) return nullptr;
   bool owner = false;
-  const std::shared_ptr<Evaluation> ev = JoinEvaluation(id, resolved, recipe.options, recipe.mask, *mesh, &owner);
-  if (!owner) return;  // a request got there first
-  const absl::StatusOr<Evaluated> e = Run(ev, id, resolved, recipe.options, cancel);
-  if (!e.ok()) spdlog::debug("prefetch of {} revision {}: {}", id, revision, e.status().ToString());
+  std::shared_ptr<Evaluation> ev = JoinEvaluation(id, resolved, recipe.options, recipe.mask, *mesh, &owner);
+  if (!owner) return nullptr;  // a request got there first
+  return std::make_unique<PendingPrefetch>(this, std::move(ev), id, resolved, recipe.options);
+}
+
+void Handlers::Prefetch(const std::string& id, int64_t revision, const CancellationToken& cancel) {
+  if (std::unique_ptr<PendingPrefetch> p = PlanPrefetch(id, revision)) p->Run(cancel);
+}
+
+void Handlers::PendingPrefetch::Run(const CancellationToken& cancel) {
+  ran_ = true;
+  const absl::StatusOr<Evaluated> e = handlers_->Run(ev_, id_, revision_, options_, cancel);
+  if (!e.ok()) {
+    spdlog::debug("prefetch of {} revision {}: {}", id_, revision_, e.status().ToString());
+  } else {
+    spdlog::debug("prefetch of {} revision {}: fit {:.3f} ms, evaluate {:.3f} ms", id_, revision_, e->fitted.ms,
+                  e->ms);
+  }
+}
+
+Handlers::PendingPrefetch::~PendingPrefetch() {
+  if (!ran_) handlers_->End(ev_, absl::CancelledError("prefetch not run"));
 }
 
 v1::ServerInfo Handlers::GetServerInfo() const {

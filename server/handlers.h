@@ -72,10 +72,14 @@ class Handlers {
   /// The same, collected.
   absl::StatusOr<std::vector<v1::ComputeDifferentialsResponse>> ComputeDifferentials(
       const v1::ComputeDifferentialsRequest& request, const CancellationToken& cancel);
-  /// Time stepping: once UpdatePositions made `revision`, recomputes into the cache the
-  /// differentials last requested on revision - 1, so the step's ComputeDifferentials
-  /// finds them ready or joins the computation instead of starting it a round trip
-  /// later. Does nothing unless the previous revision had such a request.
+  class PendingPrefetch;
+  /// Time stepping: once UpdatePositions made `revision`, the recomputation of the
+  /// differentials last requested on revision - 1, registered at once, so that the
+  /// step's ComputeDifferentials, however soon it comes, joins it (streaming from it)
+  /// instead of starting its own a round trip later. Null unless the previous revision
+  /// had such a request. The caller runs it once the update is acknowledged.
+  std::unique_ptr<PendingPrefetch> PlanPrefetch(const std::string& id, int64_t revision);
+  /// PlanPrefetch, run at once.
   void Prefetch(const std::string& id, int64_t revision, const CancellationToken& cancel);
   v1::ServerInfo GetServerInfo() const;
   v1::Statistics GetStatistics() const;
@@ -105,6 +109,8 @@ class Handlers {
   /// Owner: Evaluate into `ev`, end it and unregister it.
   absl::StatusOr<Evaluated> Run(const std::shared_ptr<Evaluation>& ev, const std::string& id, int64_t revision,
                                 const FitOptions& options, const CancellationToken& cancel);
+  /// Owner: ends `ev` with `result` (its followers get it) and unregisters it.
+  void End(const std::shared_ptr<Evaluation>& ev, absl::StatusOr<Evaluated> result);
   /// What ComputeDifferentials last computed per mesh (for Prefetch).
   struct Recipe {
     FitOptions options;
@@ -142,6 +148,27 @@ class Handlers {
   std::mutex evaluations_mu_;
   std::map<std::string, std::shared_ptr<Evaluation>> evaluations_;  ///< running, by differentials key
   const std::chrono::steady_clock::time_point started_ = std::chrono::steady_clock::now();
+};
+
+/// A prefetch registered by Handlers::PlanPrefetch: Run computes it; dropped unrun, it
+/// ends as cancelled (requests that joined it then compute for themselves).
+class Handlers::PendingPrefetch {
+ public:
+  PendingPrefetch(Handlers* handlers, std::shared_ptr<Evaluation> ev, std::string id, int64_t revision,
+                  FitOptions options)
+      : handlers_(handlers), ev_(std::move(ev)), id_(std::move(id)), revision_(revision), options_(options) {}
+  ~PendingPrefetch();
+  PendingPrefetch(const PendingPrefetch&) = delete;
+  PendingPrefetch& operator=(const PendingPrefetch&) = delete;
+  void Run(const CancellationToken& cancel);
+
+ private:
+  Handlers* handlers_;
+  std::shared_ptr<Evaluation> ev_;
+  const std::string id_;
+  const int64_t revision_;
+  const FitOptions options_;
+  bool ran_ = false;
 };
 
 }  // namespace geomfit::server

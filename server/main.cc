@@ -4,6 +4,7 @@
 #include <cstdio>
 #include <thread>
 
+#include <spdlog/async.h>
 #include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
 
@@ -20,8 +21,10 @@ int main(int argc, char** argv) {
     if (!help) std::fprintf(stderr, "%s", geomfit::server::ServerUsage().c_str());
     return help ? 0 : 2;
   }
-  // Logs go to stderr; stdout carries only the "listening on port N" line.
-  spdlog::set_default_logger(spdlog::stderr_color_mt("geomfit-server"));
+  // Logs go to stderr; stdout carries only the "listening on port N" line. A thread of
+  // its own writes them: a request's log line does not delay its response.
+  spdlog::init_thread_pool(8192, 1);
+  spdlog::set_default_logger(spdlog::stderr_color_mt<spdlog::async_factory>("geomfit-server"));
   spdlog::set_level(spdlog::level::from_str(options->log_level));
 
   // Signals are taken synchronously by this thread only (blocked before any other
@@ -35,6 +38,7 @@ int main(int argc, char** argv) {
   auto server = geomfit::server::Server::Start(*options);
   if (!server.ok()) {
     spdlog::error("cannot start: {}", std::string(server.status().message()));
+    spdlog::shutdown();
     return 1;
   }
   std::printf("geomfit-server listening on port %d\n", (*server)->port());
@@ -52,6 +56,7 @@ int main(int argc, char** argv) {
   (*server)->Shutdown(options->drain_seconds);
   server->reset();  // closes the store
   spdlog::info("exit");
+  spdlog::shutdown();  // writes what is queued
   // gRPC's global teardown can linger for seconds after a clean shutdown; nothing
   // is left to flush, so skip it.
   std::fflush(stdout);

@@ -95,8 +95,11 @@ class ReadReactor final : public grpc::ServerReadReactor<Request> {
 
 /// Server-streaming call: `work` runs on a pool thread (polling the call's token) and
 /// hands over chunks as they are ready; each is written as soon as the previous write
-/// is done, while the work goes on. The last chunk goes out together with the status,
-/// and only once the work has returned (so nothing touches the reactor after Finish).
+/// is done, while the work goes on. The chunk pushed as `last` goes out together with
+/// OK at once, from the thread that pushed it, even while the work is still returning
+/// (a follower's last chunk is pushed by the thread that ends the computation, so the
+/// response does not wait for the follower to wake). The reactor is deleted once both
+/// gRPC is done with it (OnDone) and the work has returned.
 template <typename Response>
 class WriteReactor final : public grpc::ServerWriteReactor<Response>, private ChunkSink<Response> {
  public:
@@ -110,7 +113,11 @@ class WriteReactor final : public grpc::ServerWriteReactor<Response>, private Ch
       Done(s);
       return;
     }
-    if (!pool->TrySubmit([this] { Run(); })) Done(QueueFull(pool == service->compute() ? "compute" : "io"));
+    working_ = true;
+    if (!pool->TrySubmit([this] { Run(); })) {
+      working_ = false;
+      Done(QueueFull(pool == service->compute() ? "compute" : "io"));
+    }
   }
 
   void OnWriteDone(bool ok) override {
@@ -124,19 +131,31 @@ class WriteReactor final : public grpc::ServerWriteReactor<Response>, private Ch
     Pump(lock);
   }
   void OnCancel() override { token_->Cancel(); }
-  void OnDone() override { delete this; }
+  void OnDone() override {
+    std::unique_lock<std::mutex> lock(mu_);
+    done_ = true;
+    if (working_) return;  // the work deletes it when it returns
+    lock.unlock();
+    delete this;
+  }
 
  private:
   void Run() {
     const absl::Status status = work_(*token_, this);
     std::unique_lock<std::mutex> lock(mu_);
-    work_done_ = true;
+    returned_ = true;
     end_ = status;
     Pump(lock);
+    if (!lock.owns_lock()) lock.lock();
+    working_ = false;
+    const bool gone = done_;  // else OnDone deletes it
+    lock.unlock();
+    if (gone) delete this;
   }
+  /// `last`: this chunk ends the call with OK; the work's own status is then ignored.
   void Push(Response chunk, bool last) override {
     std::unique_lock<std::mutex> lock(mu_);
-    if (broken_) return;
+    if (broken_ || finished_) return;
     queue_.push_back(std::move(chunk));
     last_queued_ = last_queued_ || last;
     Pump(lock);
@@ -146,14 +165,13 @@ class WriteReactor final : public grpc::ServerWriteReactor<Response>, private Ch
     if (writing_ || finished_) return;
     absl::Status end;
     if (broken_) {
-      if (!work_done_) return;
+      if (!returned_) return;
       end = absl::CancelledError("client went away during the response stream");
-    } else if (work_done_ && (!end_.ok() || queue_.empty())) {
+    } else if (returned_ && !last_queued_ && (!end_.ok() || queue_.empty())) {
       end = end_;  // an error drops the chunks not written yet
     } else {
       if (queue_.empty()) return;
       const bool final = last_queued_ && queue_.size() == 1;
-      if (final && !work_done_) return;  // held back to go out with the status
       current_ = std::move(queue_.front());
       queue_.pop_front();
       writing_ = true;
@@ -176,7 +194,10 @@ class WriteReactor final : public grpc::ServerWriteReactor<Response>, private Ch
   std::mutex mu_;
   std::deque<Response> queue_;
   Response current_;
-  bool writing_ = false, last_queued_ = false, work_done_ = false, broken_ = false, finished_ = false;
+  bool writing_ = false, last_queued_ = false, broken_ = false, finished_ = false;
+  bool returned_ = false;  ///< the work returned (its status is end_)
+  bool working_ = false;   ///< the work was submitted and Run has not let go of the reactor
+  bool done_ = false;      ///< OnDone was called
   absl::Status end_;
 };
 
@@ -251,25 +272,36 @@ grpc::ServerReadReactor<v1::UploadMeshRequest>* Service::UploadMesh(grpc::Callba
 
 grpc::ServerReadReactor<v1::UpdatePositionsRequest>* Service::UpdatePositions(grpc::CallbackServerContext* ctx,
                                                                               v1::MeshInfo* response) {
+  auto next = std::make_shared<std::unique_ptr<Handlers::PendingPrefetch>>();
   return new ReadReactor<v1::UpdatePositionsRequest, PositionsAssembler>(
       this, ctx, response, "UpdatePositions",
-      [this](const PositionsAssembler& a) { return handlers_->UpdatePositions(a); },
-      [this](const v1::MeshInfo& info) { AfterUpdate(info); });
+      [this, next](const PositionsAssembler& a) { return Updated(handlers_->UpdatePositions(a), next.get()); },
+      [this, next](const v1::MeshInfo&) { RunPrefetch(next.get()); });
 }
 
 grpc::ServerUnaryReactor* Service::SetPositions(grpc::CallbackServerContext* ctx,
                                                 const v1::SetPositionsRequest* request, v1::MeshInfo* response) {
   Call call{"SetPositions", request->header().mesh_id()};
   call.bytes_in = static_cast<int64_t>(request->ByteSizeLong());
+  auto next = std::make_shared<std::unique_ptr<Handlers::PendingPrefetch>>();
   return Unary<v1::MeshInfo>(
-      ctx, std::move(call), compute_, response, [this, request] { return handlers_->SetPositions(*request); },
-      [this](const v1::MeshInfo& info) { AfterUpdate(info); });
+      ctx, std::move(call), compute_, response,
+      [this, request, next] { return Updated(handlers_->SetPositions(*request), next.get()); },
+      [this, next](const v1::MeshInfo&) { RunPrefetch(next.get()); });
 }
 
-void Service::AfterUpdate(const v1::MeshInfo& info) {
+absl::StatusOr<v1::MeshInfo> Service::Updated(absl::StatusOr<v1::MeshInfo> info,
+                                              std::unique_ptr<Handlers::PendingPrefetch>* next) {
+  if (info.ok()) *next = handlers_->PlanPrefetch(info->mesh_id(), info->revision());
+  return info;
+}
+
+void Service::RunPrefetch(std::unique_ptr<Handlers::PendingPrefetch>* next) {
+  if (*next == nullptr) return;
   CancellationToken cancel;
   cancel.SetPoll([this] { return draining(); });
-  handlers_->Prefetch(info.mesh_id(), info.revision(), cancel);
+  (*next)->Run(cancel);
+  next->reset();
 }
 
 grpc::ServerUnaryReactor* Service::GetMesh(grpc::CallbackServerContext* ctx, const v1::GetMeshRequest* request,

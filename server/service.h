@@ -82,7 +82,12 @@ class Service final : public v1::GeomFit::CallbackService {
                                   Response* response, std::function<absl::StatusOr<Response>()> work,
                                   std::function<void(const Response&)> after = nullptr);
   /// What follows a stored update: Prefetch on the calling (compute) thread.
-  void AfterUpdate(const v1::MeshInfo& info);
+  /// After an update is stored, before it is acknowledged: registers the next step's
+  /// prefetch (Handlers::PlanPrefetch) in `next`.
+  absl::StatusOr<v1::MeshInfo> Updated(absl::StatusOr<v1::MeshInfo> info,
+                                       std::unique_ptr<Handlers::PendingPrefetch>* next);
+  /// Once the update is acknowledged: runs the prefetch `next` holds, if any.
+  void RunPrefetch(std::unique_ptr<Handlers::PendingPrefetch>* next);
 
   Handlers* handlers_;
   ThreadPool* compute_;

@@ -2,6 +2,7 @@
 #include "server/handlers.h"
 
 #include <algorithm>
+#include <atomic>
 #include <condition_variable>
 #include <functional>
 #include <mutex>
@@ -339,6 +340,71 @@ TEST_F(HandlersTest, AFollowerFinishesTheFitWhenItsOwnerIsCancelledEvenAfterAnUp
   ExpectSameAsInProcess(*d, mesh);
 }
 
+TEST_F(HandlersTest, TheOwnerSendsAFollowersLastChunkAsSoonAsItEnds) {
+  const Mesh mesh = TestTorus(40);
+  auto info = Upload(mesh);
+  ASSERT_TRUE(info.ok());
+  const int64_t n = mesh.NumVertices();
+  constexpr int64_t kRows = 1800;  // the follower's chunks: 3.5 fitted blocks
+  const int64_t last_start = (n - 1) / kRows * kRows;
+  ASSERT_GT(n - last_start, 2 * 512) << "the last chunk should span several fitted blocks";
+  v1::ComputeDifferentialsRequest request = StreamedRequest(info->mesh_id());  // a chunk per fitted block
+  v1::ComputeDifferentialsRequest follower_request = request;
+  follower_request.set_chunk_rows(kRows);
+  CancellationToken token;
+  RecordingSink owner, follower;
+  std::mutex mu;
+  std::condition_variable cv;
+  int64_t follower_sent = 0;
+  std::vector<std::thread::id> pushed_by;  // the follower's chunks
+  follower.on_push = [&](const v1::ComputeDifferentialsResponse& chunk) {
+    std::lock_guard<std::mutex> lock(mu);
+    pushed_by.push_back(std::this_thread::get_id());
+    follower_sent = chunk.vertex_offset() + chunk.num_vertices();
+    cv.notify_all();
+  };
+  std::thread second;
+  absl::Status follower_status;
+  // The owner's fitting thread pushes its own chunk after each fitted block: there it
+  // waits for the follower to stream what it may (whole chunks, then within the last
+  // chunk every block), so that the test does not depend on thread timing.
+  owner.on_push = [&](const v1::ComputeDifferentialsResponse& chunk) {
+    if (chunk.vertex_offset() == 0) {
+      second = std::thread(
+          [&] { follower_status = handlers_.ComputeDifferentials(follower_request, token, &follower); });
+    }
+    const int64_t filled = chunk.vertex_offset() + chunk.num_vertices();
+    const int64_t expected = filled >= last_start ? filled : filled / kRows * kRows;
+    std::unique_lock<std::mutex> lock(mu);
+    ASSERT_TRUE(cv.wait_for(lock, std::chrono::seconds(30), [&] { return follower_sent >= expected; }))
+        << "the follower did not stream rows " << follower_sent << ".." << expected;
+  };
+  const std::thread::id owner_thread = std::this_thread::get_id();
+  ASSERT_TRUE(handlers_.ComputeDifferentials(request, token, &owner).ok());
+  second.join();
+  ASSERT_TRUE(follower_status.ok()) << follower_status;
+
+  ASSERT_GE(follower.chunks.size(), 3u);
+  EXPECT_TRUE(follower.last.back());
+  EXPECT_EQ(pushed_by.back(), owner_thread) << "the follower's last chunk waited for the follower to wake";
+  for (size_t i = 0; i + 1 < pushed_by.size(); ++i) EXPECT_NE(pushed_by[i], owner_thread) << "chunk " << i;
+  // Before the last chunk's rows, whole chunks only; within them every fitted block,
+  // so the owner was left one block.
+  for (size_t i = 0; i + 1 < follower.chunks.size(); ++i) {
+    const auto& c = follower.chunks[i];
+    if (c.vertex_offset() < last_start) EXPECT_EQ(c.num_vertices(), kRows) << "chunk " << i;
+  }
+  const v1::ComputeDifferentialsResponse& last = follower.chunks.back();
+  EXPECT_EQ(last.vertex_offset(), (n - 1) / 512 * 512);
+  EXPECT_EQ(last.vertex_offset() + last.num_vertices(), n);
+  v1::FitSummary summary;
+  auto d = follower.Assemble(&summary);
+  ASSERT_TRUE(d.ok()) << d.status();
+  EXPECT_TRUE(summary.fit_cache_hit()) << "shared, not computed for the follower";
+  EXPECT_EQ(summary.vertices_by_degree(3), n);
+  ExpectSameAsInProcess(*d, mesh);
+}
+
 TEST_F(HandlersTest, ARequestDuringAPrefetchStreamsFromIt) {
   const Mesh mesh = TestTorus(40);
   auto info = Upload(mesh);
@@ -362,6 +428,50 @@ TEST_F(HandlersTest, ARequestDuringAPrefetchStreamsFromIt) {
   EXPECT_EQ(summary.revision(), 2);
   ExpectSameAsInProcess(*d, moved);
   EXPECT_EQ(cache_.Stats(Tier::kFitting).misses, 4) << "two fits and two evaluations: the step's was shared";
+}
+
+TEST_F(HandlersTest, APlannedPrefetchIsJoinedByRequestsBeforeItRuns) {
+  const Mesh mesh = TestTorus(40);
+  auto info = Upload(mesh);
+  ASSERT_TRUE(info.ok());
+  const std::string id = info->mesh_id();
+  const v1::ComputeDifferentialsRequest request = StreamedRequest(id);
+  CancellationToken token;
+  RecordingSink first;
+  ASSERT_TRUE(handlers_.ComputeDifferentials(request, token, &first).ok());
+  for (const bool run : {true, false}) {
+    SCOPED_TRACE(run ? "run" : "dropped unrun");
+    Mesh moved = mesh;
+    moved.positions = (run ? 1.25 : 1.5) * mesh.positions;
+    auto updated = Update(id, moved.positions, std::nullopt);
+    ASSERT_TRUE(updated.ok());
+    // Registered when the update is stored, before it is acknowledged: a request that
+    // comes before the prefetch runs waits for it instead of fitting on its own.
+    auto pending = handlers_.PlanPrefetch(id, updated->revision());
+    ASSERT_NE(pending, nullptr);
+    RecordingSink sink;
+    std::atomic<bool> done{false};
+    absl::Status status;
+    std::thread step([&] {
+      status = handlers_.ComputeDifferentials(request, token, &sink);
+      done = true;
+    });
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));  // a fit takes ~10 ms
+    EXPECT_FALSE(done) << "the request did not wait for the planned prefetch";
+    if (run) {
+      pending->Run(token);
+    } else {
+      pending.reset();  // ends it as cancelled: the request computes for itself
+    }
+    step.join();
+    ASSERT_TRUE(status.ok()) << status;
+    v1::FitSummary summary;
+    auto d = sink.Assemble(&summary);
+    ASSERT_TRUE(d.ok()) << d.status();
+    EXPECT_EQ(summary.revision(), updated->revision());
+    EXPECT_EQ(summary.fit_cache_hit(), run) << "shared with the prefetch only if it ran";
+    ExpectSameAsInProcess(*d, moved);
+  }
 }
 
 TEST_F(HandlersTest, UpdatePositionsKeepsTopologyAndMakesNewRevision) {
