@@ -12,12 +12,15 @@ Times, per mesh size (tori of 1k, 10k and 100k vertices):
 With --cpp-bench (build/bench/service/service_rpc_bench) the C++ client is timed against
 the same server process, in rounds interleaved with the Python rounds so that a
 drifting machine affects both alike; the last columns give Python's overhead over C++'s.
+The Python client is timed with each --transport (update_positions and curvature through
+the C++ client, geomfit._native, or through grpcio), one column each.
 
     PYTHONPATH=clients/python /usr/bin/python3 bench/python_client_bench.py \\
         build/server/geomfit-server --cpp-bench build/bench/service/service_rpc_bench \\
-        [--store memory|sqlite] [--rounds 5] [--reps 20] [--threads 1]
+        [--transport native|grpcio|both] [--store memory|sqlite] [--rounds 5] [--reps 20] [--threads 1]
 """
 import argparse
+import contextlib
 import json
 import os
 import re
@@ -56,6 +59,9 @@ def python_round(client, meshes, reps):
     """One round of Python timings: {(what, n): [ms, ...]} (FSI entries are overheads)."""
     out = {}
     for n, (pos, mesh_id) in meshes.items():
+        # Two position sets in turn, the states service_rpc_bench's positions alternate
+        # between (it moves x by +-1e-4 in place each step).
+        moves = (pos + [1e-4, 0, 0], pos)
         client.curvature(mesh_id)  # fits and quantities cached
         t = []
         for _ in range(reps):
@@ -66,14 +72,14 @@ def python_round(client, meshes, reps):
         t = []
         for k in range(reps):
             a = time.perf_counter()
-            client.update_positions(mesh_id, pos + 1e-4 * (k % 2))
+            client.update_positions(mesh_id, moves[k % 2])
             t.append(1e3 * (time.perf_counter() - a))
         out[("update", n)] = t
         if n in FSI_SIZES:
             step = []
             for k in range(max(3, reps // 2)):
                 a = time.perf_counter()
-                info = client.update_positions(mesh_id, pos + 1e-4 * (k % 2))
+                info = client.update_positions(mesh_id, moves[k % 2])
                 client.curvature(mesh_id, revision=info.revision)
                 step.append(1e3 * (time.perf_counter() - a))
             out[("fsi step", n)] = step
@@ -105,12 +111,15 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("server_binary")
     ap.add_argument("--cpp-bench", help="service_rpc_bench, to time the C++ client against the same server")
+    ap.add_argument("--transport", default="both", choices=["native", "grpcio", "both"],
+                    help="the Python client's transport(s) to time")
     ap.add_argument("--store", default="memory", choices=["memory", "sqlite"])
     ap.add_argument("--rounds", type=int, default=5)
     ap.add_argument("--reps", type=int, default=20, help="Python calls per quantity per round")
     ap.add_argument("--threads", type=int, default=1,
                     help="server --threads (numeric threads per computation)")
     args = ap.parse_args()
+    transports = ["native", "grpcio"] if args.transport == "both" else [args.transport]
     with tempfile.TemporaryDirectory(prefix="geomfit_pybench_") as data_dir:
         proc = subprocess.Popen([args.server_binary, "--host=127.0.0.1", "--port=0", "--log-level=error",
                                  "--store=" + args.store, "--data-dir=" + data_dir,
@@ -118,15 +127,17 @@ def main():
                                 stdout=subprocess.PIPE, text=True)
         try:
             target = "127.0.0.1:" + re.search(r"port (\d+)", proc.stdout.readline()).group(1)
-            py, cpp = {}, {}
-            with geomfit.Client(target) as client:
+            py, cpp = {t: {} for t in transports}, {}
+            with contextlib.ExitStack() as stack:
+                clients = {t: stack.enter_context(geomfit.Client(target, transport=t)) for t in transports}
                 meshes = {}
                 for n in SIZES:
                     pos, tris = torus(n)
-                    meshes[n] = (pos, client.upload(pos, tris, name="bench").mesh_id)
+                    meshes[n] = (pos, clients[transports[0]].upload(pos, tris, name="bench").mesh_id)
                 for r in range(args.rounds):
-                    for k, v in python_round(client, meshes, args.reps).items():
-                        py.setdefault(k, []).append(statistics.median(v))
+                    for t in transports if r % 2 == 0 else transports[::-1]:  # neither always first
+                        for k, v in python_round(clients[t], meshes, args.reps).items():
+                            py[t].setdefault(k, []).append(statistics.median(v))
                     if args.cpp_bench:
                         for k, v in cpp_round(args.cpp_bench, target, args.threads).items():
                             cpp.setdefault(k, []).append(statistics.median(v))
@@ -136,17 +147,21 @@ def main():
             proc.wait(timeout=30)
     print("median over %d rounds of the per-round medians, ms (store %s, server --threads=%d)"
           % (args.rounds, args.store, args.threads))
-    print("%-13s %8s %10s %10s %10s" % ("what", "vertices", "python", "c++", "py / c++"))
-    rows = {k: (statistics.median(py[k]), statistics.median(cpp[k]) if k in cpp else float("nan")) for k in py}
+    # rows[key] = [Python ms per transport..., C++ ms]
+    columns = ["py " + t for t in transports]
+    print(("%-13s %8s" + " %10s" * (2 * len(columns) + 1))
+          % ("what", "vertices", *columns, "c++", *[c + " / c++" for c in columns]))
+    rows = {k: [statistics.median(py[t][k]) for t in transports]
+            + [statistics.median(cpp[k]) if k in cpp else float("nan")] for k in py[transports[0]]}
     for n in FSI_SIZES:
         if ("compute", n) in cpp:
             compute = statistics.median(cpp[("compute", n)])
-            p, c = rows[("fsi step", n)]
-            rows[("fsi overhead", n)] = (p - compute, c - compute)
-            rows[("fsi compute", n)] = (compute, compute)
+            rows[("fsi overhead", n)] = [ms - compute for ms in rows[("fsi step", n)]]
+            rows[("fsi compute", n)] = [compute] * (len(transports) + 1)
     for key in sorted(rows):
-        p, c = rows[key]
-        print("%-13s %8d %10.3f %10.3f %10.2f" % (key[0], key[1], p, c, p / c))
+        *p, c = rows[key]
+        print(("%-13s %8d" + " %10.3f" * (len(p) + 1) + " %10.2f" * len(p))
+              % (key[0], key[1], *p, c, *[x / c for x in p]))
 
 
 if __name__ == "__main__":

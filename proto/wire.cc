@@ -213,7 +213,7 @@ std::vector<v1::UploadMeshRequest> UploadChunks(const Mesh& mesh, v1::MeshHeader
   return out;
 }
 
-std::vector<v1::UpdatePositionsRequest> UpdateChunks(const Positions& positions, v1::UpdateHeader header,
+std::vector<v1::UpdatePositionsRequest> UpdateChunks(PositionsRef positions, v1::UpdateHeader header,
                                                      int64_t chunk_rows) {
   chunk_rows = std::max<int64_t>(1, chunk_rows);
   std::vector<v1::UpdatePositionsRequest> out(1);

@@ -74,7 +74,7 @@ v1::FaceKind KindOf(const Mesh& mesh);
 /// send #F x 3 faces.
 std::vector<v1::UploadMeshRequest> UploadChunks(const Mesh& mesh, v1::MeshHeader header, int64_t chunk_rows);
 /// The UpdatePositions stream: header, then positions chunks.
-std::vector<v1::UpdatePositionsRequest> UpdateChunks(const Positions& positions, v1::UpdateHeader header,
+std::vector<v1::UpdatePositionsRequest> UpdateChunks(PositionsRef positions, v1::UpdateHeader header,
                                                      int64_t chunk_rows);
 
 /// Reassembles a ComputeDifferentials response stream into core arrays.

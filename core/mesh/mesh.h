@@ -8,6 +8,9 @@ namespace geomfit {
 
 /// #V x 3 vertex positions, row-major (the wire and numpy layout).
 using Positions = Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor>;
+/// Positions without an owning copy: a Positions, or a Map over rows of 3 contiguous
+/// doubles (a numpy array, say); other layouts are copied into a temporary.
+using PositionsRef = Eigen::Ref<const Positions, 0, Eigen::OuterStride<3>>;
 /// #F x 4 vertex indices, row-major; triangles have -1 in the last column. Faces are
 /// counter-clockwise seen from outside, so normals point outward.
 using Faces = Eigen::Matrix<int32_t, Eigen::Dynamic, 4, Eigen::RowMajor>;

@@ -44,6 +44,13 @@ def server():
     s.kill(signal.SIGTERM)
 
 
+@pytest.fixture(params=["native", "grpcio"])
+def transport(request):
+    """The Python client's transport for update_positions and curvature: a test that
+    takes this fixture runs once with each."""
+    return request.param
+
+
 @pytest.fixture
 def data_dir():
     with tempfile.TemporaryDirectory(prefix="geomfit_py_") as d:

@@ -17,9 +17,9 @@ def exact_torus_mean(positions, R=1.0, r=0.3):
     return (R + 2 * r * cos_v) / (2 * r * (R + r * cos_v))
 
 
-def test_upload_curvature_update_download(server, torus_mesh):
+def test_upload_curvature_update_download(server, torus_mesh, transport):
     positions, faces = torus_mesh
-    with geomfit.Client(server.address, chunk_rows=100) as client:
+    with geomfit.Client(server.address, chunk_rows=100, transport=transport) as client:
         info = client.upload(positions, faces, name="torus", labels={"k": "v"})
         assert info.revision == 1
         assert info.num_vertices == len(positions)
@@ -54,9 +54,9 @@ def test_upload_curvature_update_download(server, torus_mesh):
         assert back_info.revision == 2
 
 
-def test_errors_carry_code_and_message(server, torus_mesh):
+def test_errors_carry_code_and_message(server, torus_mesh, transport):
     positions, faces = torus_mesh
-    with geomfit.Client(server.address) as client:
+    with geomfit.Client(server.address, transport=transport) as client:
         with pytest.raises(geomfit.GeomfitError) as e:
             client.curvature("m-unknown")
         assert e.value.code == grpc.StatusCode.NOT_FOUND
@@ -145,11 +145,11 @@ def test_health_and_reflection_without_our_stubs(server):
         assert {"UploadMesh", "ComputeDifferentials", "GetStatistics"} <= methods
 
 
-def test_durable_store_survives_kill9(data_dir, torus_mesh):
+def test_durable_store_survives_kill9(data_dir, torus_mesh, transport):
     positions, faces = torus_mesh
     first = ServerProcess("--store=sqlite", "--data-dir=" + data_dir)
     try:
-        with geomfit.Client(first.address) as client:
+        with geomfit.Client(first.address, transport=transport) as client:
             info = client.upload(positions, faces, name="durable")
             client.update_positions(info.mesh_id, positions * 1.25, expected_revision=1)
     finally:
@@ -206,12 +206,12 @@ def test_chapter4_project_nodes_refine_integrate(server, torus_mesh):
             client.integrate(mesh_id, surface="spline")
 
 
-def test_messages_fit_the_servers_limit():
+def test_messages_fit_the_servers_limit(transport):
     """A server with a small message limit: uploads and updates are cut to fit it."""
     small = ServerProcess("--store=memory", "--max-message-bytes=262144")
     try:
         positions, faces = torus(160, 80)  # 12,800 vertices: 307 KB of positions
-        with geomfit.Client(small.address) as client:
+        with geomfit.Client(small.address, transport=transport) as client:
             assert client.chunk_rows == 262144 // 4 // 24
             info = client.upload(positions, faces)
             assert info.num_vertices == len(positions)
@@ -236,3 +236,20 @@ def test_hand_serialized_set_positions_matches_protobuf():
         assert ours == ref
     with pytest.raises(ValueError):
         _set_positions_request(pb.UpdateHeader(mesh_id="m"), np.zeros((4, 2)))
+
+
+def test_compute_request_matches_protobuf():
+    client = geomfit.Client("127.0.0.1:1", transport="grpcio")
+    from geomfit.client import pb
+    for revision in (0, 1, 300, -1):
+        for options in ({}, {"rings": 2.5, "cond_threshold": [1e3] * 6}):
+            ours = pb.ComputeDifferentialsRequest.FromString(client._compute_request(
+                "m-abc", revision, 3, "LOP", ("mean", "tensor"), True, options))
+            ref = pb.ComputeDifferentialsRequest(
+                mesh_id="m-abc", revision=revision, diagnostics=True, quantities=[2, 6],
+                options=pb.FitOptions(degree=3, method=pb.FIT_METHOD_LOP, **options))
+            assert ours == ref
+    with pytest.raises(ValueError):
+        client.curvature("m-abc", method="spline")
+    with pytest.raises(ValueError):
+        client.curvature("m-abc", quantities=["mean", "torsion"])

@@ -169,7 +169,13 @@ absl::StatusOr<RemoteMesh> Client::Upload(const Mesh& mesh, const std::string& n
 
 absl::StatusOr<RemoteMesh> Client::UpdatePositions(const std::string& mesh_id, const Positions& positions,
                                                    std::optional<int64_t> expected_revision) {
-  GF_ASSIGN_OR_RETURN(RemoteMesh out, (WithMesh<RemoteMesh>(mesh_id, [&](const std::string& id) -> absl::StatusOr<RemoteMesh> {
+  GF_ASSIGN_OR_RETURN(v1::MeshInfo info, UpdatePositionsWire(mesh_id, positions, expected_revision));
+  return FromProto(info);
+}
+
+absl::StatusOr<v1::MeshInfo> Client::UpdatePositionsWire(const std::string& mesh_id, PositionsRef positions,
+                                                         std::optional<int64_t> expected_revision) {
+  GF_ASSIGN_OR_RETURN(v1::MeshInfo out, (WithMesh<v1::MeshInfo>(mesh_id, [&](const std::string& id) -> absl::StatusOr<v1::MeshInfo> {
     v1::UpdateHeader header;
     header.set_mesh_id(id);
     if (expected_revision) header.set_expected_revision(*expected_revision);
@@ -182,7 +188,7 @@ absl::StatusOr<RemoteMesh> Client::UpdatePositions(const std::string& mesh_id, c
           impl_->Call([&](grpc::ClientContext& ctx) { return impl_->stub->SetPositions(&ctx, request, &info); });
       if (!absl::IsUnimplemented(s)) {
         GF_RETURN_IF_ERROR(s);
-        return FromProto(info);
+        return info;
       }
       impl_->stream_updates = true;  // a server without SetPositions
     }
@@ -191,7 +197,7 @@ absl::StatusOr<RemoteMesh> Client::UpdatePositions(const std::string& mesh_id, c
       auto writer = impl_->stub->UpdatePositions(&ctx, &info);
       return SendAll(writer.get(), chunks);
     }));
-    return FromProto(info);
+    return info;
   })));
   std::lock_guard<std::mutex> lock(impl_->mu);
   if (auto it = impl_->kept.find(mesh_id); it != impl_->kept.end()) it->second.mesh.positions = positions;
@@ -271,13 +277,19 @@ absl::Status Client::DeleteMesh(const std::string& mesh_id) {
 absl::StatusOr<RemoteDifferentials> Client::ComputeDifferentials(const std::string& mesh_id,
                                                                  const FitOptions& options, uint32_t quantities,
                                                                  int64_t revision, bool diagnostics) {
+  v1::ComputeDifferentialsRequest request;
+  request.set_mesh_id(mesh_id);
+  request.set_revision(revision);
+  *request.mutable_options() = wire::ToProto(options);
+  wire::AddQuantities(quantities, &request);
+  request.set_diagnostics(diagnostics);
+  return ComputeDifferentials(std::move(request));
+}
+
+absl::StatusOr<RemoteDifferentials> Client::ComputeDifferentials(v1::ComputeDifferentialsRequest request) {
+  const std::string mesh_id = request.mesh_id();
   return WithMesh<RemoteDifferentials>(mesh_id, [&](const std::string& id) -> absl::StatusOr<RemoteDifferentials> {
-    v1::ComputeDifferentialsRequest request;
     request.set_mesh_id(id);
-    request.set_revision(revision);
-    *request.mutable_options() = wire::ToProto(options);
-    wire::AddQuantities(quantities, &request);
-    request.set_diagnostics(diagnostics);
     std::optional<wire::DifferentialsReader> reader;
     absl::Status decode;
     GF_RETURN_IF_ERROR(impl_->Call([&](grpc::ClientContext& ctx) {
@@ -293,6 +305,7 @@ absl::StatusOr<RemoteDifferentials> Client::ComputeDifferentials(const std::stri
     RemoteDifferentials out;
     GF_ASSIGN_OR_RETURN(out.values, reader->Finish());
     out.summary = FromProto(reader->summary());
+    out.wire_summary = reader->summary();
     return out;
   });
 }

@@ -60,6 +60,7 @@ struct FitSummary {
 struct RemoteDifferentials {
   Differentials values;  ///< arrays not requested are empty
   FitSummary summary;
+  v1::FitSummary wire_summary;  ///< the last chunk's complete summary, every field as sent
 };
 
 class Client {
@@ -73,6 +74,10 @@ class Client {
   /// New positions for the same faces; ABORTED if expected_revision is set and stale.
   absl::StatusOr<RemoteMesh> UpdatePositions(const std::string& mesh_id, const Positions& positions,
                                              std::optional<int64_t> expected_revision = std::nullopt);
+  /// UpdatePositions without copying `positions` first (one SetPositions message when
+  /// they fit in chunk_rows, else a stream), returning the server's MeshInfo as sent.
+  absl::StatusOr<v1::MeshInfo> UpdatePositionsWire(const std::string& mesh_id, PositionsRef positions,
+                                                   std::optional<int64_t> expected_revision = std::nullopt);
   absl::StatusOr<RemoteMesh> GetMesh(const std::string& mesh_id);
   absl::StatusOr<Mesh> Download(const std::string& mesh_id, RemoteMesh* info = nullptr);
   /// Every stored mesh (all pages).
@@ -82,6 +87,9 @@ class Client {
   absl::StatusOr<RemoteDifferentials> ComputeDifferentials(const std::string& mesh_id, const FitOptions& options,
                                                            uint32_t quantities = kAllQuantities,
                                                            int64_t revision = 0, bool diagnostics = false);
+  /// The same with the request as on the wire (its mesh_id is resolved like the
+  /// others'); wire_summary carries every field of the server's summary.
+  absl::StatusOr<RemoteDifferentials> ComputeDifferentials(v1::ComputeDifferentialsRequest request);
   absl::StatusOr<v1::ServerInfo> GetServerInfo();
   absl::StatusOr<v1::Statistics> GetStatistics();
 

@@ -7,7 +7,9 @@
         print(d.mean[:5])
 
 The generated stubs live in _gen/ (built by CMake from proto/geomfit/v1/*.proto with
-protoc and grpc_python_plugin: target geomfit_python_stubs).
+protoc and grpc_python_plugin: target geomfit_python_stubs). update_positions and
+curvature go through the C++ client when the extension module _native is built
+(target geomfit_native); Client(..., transport="grpcio") keeps them on grpcio.
 """
 import os as _os
 

@@ -11,6 +11,12 @@ import numpy as np
 from geomfit.v1 import geomfit_pb2 as pb
 from geomfit.v1 import geomfit_pb2_grpc as pb_grpc
 
+try:  # the C++ client as an extension module (CMake target geomfit_native)
+    from geomfit import _native
+    _NATIVE_MISSING = ""
+except ImportError as e:
+    _native, _NATIVE_MISSING = None, str(e)
+
 QUANTITIES = {
     "normals": pb.QUANTITY_NORMALS,
     "mean": pb.QUANTITY_MEAN_CURVATURE,
@@ -22,6 +28,8 @@ QUANTITIES = {
 _METHODS = {"lhf": pb.FIT_METHOD_LHF, "lop": pb.FIT_METHOD_LOP}
 _SURFACES = {"walf": pb.RECONSTRUCTION_WALF, "cmf": pb.RECONSTRUCTION_CMF, "linear": pb.RECONSTRUCTION_LINEAR}
 _ARRAYS = ("normals", "mean", "gaussian", "k1", "k2", "dir1", "dir2", "tensor")
+_TRANSPORTS = ("auto", "native", "grpcio")
+_STATUS_CODES = {code.value[0]: code for code in grpc.StatusCode}
 
 
 class GeomfitError(Exception):
@@ -124,6 +132,7 @@ def _array(buf: bytes, span: Tuple[int, int], dtype: np.dtype) -> np.ndarray:
 
 
 _F8, _I4 = np.dtype("<f8"), np.dtype("<i4")
+_U64 = (1 << 64) - 1  # int64 fields are varints of their two's complement
 
 
 def _varint_bytes(n: int) -> bytes:
@@ -231,10 +240,25 @@ def read_mesh_file(path: str) -> Tuple[np.ndarray, np.ndarray]:
 class Client:
     """Client of a geomfit server. Every call has a deadline (`timeout` seconds);
     UNAVAILABLE is retried `max_attempts` times with exponential backoff. Errors
-    raise GeomfitError. Use as a context manager to close the channel."""
+    raise GeomfitError. Use as a context manager to close the channel.
+
+    `transport` carries the per-time-step calls, update_positions (when it fits in one
+    message) and curvature: "native" sends them through the C++ client (the extension
+    module geomfit._native, built by CMake target geomfit_native), "grpcio" through
+    grpcio like every other call, "auto" (the default) natively when the module is
+    built. Both give the same results; `client.transport` says which one is in use.
+    """
 
     def __init__(self, target: str = "127.0.0.1:50051", timeout: float = 120.0, max_attempts: int = 4,
-                 backoff: float = 0.1, chunk_rows: int = 0, max_message_bytes: int = 64 << 20):
+                 backoff: float = 0.1, chunk_rows: int = 0, max_message_bytes: int = 64 << 20,
+                 transport: str = "auto"):
+        if transport not in _TRANSPORTS:
+            raise ValueError("transport must be one of %s, got %r" % (_TRANSPORTS, transport))
+        if transport == "native" and _native is None:
+            raise ImportError("geomfit: transport='native' needs the extension module geomfit._native (%s); "
+                              "build the CMake target geomfit_native (any full build does, with pybind11-dev "
+                              "and python3-dev from scripts/install-deps.sh)" % _NATIVE_MISSING)
+        self.transport = "native" if _native is not None and transport != "grpcio" else "grpcio"
         self.target = target
         self.timeout = timeout
         self.max_attempts = max(1, max_attempts)
@@ -251,18 +275,27 @@ class Client:
         ])
         self._stub = pb_grpc.GeomFitStub(self._channel)
         self._stream_updates = False
-        # ComputeDifferentials responses are read as raw bytes and their arrays viewed
-        # in place (_parse_chunk): the generated parser would copy every array twice.
+        # ComputeDifferentials requests come serialized (_compute_request); responses are
+        # read as raw bytes and their arrays viewed in place (_parse_chunk): the
+        # generated parser would copy every array twice.
         self._compute = self._channel.unary_stream(
-            "/geomfit.v1.GeomFit/ComputeDifferentials",
-            request_serializer=pb.ComputeDifferentialsRequest.SerializeToString, response_deserializer=None)
+            "/geomfit.v1.GeomFit/ComputeDifferentials", request_serializer=None, response_deserializer=None)
+        self._request_tails: Dict[tuple, bytes] = {}  # see _compute_request
         # SetPositions requests are serialized by _set_positions_request (one copy of the
         # array instead of three).
         self._set_positions = self._channel.unary_unary(
             "/geomfit.v1.GeomFit/SetPositions", request_serializer=None, response_deserializer=pb.MeshInfo.FromString)
+        self._native = None
+        if self.transport == "native":
+            # What update_positions sends as one message the C++ client sends as one
+            # message too: its chunk_rows is at least this client's.
+            self._native = _native.Client(
+                target, timeout, self.max_attempts, backoff, max_message_bytes,
+                chunk_rows=chunk_rows if chunk_rows > 0 else max(1, max_message_bytes // 4 // 24))
 
     def close(self) -> None:
         self._channel.close()
+        self._native = None  # the C++ client's channel goes with it
 
     def __enter__(self) -> "Client":
         return self
@@ -296,6 +329,15 @@ class Client:
                     continue
                 raise GeomfitError(code, e.details() or "") from None
         raise AssertionError("unreachable")
+
+    @staticmethod
+    def _call_native(fn):
+        """A call through geomfit._native (which retries UNAVAILABLE itself)."""
+        try:
+            return fn()
+        except _native.RpcError as e:
+            code, details = e.args
+            raise GeomfitError(_STATUS_CODES.get(code, grpc.StatusCode.UNKNOWN), details) from None
 
     def _position_chunks(self, positions: np.ndarray) -> Iterable["pb.PositionsChunk"]:
         p = _positions_array(positions)
@@ -332,10 +374,15 @@ class Client:
     def update_positions(self, mesh_id: str, positions: np.ndarray,
                          expected_revision: Optional[int] = None) -> "pb.MeshInfo":
         """New positions for the same faces; ABORTED if expected_revision is stale."""
+        one_message = 0 < len(positions) <= self.chunk_rows and not self._stream_updates
+        if one_message and self._native is not None:
+            p = _positions_array(positions)  # read in place by the C++ client
+            return self._call_native(lambda: pb.MeshInfo.FromString(
+                self._native.set_positions(mesh_id, p, expected_revision)))
         header = pb.UpdateHeader(mesh_id=mesh_id)
         if expected_revision is not None:
             header.expected_revision = expected_revision
-        if 0 < len(positions) <= self.chunk_rows and not self._stream_updates:
+        if one_message:
             # One message (SetPositions): grpcio's client streams start a thread per call.
             request = _set_positions_request(header, positions)
             try:
@@ -390,15 +437,10 @@ class Client:
         """Differential quantities per vertex. `options` are further FitOptions fields
         (rings, adaptive, safeguard_angle_deg, interpolate, two_pass, ...); unset ones
         take the server defaults (degree 0 = 2)."""
-        if method.lower() not in _METHODS:
-            raise ValueError("method must be 'lhf' or 'lop', got %r" % method)
-        unknown = [q for q in quantities if q not in QUANTITIES]
-        if unknown:
-            raise ValueError("unknown quantities %s; choose from %s" % (unknown, sorted(QUANTITIES)))
-        request = pb.ComputeDifferentialsRequest(
-            mesh_id=mesh_id, revision=revision, diagnostics=diagnostics,
-            options=pb.FitOptions(degree=degree, method=_METHODS[method.lower()], **options),
-            quantities=[QUANTITIES[q] for q in quantities])
+        request = self._compute_request(mesh_id, revision, degree, method, tuple(quantities), diagnostics, options)
+        if self._native is not None:
+            summary, arrays, diag = self._call_native(lambda: self._native.compute(request))
+            return Differentials(summary=pb.FitSummary.FromString(summary), diagnostics=diag, **arrays)
 
         def run():
             out = None
@@ -422,6 +464,28 @@ class Client:
                         out.diagnostics[k][lo:lo + len(a)] = a
             return out
         return self._call(run)
+
+    def _compute_request(self, mesh_id: str, revision: int, degree: int, method: str, quantities: Tuple[str, ...],
+                         diagnostics: bool, options: dict) -> bytes:
+        """A serialized ComputeDifferentialsRequest. The fields after mesh_id and revision
+        are validated and serialized once per distinct set: building protobuf messages
+        costs more per call than the native transport's whole overhead."""
+        key = (degree, method, quantities, diagnostics, repr(sorted(options.items())) if options else "")
+        tail = self._request_tails.get(key)
+        if tail is None:
+            if method.lower() not in _METHODS:
+                raise ValueError("method must be 'lhf' or 'lop', got %r" % method)
+            unknown = [q for q in quantities if q not in QUANTITIES]
+            if unknown:
+                raise ValueError("unknown quantities %s; choose from %s" % (unknown, sorted(QUANTITIES)))
+            tail = pb.ComputeDifferentialsRequest(
+                diagnostics=diagnostics, options=pb.FitOptions(degree=degree, method=_METHODS[method.lower()], **options),
+                quantities=[QUANTITIES[q] for q in quantities]).SerializeToString()
+            if len(self._request_tails) >= 64:
+                self._request_tails.clear()
+            self._request_tails[key] = tail
+        m = mesh_id.encode()  # mesh_id = 1, revision = 2 (a varint, omitted when 0)
+        return b"".join([_len_prefix(1, len(m)), m, b"\x10" + _varint_bytes(revision & _U64) if revision else b"", tail])
 
     # ------------------------------------------------------------------ chapter 4
     @staticmethod
