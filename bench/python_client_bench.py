@@ -55,55 +55,52 @@ def torus(vertices, R=1.0, r=0.3):
     return pos.reshape(-1, 3), tris.astype(np.int32)
 
 
-def python_round(client, meshes, reps):
-    """One round of Python timings: {(what, n): [ms, ...]} (FSI entries are overheads)."""
+def timed(fn, reps, min_time):
+    """Mean milliseconds of fn(k) over a loop of at least `reps` calls and `min_time`
+    seconds, as Google Benchmark times the C++ rounds (--benchmark_min_time)."""
+    k, a = 0, time.perf_counter()
+    while k < reps or time.perf_counter() - a < min_time:
+        fn(k)
+        k += 1
+    return 1e3 * (time.perf_counter() - a) / k
+
+
+def python_round(client, meshes, reps, min_time):
+    """One round of Python timings: {(what, n): ms}."""
     out = {}
     for n, (pos, mesh_id) in meshes.items():
         # Two position sets in turn, the states service_rpc_bench's positions alternate
         # between (it moves x by +-1e-4 in place each step).
         moves = (pos + [1e-4, 0, 0], pos)
         client.curvature(mesh_id)  # fits and quantities cached
-        t = []
-        for _ in range(reps):
-            a = time.perf_counter()
-            client.curvature(mesh_id)
-            t.append(1e3 * (time.perf_counter() - a))
-        out[("curvature", n)] = t
-        t = []
-        for k in range(reps):
-            a = time.perf_counter()
-            client.update_positions(mesh_id, moves[k % 2])
-            t.append(1e3 * (time.perf_counter() - a))
-        out[("update", n)] = t
+        out[("curvature", n)] = timed(lambda k: client.curvature(mesh_id), reps, min_time)
+        out[("update", n)] = timed(lambda k: client.update_positions(mesh_id, moves[k % 2]), reps, min_time)
         if n in FSI_SIZES:
-            step = []
-            for k in range(max(3, reps // 2)):
-                a = time.perf_counter()
+            def step(k):
                 info = client.update_positions(mesh_id, moves[k % 2])
                 client.curvature(mesh_id, revision=info.revision)
-                step.append(1e3 * (time.perf_counter() - a))
-            out[("fsi step", n)] = step
+            out[("fsi step", n)] = timed(step, max(3, reps // 2), min_time)
     return out
 
 
-def cpp_round(cpp_bench, target, threads):
+def cpp_round(cpp_bench, target, threads, min_time):
     """One round of the C++ client (service_rpc_bench against `target`)."""
     env = dict(os.environ, GEOMFIT_BENCH_TARGET=target, GEOMFIT_BENCH_THREADS=str(threads))
     res = subprocess.run([cpp_bench, "--benchmark_filter=BM_(RpcCurvatureCachedFits|FsiStep|FsiUpdatePositionsOnly|InProcessFsiCompute)/",
-                          "--benchmark_min_time=0.3", "--benchmark_format=json"],
+                          "--benchmark_min_time=%g" % min_time, "--benchmark_format=json"],
                          env=env, capture_output=True, text=True, check=True)
     out = {}
     for b in json.loads(res.stdout)["benchmarks"]:
         name, n = b["run_name"].split("/")[:2]
         n = int(n)
         if name == "BM_RpcCurvatureCachedFits":
-            out[("curvature", n)] = [b["real_time"]]
+            out[("curvature", n)] = b["real_time"]
         elif name == "BM_FsiUpdatePositionsOnly":
-            out[("update", n)] = [b["real_time"]]
+            out[("update", n)] = b["real_time"]
         elif name == "BM_FsiStep":
-            out[("fsi step", n)] = [b["real_time"]]
+            out[("fsi step", n)] = b["real_time"]
         elif name == "BM_InProcessFsiCompute":
-            out[("compute", n)] = [b["real_time"]]
+            out[("compute", n)] = b["real_time"]
     return out
 
 
@@ -115,7 +112,9 @@ def main():
                     help="the Python client's transport(s) to time")
     ap.add_argument("--store", default="memory", choices=["memory", "sqlite"])
     ap.add_argument("--rounds", type=int, default=5)
-    ap.add_argument("--reps", type=int, default=20, help="Python calls per quantity per round")
+    ap.add_argument("--reps", type=int, default=20, help="least Python calls per quantity per round")
+    ap.add_argument("--min-time", type=float, default=0.3,
+                    help="least seconds per quantity per round, for both clients (each reports its mean)")
     ap.add_argument("--threads", type=int, default=1,
                     help="server --threads (numeric threads per computation)")
     args = ap.parse_args()
@@ -136,16 +135,16 @@ def main():
                     meshes[n] = (pos, clients[transports[0]].upload(pos, tris, name="bench").mesh_id)
                 for r in range(args.rounds):
                     for t in transports if r % 2 == 0 else transports[::-1]:  # neither always first
-                        for k, v in python_round(clients[t], meshes, args.reps).items():
-                            py[t].setdefault(k, []).append(statistics.median(v))
+                        for k, v in python_round(clients[t], meshes, args.reps, args.min_time).items():
+                            py[t].setdefault(k, []).append(v)
                     if args.cpp_bench:
-                        for k, v in cpp_round(args.cpp_bench, target, args.threads).items():
-                            cpp.setdefault(k, []).append(statistics.median(v))
+                        for k, v in cpp_round(args.cpp_bench, target, args.threads, args.min_time).items():
+                            cpp.setdefault(k, []).append(v)
                     print("round %d/%d done" % (r + 1, args.rounds), file=sys.stderr)
         finally:
             proc.send_signal(signal.SIGTERM)
             proc.wait(timeout=30)
-    print("median over %d rounds of the per-round medians, ms (store %s, server --threads=%d)"
+    print("median over %d rounds of each round's mean, ms (store %s, server --threads=%d)"
           % (args.rounds, args.store, args.threads))
     # rows[key] = [Python ms per transport..., C++ ms]
     columns = ["py " + t for t in transports]

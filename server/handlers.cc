@@ -123,6 +123,11 @@ class DifferentialsStream {
     std::lock_guard<std::mutex> lock(mu_);
     return std::min(n_, sent_ + rows_);
   }
+  /// Rows sent so far.
+  int64_t sent() const {
+    std::lock_guard<std::mutex> lock(mu_);
+    return sent_;
+  }
   /// Sends every whole chunk of rows [0, filled) not sent yet, except the last one;
   /// within the last chunk, rows [sent, filled) while some are still to come.
   void Emit(const Differentials* d, int64_t filled) {
@@ -455,9 +460,12 @@ absl::Status Handlers::ComputeDifferentials(const v1::ComputeDifferentialsReques
     shared.fitted.ms = shared.ms = 0;
     stream.Finish(*shared.values, Summarize(id, shared, options));
   });
-  while (!ev->ended()) {
+  for (int64_t filled = 0; !ev->ended();) {
     const int64_t next = stream.next();
-    GF_ASSIGN_OR_RETURN(const int64_t filled, ev->WaitFor(next < n ? next : ev->filled() + 1, cancel));
+    // Within the last chunk: any row not sent yet, until all are final (the owner
+    // sends the last ones with the summary).
+    const int64_t want = next < n ? next : filled < n ? stream.sent() + 1 : n + 1;
+    GF_ASSIGN_OR_RETURN(filled, ev->WaitFor(want, cancel));
     stream.Emit(ev->values(), filled);
   }
   if (follow.Unfollow() && ev->result().ok()) return absl::OkStatus();  // the owner sent the rest

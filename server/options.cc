@@ -100,6 +100,9 @@ const std::vector<Flag>& Flags() {
       {"prefetch", "1: right after UpdatePositions, compute the differentials last requested on the previous "
                    "revision, so a time-stepping client's next request finds them under way; 0: off",
        IntSetter(&ServerOptions::prefetch, "prefetch", 0, 1)},
+      {"spin-us", "microseconds one idle compute worker polls for the next task before it sleeps, so that a "
+                  "time-stepping client's next update starts at once on a core that has not gone idle; 0: off",
+       IntSetter(&ServerOptions::spin_us, "spin-us", 0, 1'000'000)},
       {"log-level", "trace|debug|info|warn|error|off",
        [](const std::string& v, ServerOptions* o) {
          for (const char* level : {"trace", "debug", "info", "warn", "error", "off"}) {

@@ -26,6 +26,7 @@ struct ServerOptions {
   int64_t chunk_bytes = 128 << 10;         ///< target bytes per streamed chunk when chunk_rows = 0
   std::string log_level = "info";
   int prefetch = 1;                        ///< 1: after UpdatePositions, recompute last step's differentials
+  int spin_us = 1000;                      ///< one idle compute worker polls this long before sleeping
 
   std::string Address() const { return host + ":" + std::to_string(port); }
 };

@@ -41,7 +41,7 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   h.threads = options.threads;
   h.workers = options.workers;
   s->handlers_ = std::make_unique<Handlers>(s->store_.get(), s->cache_.get(), s->stats_.get(), h);
-  s->compute_ = std::make_unique<ThreadPool>(options.workers, options.queue);
+  s->compute_ = std::make_unique<ThreadPool>(options.workers, options.queue, std::chrono::microseconds(options.spin_us));
   s->io_ = std::make_unique<ThreadPool>(2, options.queue);
   s->service_ = std::make_unique<Service>(s->handlers_.get(), s->compute_.get(), s->io_.get(), s->stats_.get());
 

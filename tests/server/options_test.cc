@@ -12,6 +12,7 @@ TEST(OptionsTest, DefaultsFlagsAndEnvironment) {
   ASSERT_TRUE(d.ok());
   EXPECT_EQ(d->max_message_bytes, 64 << 20);
   EXPECT_EQ(d->store, "sqlite");
+  EXPECT_EQ(d->spin_us, 1000);
 
   ::setenv("GEOMFIT_CACHE_BYTES", "32M", 1);
   ::setenv("GEOMFIT_PORT", "7000", 1);
@@ -35,6 +36,9 @@ TEST(OptionsTest, BadValuesNameTheFlag) {
   r = ParseServerOptions({"--log-level=loud"});
   ASSERT_FALSE(r.ok());
   EXPECT_NE(r.status().message().find("--log-level=loud"), std::string::npos);
+  r = ParseServerOptions({"--spin-us=-1"});
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.status().message().find("--spin-us"), std::string::npos);
   r = ParseServerOptions({"--frobnicate=1"});
   ASSERT_FALSE(r.ok());
   EXPECT_NE(r.status().message().find("--frobnicate"), std::string::npos);
