@@ -23,7 +23,9 @@ void Evaluation::Filled(int64_t begin, int64_t end) {
       filled_ = it->second;
       pending_.erase(it);
     }
-    if (filled_ >= wake_at_) {
+    // The last rows wake nobody: the end follows at once, and followers then have
+    // nothing to send (the owner sends their last chunks).
+    if (filled_ >= wake_at_ && filled_ < num_vertices_) {
       wake_at_ = std::numeric_limits<int64_t>::max();
       cv_.notify_all();
     }
@@ -40,9 +42,10 @@ void Evaluation::Finish(absl::StatusOr<Evaluated> result) {
     if (result_.ok()) filled_ = num_vertices_;
     hooks.swap(hooks_);
     running_hooks_ = !hooks.empty();
-    cv_.notify_all();
+    if (!running_hooks_) cv_.notify_all();
   }
   if (hooks.empty()) return;
+  // Followers wake once their last chunks are out, not to compete with them for a core.
   for (auto& [handle, hook] : hooks) hook(result_);  // result_ no longer changes
   std::lock_guard<std::mutex> lock(mu_);
   running_hooks_ = false;
