@@ -458,7 +458,9 @@ absl::Status Handlers::ComputeDifferentials(const v1::ComputeDifferentialsReques
     Evaluated shared = *result;  // not computed for this request: a hit, as for a joined cache flight
     shared.fitted.hit = shared.hit = true;
     shared.fitted.ms = shared.ms = 0;
-    stream.Finish(*shared.values, Summarize(id, shared, options));
+    v1::FitSummary summary = Summarize(id, shared, options);
+    summary.set_joined_compute_ms(result->fitted.ms + result->ms);
+    stream.Finish(*shared.values, summary);
   });
   for (int64_t filled = 0; !ev->ended();) {
     const int64_t next = stream.next();

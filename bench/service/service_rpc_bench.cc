@@ -159,40 +159,51 @@ void BM_InProcessFsiComputeFreshCopy(benchmark::State& state) {
   state.counters["vertices"] = mesh.NumVertices();
 }
 
-/// FSI step: new positions (a small rigid shift per step), then curvature.
+/// FSI step: new positions (a small rigid shift per step), then curvature. Besides the
+/// step's time: `overhead_ms`, the step minus the compute it used on the server (its
+/// own fit, or the prefetch's it joined: joined_compute_ms), per step, so that the
+/// machine's drift between this and BM_InProcessFsiCompute does not enter it.
 void BM_FsiStep(benchmark::State& state) {
   const Mesh& mesh = TorusWith(static_cast<int>(state.range(0)));
   Client& client = *TheService().client;
   const std::string id = client.Upload(mesh, "fsi").value().mesh_id;
   Positions p = mesh.positions;
   int step = 0;
-  double server_ms = 0;
-  std::vector<double> update_ms;
+  std::vector<double> update_ms, compute_ms, overhead_ms;
   int64_t prefetched = 0;
   for (auto _ : state) {
     p.col(0).array() += 1e-4 * (++step % 2 ? 1 : -1);
-    const Stopwatch update_watch;
+    const Stopwatch watch;
     auto info = client.UpdatePositions(id, p);
-    update_ms.push_back(update_watch.Millis());
+    update_ms.push_back(watch.Millis());
     auto d = client.ComputeDifferentials(id, Options(), kQuantities, info.ok() ? info->revision : 0);
+    const double step_ms = watch.Millis();
     if (!info.ok() || !d.ok()) {
       state.SkipWithError("FSI step failed");
       break;
     }
-    server_ms += d->summary.fit_ms + d->summary.evaluate_ms;
-    prefetched += d->summary.fit_cache_hit;
+    const FitSummary& s = d->summary;
+    compute_ms.push_back(s.fit_ms + s.evaluate_ms + s.joined_compute_ms);
+    overhead_ms.push_back(step_ms - compute_ms.back());
+    prefetched += s.joined_compute_ms > 0;
   }
   state.counters["vertices"] = mesh.NumVertices();
-  // Steps whose fit the server had begun before the request came (--prefetch); their
-  // compute is not in server_compute_ms, so compare the step with BM_InProcessFsiCompute.
+  // Steps whose fit the server had begun before the request came (--prefetch).
   state.counters["prefetched"] = static_cast<double>(prefetched) / std::max<int64_t>(1, state.iterations());
-  state.counters["server_compute_ms"] = server_ms / std::max<int64_t>(1, state.iterations());
-  // The update's share of the step (its acknowledgement overlaps the prefetched fit).
-  std::sort(update_ms.begin(), update_ms.end());
-  if (!update_ms.empty()) {
-    state.counters["update_p50_ms"] = update_ms[update_ms.size() / 2];
-    state.counters["update_p90_ms"] = update_ms[update_ms.size() * 9 / 10];
-  }
+  auto median = [](std::vector<double> v) {
+    if (v.empty()) return 0.0;
+    std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+    return v[v.size() / 2];
+  };
+  auto mean = [](const std::vector<double>& v) {
+    double s = 0;
+    for (double x : v) s += x;
+    return v.empty() ? 0.0 : s / v.size();
+  };
+  state.counters["server_compute_ms"] = mean(compute_ms);
+  state.counters["overhead_ms"] = mean(overhead_ms);
+  state.counters["overhead_p50_ms"] = median(overhead_ms);
+  state.counters["update_p50_ms"] = median(update_ms);
 }
 
 /// The transport + store part of an FSI step alone.

@@ -401,6 +401,13 @@ TEST_F(HandlersTest, TheOwnerSendsAFollowersLastChunkAsSoonAsItEnds) {
   auto d = follower.Assemble(&summary);
   ASSERT_TRUE(d.ok()) << d.status();
   EXPECT_TRUE(summary.fit_cache_hit()) << "shared, not computed for the follower";
+  EXPECT_EQ(summary.fit_ms(), 0);
+  v1::FitSummary owner_summary;
+  ASSERT_TRUE(owner.Assemble(&owner_summary).ok());
+  EXPECT_GT(owner_summary.fit_ms(), 0);
+  EXPECT_EQ(owner_summary.joined_compute_ms(), 0);
+  EXPECT_EQ(summary.joined_compute_ms(), owner_summary.fit_ms() + owner_summary.evaluate_ms())
+      << "the follower reports the computation it joined";
   EXPECT_EQ(summary.vertices_by_degree(3), n);
   ExpectSameAsInProcess(*d, mesh);
 }
@@ -470,6 +477,8 @@ TEST_F(HandlersTest, APlannedPrefetchIsJoinedByRequestsBeforeItRuns) {
     ASSERT_TRUE(d.ok()) << d.status();
     EXPECT_EQ(summary.revision(), updated->revision());
     EXPECT_EQ(summary.fit_cache_hit(), run) << "shared with the prefetch only if it ran";
+    EXPECT_EQ(summary.joined_compute_ms() > 0, run);
+    EXPECT_EQ(summary.fit_ms() > 0, !run);
     ExpectSameAsInProcess(*d, moved);
   }
 }

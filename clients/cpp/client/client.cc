@@ -66,6 +66,7 @@ FitSummary FromProto(const v1::FitSummary& p) {
   s.fit_cache_hit = p.fit_cache_hit();
   s.fit_ms = p.fit_ms();
   s.evaluate_ms = p.evaluate_ms();
+  s.joined_compute_ms = p.joined_compute_ms();
   return s;
 }
 

@@ -55,6 +55,7 @@ struct FitSummary {
   int64_t num_downgraded = 0, num_too_few_points = 0, num_boundary = 0, num_isolated = 0;
   bool fit_cache_hit = false;
   double fit_ms = 0, evaluate_ms = 0;
+  double joined_compute_ms = 0;  ///< the computation this request joined (see the proto)
 };
 
 struct RemoteDifferentials {
