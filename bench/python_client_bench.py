@@ -58,7 +58,10 @@ def torus(vertices, R=1.0, r=0.3):
 
 def timed(fn, reps, min_time):
     """Mean milliseconds of fn(k) over a loop of at least `reps` calls and `min_time`
-    seconds, as Google Benchmark times the C++ rounds (--benchmark_min_time)."""
+    seconds, after a few untimed calls, as Google Benchmark times the C++ rounds
+    (--benchmark_min_time, after its own untimed estimate)."""
+    for k in range(3):
+        fn(k)
     k, a = 0, time.perf_counter()
     while k < reps or time.perf_counter() - a < min_time:
         fn(k)
