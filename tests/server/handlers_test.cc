@@ -23,6 +23,8 @@ namespace {
 using testing::TestSphere;
 using testing::TestTorus;
 
+v1::ComputeDifferentialsRequest StreamedRequest(const std::string& id);
+
 class HandlersTest : public ::testing::Test {
  protected:
   HandlersTest() : store_(NewMemoryStore()), cache_(64 << 20), handlers_(store_.get(), &cache_, &stats_, Options()) {}
@@ -73,6 +75,18 @@ class HandlersTest : public ::testing::Test {
     }
     *summary = reader.summary();
     return reader.Finish();
+  }
+
+  /// A time-stepping client's first step: `mesh` uploaded and its differentials asked
+  /// for once (the recipe a prefetch repeats). Returns the mesh id ("" on failure).
+  std::string FirstStep(const Mesh& mesh) {
+    auto info = Upload(mesh);
+    EXPECT_TRUE(info.ok()) << info.status();
+    if (!info.ok()) return "";
+    ChunkCollector<v1::ComputeDifferentialsResponse> first;
+    CancellationToken token;
+    EXPECT_TRUE(handlers_.ComputeDifferentials(StreamedRequest(info->mesh_id()), token, &first).ok());
+    return info->mesh_id();
   }
 
   std::unique_ptr<MeshStore> store_;
@@ -414,13 +428,10 @@ TEST_F(HandlersTest, TheOwnerSendsAFollowersLastChunkAsSoonAsItEnds) {
 
 TEST_F(HandlersTest, ARequestDuringAPrefetchStreamsFromIt) {
   const Mesh mesh = TestTorus(40);
-  auto info = Upload(mesh);
-  ASSERT_TRUE(info.ok());
-  const std::string id = info->mesh_id();
+  const std::string id = FirstStep(mesh);
+  ASSERT_FALSE(id.empty());
   const v1::ComputeDifferentialsRequest request = StreamedRequest(id);
   CancellationToken token;
-  RecordingSink first;
-  ASSERT_TRUE(handlers_.ComputeDifferentials(request, token, &first).ok());
   Mesh moved = mesh;
   moved.positions = 1.25 * mesh.positions;
   ASSERT_TRUE(Update(id, moved.positions, 1).ok());
@@ -439,13 +450,10 @@ TEST_F(HandlersTest, ARequestDuringAPrefetchStreamsFromIt) {
 
 TEST_F(HandlersTest, APlannedPrefetchIsJoinedByRequestsBeforeItRuns) {
   const Mesh mesh = TestTorus(40);
-  auto info = Upload(mesh);
-  ASSERT_TRUE(info.ok());
-  const std::string id = info->mesh_id();
+  const std::string id = FirstStep(mesh);
+  ASSERT_FALSE(id.empty());
   const v1::ComputeDifferentialsRequest request = StreamedRequest(id);
   CancellationToken token;
-  RecordingSink first;
-  ASSERT_TRUE(handlers_.ComputeDifferentials(request, token, &first).ok());
   for (const bool run : {true, false}) {
     SCOPED_TRACE(run ? "run" : "dropped unrun");
     Mesh moved = mesh;
