@@ -57,28 +57,31 @@ def torus(vertices, R=1.0, r=0.3):
 
 
 def timed(fn, reps, min_time):
-    """Mean milliseconds of fn(k) over a loop of at least `reps` calls and `min_time`
-    seconds, after a few untimed calls, as Google Benchmark times the C++ rounds
-    (--benchmark_min_time, after its own untimed estimate)."""
+    """Median milliseconds of fn(k) over a loop of at least `reps` calls and `min_time`
+    seconds, after a few untimed calls: what the C++ rounds report as p50_ms (medians,
+    as this VM stalls a thread for milliseconds now and then)."""
     for k in range(3):
         fn(k)
-    k, a = 0, time.perf_counter()
-    while k < reps or time.perf_counter() - a < min_time:
-        fn(k)
-        k += 1
-    return 1e3 * (time.perf_counter() - a) / k
+    ms, start = [], time.perf_counter()
+    while len(ms) < reps or time.perf_counter() - start < min_time:
+        a = time.perf_counter()
+        fn(len(ms))
+        ms.append(1e3 * (time.perf_counter() - a))
+    return statistics.median(ms)
 
 
 def python_round(client, meshes, reps, min_time):
     """One round of Python timings: {(what, n): ms}."""
     out = {}
-    for n, (pos, mesh_id) in meshes.items():
+    for n, (pos, mesh_id, update_id) in meshes.items():
         # Two position sets in turn, the states service_rpc_bench's positions alternate
         # between (it moves x by +-1e-4 in place each step).
         moves = (pos + [1e-4, 0, 0], pos)
         client.curvature(mesh_id)  # fits and quantities cached
         out[("curvature", n)] = timed(lambda k: client.curvature(mesh_id), reps, min_time)
-        out[("update", n)] = timed(lambda k: client.update_positions(mesh_id, moves[k % 2]), reps, min_time)
+        # Updates alone on a mesh nobody asked differentials of (no prefetch after them),
+        # as BM_FsiUpdatePositionsOnly does.
+        out[("update", n)] = timed(lambda k: client.update_positions(update_id, moves[k % 2]), reps, min_time)
         if n in FSI_SIZES:
             compute, overhead = [], []
 
@@ -89,8 +92,8 @@ def python_round(client, meshes, reps, min_time):
                 compute.append(s.fit_ms + s.evaluate_ms + s.joined_compute_ms)
                 overhead.append(1e3 * (time.perf_counter() - a) - compute[-1])
             out[("fsi step", n)] = timed(step, max(3, reps // 2), min_time)
-            out[("fsi server compute", n)] = statistics.mean(compute)
-            out[("fsi overhead", n)] = statistics.mean(overhead)
+            out[("fsi server compute", n)] = statistics.median(compute)
+            out[("fsi overhead", n)] = statistics.median(overhead)
     return out
 
 
@@ -105,13 +108,13 @@ def cpp_round(cpp_bench, target, threads, min_time):
         name, n = b["run_name"].split("/")[:2]
         n = int(n)
         if name == "BM_RpcCurvatureCachedFits":
-            out[("curvature", n)] = b["real_time"]
+            out[("curvature", n)] = b["p50_ms"]
         elif name == "BM_FsiUpdatePositionsOnly":
-            out[("update", n)] = b["real_time"]
+            out[("update", n)] = b["p50_ms"]
         elif name == "BM_FsiStep":
-            out[("fsi step", n)] = b["real_time"]
+            out[("fsi step", n)] = b["p50_ms"]
             out[("fsi server compute", n)] = b["server_compute_ms"]
-            out[("fsi overhead", n)] = b["overhead_ms"]
+            out[("fsi overhead", n)] = b["overhead_p50_ms"]
         elif name == "BM_InProcessFsiCompute":
             out[("compute", n)] = b["real_time"]
     return out
@@ -145,7 +148,9 @@ def main():
                 meshes = {}
                 for n in SIZES:
                     pos, tris = torus(n)
-                    meshes[n] = (pos, clients[transports[0]].upload(pos, tris, name="bench").mesh_id)
+                    first = clients[transports[0]]
+                    meshes[n] = (pos, first.upload(pos, tris, name="bench").mesh_id,
+                                 first.upload(pos, tris, name="bench-update").mesh_id)
                 for r in range(args.rounds):
                     for t in transports if r % 2 == 0 else transports[::-1]:  # neither always first
                         for k, v in python_round(clients[t], meshes, args.reps, args.min_time).items():
@@ -157,7 +162,7 @@ def main():
         finally:
             proc.send_signal(signal.SIGTERM)
             proc.wait(timeout=30)
-    print("median over %d rounds of each round's mean, ms (store %s, server --threads=%d)"
+    print("median over %d rounds of each round's median, ms (store %s, server --threads=%d)"
           % (args.rounds, args.store, args.threads))
     # rows[key] = [Python ms per transport..., C++ ms]
     columns = ["py " + t for t in transports]
