@@ -437,18 +437,24 @@ absl::Status Handlers::ComputeDifferentials(const v1::ComputeDifferentialsReques
   DifferentialsStream stream(mask, request.diagnostics(), n,
                              ChunkRows(request.chunk_rows(), RowBytes(mask, request.diagnostics())),
                              SummaryHeader(id, revision, n, options), sink);
-  {  // before any chunk: the client may send its next update as soon as it has the last
+  // What a prefetch repeats after the next update: recorded once the request succeeded,
+  // before its last chunk (the client may send that update as soon as it has it).
+  auto remember = [&] {
     std::lock_guard<std::mutex> lock(recipes_mu_);
     Recipe& r = recipes_[id];
     if (revision >= r.revision) r = Recipe{options, mask, revision};
-  }
+  };
   bool owner = false;
   const std::shared_ptr<Evaluation> ev = JoinEvaluation(id, revision, options, mask, mesh, &owner);
   if (owner) {
     ev->SetListener([&stream, raw = ev.get()] { stream.EmitFrom(*raw); });
-    GF_ASSIGN_OR_RETURN(const Evaluated e, Run(ev, id, revision, options, cancel));
-    stream.Finish(*e.values, Summarize(id, e, options));
-    return absl::OkStatus();
+    const absl::StatusOr<Evaluated> e = Evaluate(id, revision, options, mask, cancel, ev.get(), mesh);
+    if (e.ok()) {
+      remember();
+      stream.Finish(*e->values, Summarize(id, *e, options));
+    }
+    End(ev, e);  // then the followers' last chunks
+    return e.status();
   }
   // Follow the running evaluation: whole chunks as their rows are final, then within
   // the last chunk every fitted block, so that the owner, which sends what is left as
@@ -460,6 +466,7 @@ absl::Status Handlers::ComputeDifferentials(const v1::ComputeDifferentialsReques
     shared.fitted.ms = shared.ms = 0;
     v1::FitSummary summary = Summarize(id, shared, options);
     summary.set_joined_compute_ms(result->fitted.ms + result->ms);
+    remember();
     stream.Finish(*shared.values, summary);
   });
   for (int64_t filled = 0; !ev->ended();) {
@@ -474,6 +481,7 @@ absl::Status Handlers::ComputeDifferentials(const v1::ComputeDifferentialsReques
   // Its owner gave up (cancelled): compute the rest here. Values are deterministic, so
   // the rows already sent agree.
   GF_ASSIGN_OR_RETURN(const Evaluated e, Evaluate(id, revision, options, mask, cancel, nullptr, mesh));
+  remember();
   stream.Finish(*e.values, Summarize(id, e, options));
   return absl::OkStatus();
 }

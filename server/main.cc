@@ -21,12 +21,6 @@ int main(int argc, char** argv) {
     if (!help) std::fprintf(stderr, "%s", geomfit::server::ServerUsage().c_str());
     return help ? 0 : 2;
   }
-  // Logs go to stderr; stdout carries only the "listening on port N" line. A thread of
-  // its own writes them: a request's log line does not delay its response.
-  spdlog::init_thread_pool(8192, 1);
-  spdlog::set_default_logger(spdlog::stderr_color_mt<spdlog::async_factory>("geomfit-server"));
-  spdlog::set_level(spdlog::level::from_str(options->log_level));
-
   // Signals are taken synchronously by this thread only (blocked before any other
   // thread starts, so gRPC and pool threads inherit the mask).
   sigset_t signals;
@@ -34,6 +28,12 @@ int main(int argc, char** argv) {
   sigaddset(&signals, SIGINT);
   sigaddset(&signals, SIGTERM);
   pthread_sigmask(SIG_BLOCK, &signals, nullptr);
+
+  // Logs go to stderr; stdout carries only the "listening on port N" line. A thread of
+  // its own writes them: a request's log line does not delay its response.
+  spdlog::init_thread_pool(8192, 1);
+  spdlog::set_default_logger(spdlog::stderr_color_mt<spdlog::async_factory>("geomfit-server"));
+  spdlog::set_level(spdlog::level::from_str(options->log_level));
 
   auto server = geomfit::server::Server::Start(*options);
   if (!server.ok()) {
@@ -50,7 +50,7 @@ int main(int argc, char** argv) {
   std::thread([&signals] {  // a second signal stops at once
     int again = 0;
     sigwait(&signals, &again);
-    spdlog::warn("second signal {}: exiting without draining", again);
+    std::fprintf(stderr, "geomfit-server: second signal %d: exiting without draining\n", again);
     std::_Exit(128 + again);
   }).detach();
   (*server)->Shutdown(options->drain_seconds);

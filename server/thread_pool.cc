@@ -32,6 +32,7 @@ void ThreadPool::Stop() {
     std::lock_guard<std::mutex> lock(mu_);
     stopping_ = true;
   }
+  stop_spinning_ = true;
   ready_.notify_all();
   for (std::thread& t : workers_)
     if (t.joinable()) t.join();
@@ -41,7 +42,8 @@ bool ThreadPool::Spin() {
   if (spin_.count() == 0 || spinning_.exchange(true, std::memory_order_acquire)) return false;
   const auto until = std::chrono::steady_clock::now() + spin_;
   bool came = false;
-  while (!(came = queued_.load(std::memory_order_acquire) > 0) && std::chrono::steady_clock::now() < until) {
+  while (!(came = queued_.load(std::memory_order_acquire) > 0) && !stop_spinning_.load(std::memory_order_relaxed) &&
+         std::chrono::steady_clock::now() < until) {
     for (int i = 0; i < 64; ++i) GEOMFIT_CPU_RELAX();
   }
   spinning_.store(false, std::memory_order_release);

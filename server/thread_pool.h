@@ -37,6 +37,7 @@ class ThreadPool {
   const std::chrono::microseconds spin_;
   std::atomic<size_t> queued_{0};
   std::atomic<bool> spinning_{false};
+  std::atomic<bool> stop_spinning_{false};  ///< set by Stop
   std::mutex mu_;
   std::condition_variable ready_;
   std::deque<std::function<void()>> queue_;

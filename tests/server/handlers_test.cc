@@ -388,6 +388,7 @@ TEST_F(HandlersTest, TheOwnerSendsAFollowersLastChunkAsSoonAsItEnds) {
           [&] { follower_status = handlers_.ComputeDifferentials(follower_request, token, &follower); });
     }
     const int64_t filled = chunk.vertex_offset() + chunk.num_vertices();
+    if (filled == n) return;  // the owner's own last chunk goes out before the followers'
     const int64_t expected = filled >= last_start ? filled : filled / kRows * kRows;
     std::unique_lock<std::mutex> lock(mu);
     ASSERT_TRUE(cv.wait_for(lock, std::chrono::seconds(30), [&] { return follower_sent >= expected; }))
@@ -489,6 +490,29 @@ TEST_F(HandlersTest, APlannedPrefetchIsJoinedByRequestsBeforeItRuns) {
     EXPECT_EQ(summary.fit_ms() > 0, !run);
     ExpectSameAsInProcess(*d, moved);
   }
+}
+
+TEST_F(HandlersTest, AFailedRequestLeavesThePrefetchRecipe) {
+  const Mesh mesh = TestTorus(24);
+  const std::string id = FirstStep(mesh);  // degree 3 on revision 1
+  ASSERT_FALSE(id.empty());
+  ASSERT_TRUE(Update(id, 1.25 * mesh.positions, 1).ok());
+  v1::ComputeDifferentialsRequest other = StreamedRequest(id);
+  other.mutable_options()->set_degree(4);
+  CancellationToken cancelled;
+  cancelled.Cancel();
+  RecordingSink sink;
+  EXPECT_EQ(handlers_.ComputeDifferentials(other, cancelled, &sink).code(), absl::StatusCode::kCancelled);
+  // The next step still prefetches what revision 1 was asked for.
+  auto pending = handlers_.PlanPrefetch(id, 2);
+  ASSERT_NE(pending, nullptr) << "the cancelled request replaced the recipe";
+  CancellationToken token;
+  pending->Run(token);
+  RecordingSink step;
+  ASSERT_TRUE(handlers_.ComputeDifferentials(StreamedRequest(id), token, &step).ok());
+  v1::FitSummary summary;
+  ASSERT_TRUE(step.Assemble(&summary).ok());
+  EXPECT_TRUE(summary.fit_cache_hit()) << "the prefetch computed the degree-3 fit";
 }
 
 TEST_F(HandlersTest, UpdatePositionsKeepsTopologyAndMakesNewRevision) {

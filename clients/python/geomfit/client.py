@@ -373,7 +373,8 @@ class Client:
 
     def update_positions(self, mesh_id: str, positions: np.ndarray,
                          expected_revision: Optional[int] = None) -> "pb.MeshInfo":
-        """New positions for the same faces; ABORTED if expected_revision is stale."""
+        """New positions for the same faces; ABORTED if expected_revision is stale. The
+        array is read in place while the call runs: other threads must not modify it."""
         one_message = 0 < len(positions) <= self.chunk_rows and not self._stream_updates
         if one_message and self._native is not None:
             p = _positions_array(positions)  # read in place by the C++ client

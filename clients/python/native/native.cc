@@ -148,8 +148,8 @@ PYBIND11_MODULE(_native, m) {
            "seconds (None: none); UNAVAILABLE is retried max_attempts times from `backoff` seconds on.")
       .def("set_positions", &NativeClient::SetPositions, "mesh_id"_a, "positions"_a,
            "expected_revision"_a = py::none(),
-           "New positions (#V x 3 float64, read in place when C-contiguous); returns the "
-           "serialized MeshInfo.")
+           "New positions (#V x 3 float64, read in place when C-contiguous: do not modify the "
+           "array from another thread during the call); returns the serialized MeshInfo.")
       .def("compute", &NativeClient::Compute, "request"_a,
            "ComputeDifferentials of a serialized ComputeDifferentialsRequest: (serialized "
            "FitSummary, dict of the requested arrays, dict of diagnostics or None).");
