@@ -81,7 +81,6 @@ class Service final : public v1::GeomFit::CallbackService {
   grpc::ServerUnaryReactor* Unary(grpc::CallbackServerContext* ctx, Call call, ThreadPool* pool,
                                   Response* response, std::function<absl::StatusOr<Response>()> work,
                                   std::function<void(const Response&)> after = nullptr);
-  /// What follows a stored update: Prefetch on the calling (compute) thread.
   /// After an update is stored, before it is acknowledged: registers the next step's
   /// prefetch (Handlers::PlanPrefetch) in `next`.
   absl::StatusOr<v1::MeshInfo> Updated(absl::StatusOr<v1::MeshInfo> info,
