@@ -12,6 +12,7 @@
 #include "absl/status/statusor.h"
 #include "core/fitting/fit.h"
 #include "core/fitting/options.h"
+#include "core/reconstruction/options.h"
 #include "core/mesh/mesh.h"
 #include "core/quantities/differentials.h"
 #include "geomfit/v1/geomfit.pb.h"
@@ -59,7 +60,13 @@ absl::StatusOr<RowsXi> DecodeInts(const v1::Int32Array& a, absl::string_view fie
                                   std::initializer_list<int64_t> allowed_cols);
 
 /// Proto options (unset = default) -> core options; validated by ValidateFitOptions.
+/// Unset fields take `base`'s values (the core defaults unless given).
 absl::StatusOr<FitOptions> FromProto(const v1::FitOptions& p);
+absl::StatusOr<FitOptions> FromProto(const v1::FitOptions& p, FitOptions base);
+/// Unset fields take ReconstructionOptions' defaults; errors name the field
+/// ("fit: ...", "method: ...", "feature_angle_deg ...").
+absl::StatusOr<ReconstructionOptions> FromProto(const v1::ReconstructionOptions& p);
+v1::ReconstructionOptions ToProto(const ReconstructionOptions& o);
 v1::FitOptions ToProto(const FitOptions& o);
 
 /// Quantity list -> core Quantity bit mask; empty = normals, H, K, k1/k2.
