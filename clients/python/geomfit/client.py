@@ -490,16 +490,19 @@ class Client:
 
     # ------------------------------------------------------------------ chapter 4
     @staticmethod
-    def _surface(surface: str, degree: int, safeguard: bool, feature_angle: float) -> "pb.ReconstructionOptions":
+    def _surface(surface: str, degree: int, safeguard: Optional[bool], feature_angle: float) -> "pb.ReconstructionOptions":
+        """Reconstruction options; degree 0 and safeguard None take the server's defaults
+        (the core ReconstructionOptions: degree 3, oscillation safeguard on)."""
         if surface.lower() not in _SURFACES:
             raise ValueError("surface must be one of %s, got %r" % (sorted(_SURFACES), surface))
-        return pb.ReconstructionOptions(
-            fit=pb.FitOptions(degree=degree, oscillation_safeguard=safeguard),
-            method=_SURFACES[surface.lower()], feature_angle_deg=feature_angle)
+        fit = pb.FitOptions(degree=degree)
+        if safeguard is not None:
+            fit.oscillation_safeguard = safeguard
+        return pb.ReconstructionOptions(fit=fit, method=_SURFACES[surface.lower()], feature_angle_deg=feature_angle)
 
     def project(self, mesh_id: str, points: Optional[np.ndarray] = None, faces: Optional[np.ndarray] = None,
-                natural: Optional[np.ndarray] = None, surface: str = "walf", degree: int = 3,
-                safeguard: bool = True, feature_angle: float = 0.0) -> dict:
+                natural: Optional[np.ndarray] = None, surface: str = "walf", degree: int = 0,
+                safeguard: Optional[bool] = None, feature_angle: float = 0.0) -> dict:
         """Points on the high-order surface: projections of xyz `points` (P x 3), or face
         points given by `faces` (P) and natural coordinates `natural` (P x 2). Returns a
         dict of arrays: positions, normals (P x 3), faces (P), natural (P x 2), distances (P)."""
@@ -519,8 +522,8 @@ class Client:
             return out
         return self._call(run)
 
-    def high_order_nodes(self, mesh_id: str, order: int = 2, surface: str = "walf", degree: int = 3,
-                         safeguard: bool = True, feature_angle: float = 0.0) -> Tuple[np.ndarray, List[np.ndarray]]:
+    def high_order_nodes(self, mesh_id: str, order: int = 2, surface: str = "walf", degree: int = 0,
+                         safeguard: Optional[bool] = None, feature_angle: float = 0.0) -> Tuple[np.ndarray, List[np.ndarray]]:
         """Quadratic or cubic element nodes on the surface: (nodes N x 3, a list with each
         face's node ids in VTK / gmsh Lagrange order)."""
         r = self._call(lambda: self._stub.HighOrderNodes(pb.HighOrderNodesRequest(
@@ -529,16 +532,16 @@ class Client:
         offsets, elements = _decode(r.offsets, "<i4"), _decode(r.elements, "<i4")
         return _decode(r.nodes, "<f8"), [elements[a:b] for a, b in zip(offsets[:-1], offsets[1:])]
 
-    def refine(self, mesh_id: str, factor: int = 2, surface: str = "walf", degree: int = 3,
-               safeguard: bool = True, feature_angle: float = 0.0, name: str = "") -> "pb.MeshInfo":
+    def refine(self, mesh_id: str, factor: int = 2, surface: str = "walf", degree: int = 0,
+               safeguard: Optional[bool] = None, feature_angle: float = 0.0, name: str = "") -> "pb.MeshInfo":
         """Uniform refinement onto the surface, stored by the server as a new mesh."""
         return self._call(lambda: self._stub.RefineMesh(pb.RefineMeshRequest(
             mesh_id=mesh_id, factor=factor, name=name,
             options=self._surface(surface, degree, safeguard, feature_angle)), timeout=self.timeout))
 
     def integrate(self, mesh_id: str, scalars: Optional[np.ndarray] = None, vectors: Optional[np.ndarray] = None,
-                  surface: str = "walf", degree: int = 3, quadrature_degree: int = 0,
-                  safeguard: bool = True) -> "pb.IntegrateResponse":
+                  surface: str = "walf", degree: int = 0, quadrature_degree: int = 0,
+                  safeguard: Optional[bool] = None) -> "pb.IntegrateResponse":
         """Area, enclosed volume, integrals of nodal scalar fields (V or V x s) and the flux
         of a nodal vector field (V x 3) over the reconstructed surface."""
         request = pb.IntegrateRequest(mesh_id=mesh_id, quadrature_degree=quadrature_degree,
