@@ -18,10 +18,12 @@ absl::StatusOr<MeshFormat> FormatFromPath(std::string_view path);
 const char* MeshFormatName(MeshFormat format);
 
 /// Parses a mesh held in memory (an uploaded file, a test's bytes). Readers check
-/// syntax, counts and face sizes (3 or 4) and never trust a count further than the
-/// bytes that follow it; indices out of range and non-finite coordinates are passed
-/// through for ValidateMesh to reject. Errors (INVALID_ARGUMENT) start with
-/// `source_name` and give the line (text) or byte offset (binary).
+/// syntax, counts, face sizes (3 or 4) and that every face index names an existing
+/// vertex, and never trust a count further than the bytes that follow it; what they
+/// return always has valid connectivity arrays. Non-finite coordinates, zero-area and
+/// non-manifold faces are passed through for ValidateMesh to reject. Errors
+/// (INVALID_ARGUMENT) start with `source_name` and give the line (text) or the face
+/// and byte offset (binary).
 ///  - OBJ: `v` and `f` lines (v, v/vt, v/vt/vn, v//vn; negative = relative); rest ignored.
 ///  - OFF: optional [ST][C][N]OFF keyword, `#` comments; one vertex or face per line,
 ///    extra fields (colours) ignored.
@@ -35,7 +37,9 @@ absl::StatusOr<Mesh> ParseMesh(std::string_view bytes, MeshFormat format,
 /// Reads a mesh file; the format comes from the extension.
 absl::StatusOr<Mesh> ReadMesh(const std::string& path);
 
-/// Serializes a mesh: OBJ and OFF as text with %.17g (exact round trip), PLY as
+/// Serializes a mesh; every writer (VTP too) refuses, with INVALID_ARGUMENT naming the
+/// face, a mesh whose faces are not 3 or 4 indices of existing vertices (a triangle
+/// carries -1 last). OBJ and OFF as text with %.17g (exact round trip), PLY as
 /// binary little endian with double coordinates and int indices, STL as binary
 /// (float32 coordinates; quads split along their 0-2 diagonal).
 absl::StatusOr<std::string> FormatMesh(const Mesh& mesh, MeshFormat format);
