@@ -104,6 +104,10 @@ expect_error 1 "missing.obj" curvature --local missing.obj
 expect_error 1 "not finite" curvature --local nan.obj
 expect_error 1 "line 6.*5 vertices" curvature --local pentagon.obj
 expect_error 1 "out of range" curvature --local range.obj
+# convert refuses faces naming vertices that do not exist (it used to write 0 1 998).
+printf 'v 0 0 0\nv 1 0 0\nv 1 1 0\nf 1 2 999\n' >bad999.obj
+expect_error 1 "bad999.obj: line 4: face 0: vertex index 999 is out of range" convert bad999.obj bad.ply
+[ ! -e bad.ply ] || fail "convert of an invalid mesh left bad.ply"
 expect_error 2 "degree" curvature --local t.obj --degree 9 --output bad.tsv
 [ ! -e bad.tsv ] || fail "a failed run left bad.tsv"
 expect_error 2 "not an integer" curvature --local t.obj --degree two
