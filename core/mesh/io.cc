@@ -13,9 +13,11 @@
 namespace geomfit {
 namespace {
 
-absl::Status VtpIsOutputOnly(absl::string_view source) {
-  return absl::InvalidArgumentError(
-      absl::StrCat(source, ": reading VTP is not supported (VTP is an output format)"));
+absl::Status OutputOnlyError(absl::string_view source, MeshFormat format) {
+  const char* name = MeshFormatName(format);
+  return absl::InvalidArgumentError(absl::StrCat(source, ": reading ", name,
+                                                 " is not supported (", name,
+                                                 " is an output format)"));
 }
 
 absl::StatusOr<Mesh> Parse(absl::string_view bytes, MeshFormat format, absl::string_view source) {
@@ -24,9 +26,10 @@ absl::StatusOr<Mesh> Parse(absl::string_view bytes, MeshFormat format, absl::str
     case MeshFormat::kOff: return mesh_io::ParseOff(bytes, source);
     case MeshFormat::kPly: return mesh_io::ParsePly(bytes, source);
     case MeshFormat::kStl: return mesh_io::ParseStl(bytes, source);
-    case MeshFormat::kVtp: break;
+    case MeshFormat::kVtp:
+    case MeshFormat::kVtu: break;
   }
-  return VtpIsOutputOnly(source);
+  return OutputOnlyError(source, format);
 }
 
 absl::StatusOr<std::string> Format(const Mesh& mesh, MeshFormat format) {
@@ -35,7 +38,8 @@ absl::StatusOr<std::string> Format(const Mesh& mesh, MeshFormat format) {
     case MeshFormat::kOff: return mesh_io::FormatOff(mesh);
     case MeshFormat::kPly: return mesh_io::FormatPly(mesh);
     case MeshFormat::kStl: return mesh_io::FormatStl(mesh);
-    case MeshFormat::kVtp: return FormatVtp(mesh, {});
+    case MeshFormat::kVtp: return FormatVtp(mesh, {}, VtkOptions{});
+    case MeshFormat::kVtu: return FormatVtu(mesh, {}, VtkOptions{});
   }
   return absl::InvalidArgumentError("unknown mesh format");
 }
@@ -55,8 +59,10 @@ absl::StatusOr<MeshFormat> FormatFromPath(std::string_view path_in) {
   if (ext == "ply") return MeshFormat::kPly;
   if (ext == "stl") return MeshFormat::kStl;
   if (ext == "vtp") return MeshFormat::kVtp;
-  return absl::InvalidArgumentError(absl::StrCat(path, ": unknown mesh file extension '", ext,
-                                                 "' (expected .obj, .off, .ply, .stl or .vtp)"));
+  if (ext == "vtu") return MeshFormat::kVtu;
+  return absl::InvalidArgumentError(
+      absl::StrCat(path, ": unknown mesh file extension '", ext,
+                   "' (expected .obj, .off, .ply, .stl, .vtp or .vtu)"));
 }
 
 const char* MeshFormatName(MeshFormat format) {
@@ -66,8 +72,13 @@ const char* MeshFormatName(MeshFormat format) {
     case MeshFormat::kPly: return "PLY";
     case MeshFormat::kStl: return "STL";
     case MeshFormat::kVtp: return "VTP";
+    case MeshFormat::kVtu: return "VTU";
   }
   return "?";
+}
+
+bool IsOutputOnly(MeshFormat format) {
+  return format == MeshFormat::kVtp || format == MeshFormat::kVtu;
 }
 
 absl::StatusOr<Mesh> ParseMesh(std::string_view bytes_in, MeshFormat format,
@@ -94,7 +105,7 @@ absl::StatusOr<Mesh> ParseMesh(std::string_view bytes_in, MeshFormat format,
 
 absl::StatusOr<Mesh> ReadMesh(const std::string& path) {
   GF_ASSIGN_OR_RETURN(const MeshFormat format, FormatFromPath(path));
-  if (format == MeshFormat::kVtp) return VtpIsOutputOnly(path);
+  if (IsOutputOnly(format)) return OutputOnlyError(path, format);
   GF_ASSIGN_OR_RETURN(const std::string bytes, ReadFileToString(path));
   return ParseMesh(bytes, format, path);
 }

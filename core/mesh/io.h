@@ -10,12 +10,15 @@
 
 namespace geomfit {
 
-/// Mesh file formats. VTP (VTK XML PolyData) is write-only.
-enum class MeshFormat { kObj, kOff, kPly, kStl, kVtp };
+/// Mesh file formats. VTP (VTK XML PolyData) and VTU (VTK XML UnstructuredGrid) are
+/// write-only.
+enum class MeshFormat { kObj, kOff, kPly, kStl, kVtp, kVtu };
 
-/// The format named by a path's extension (.obj .off .ply .stl .vtp, any case).
+/// The format named by a path's extension (.obj .off .ply .stl .vtp .vtu, any case).
 absl::StatusOr<MeshFormat> FormatFromPath(std::string_view path);
 const char* MeshFormatName(MeshFormat format);
+/// True for the formats geomfit writes but does not read (VTP, VTU).
+bool IsOutputOnly(MeshFormat format);
 
 /// Parses a mesh held in memory (an uploaded file, a test's bytes). Readers check
 /// syntax, counts, face sizes (3 or 4) and that every face index names an existing
@@ -44,24 +47,56 @@ absl::StatusOr<Mesh> ReadMesh(const std::string& path);
 /// (float32 coordinates; quads split along their 0-2 diagonal).
 absl::StatusOr<std::string> FormatMesh(const Mesh& mesh, MeshFormat format);
 
-/// Writes a mesh in the format named by the extension (.vtp writes no point data).
+/// Writes a mesh in the format named by the extension (.vtp and .vtu: no point data,
+/// binary appended; see VtkOptions).
 /// Like every writer here it writes `path + ".tmp"` and renames it, so a failed write
 /// never leaves a partial file under `path`.
 absl::Status WriteMesh(const Mesh& mesh, const std::string& path);
 
-/// A per-vertex array for VTP output: rows = #V, cols = components (1, 3, 9, ...).
+/// The VTK type a point field is stored as. Integer types need integral values in range.
+enum class VtkType { kFloat64, kInt32, kUInt8 };
+
+/// A per-vertex array for VTK output: rows = #V, cols = components (1, 3, 9, ...).
 struct PointField {
   std::string name;
   Eigen::MatrixXd values;
+  VtkType type = VtkType::kFloat64;
 };
 
-/// VTK XML PolyData (ParaView's .vtp): Points, Polys (triangles and quads) and one
-/// Float64 PointData array per field. Arrays are ASCII with %.17g; an array holding a
-/// NaN or infinity (which VTK's ASCII parser cannot read) is written inline base64
-/// ("binary") instead, bit-exact.
+/// How VTK XML files store their arrays.
+enum class VtkEncoding {
+  /// Text, %.17g (an array holding a NaN or infinity, which VTK's ASCII parser cannot
+  /// read, goes inline base64 instead, bit-exact).
+  kAscii,
+  /// Raw little-endian bytes in one <AppendedData> block (UInt64 size headers), as
+  /// VTK's own writers do: about a quarter of the ASCII size, read several times faster.
+  kAppended,
+};
+
+struct VtkOptions {
+  VtkEncoding encoding = VtkEncoding::kAppended;
+  /// Fields made the active attributes of <PointData> (`Normals="..."`, `Scalars="..."`:
+  /// viewers smooth-shade with the normals and colour by the scalars); empty = none.
+  /// Must name a field with 3 components (normals) or 1 (scalars).
+  std::string normals, scalars;
+};
+
+/// VTK XML PolyData (.vtp): Points, Polys (triangles and quads) and one PointData
+/// array per field. The two-argument forms write ASCII without active attributes.
 absl::StatusOr<std::string> FormatVtp(const Mesh& mesh, const std::vector<PointField>& fields);
+absl::StatusOr<std::string> FormatVtp(const Mesh& mesh, const std::vector<PointField>& fields,
+                                      const VtkOptions& options);
 absl::Status WriteVtp(const std::string& path, const Mesh& mesh,
                       const std::vector<PointField>& fields);
+absl::Status WriteVtp(const std::string& path, const Mesh& mesh,
+                      const std::vector<PointField>& fields, const VtkOptions& options);
+
+/// VTK XML UnstructuredGrid (.vtu, read by meshio too): the same points and fields,
+/// faces as VTK_TRIANGLE / VTK_QUAD cells.
+absl::StatusOr<std::string> FormatVtu(const Mesh& mesh, const std::vector<PointField>& fields,
+                                      const VtkOptions& options = {});
+absl::Status WriteVtu(const std::string& path, const Mesh& mesh,
+                      const std::vector<PointField>& fields, const VtkOptions& options = {});
 
 using RowMajorMatrixXd = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
 

@@ -1,5 +1,6 @@
-// VTK XML PolyData (.vtp) output.
+// VTK XML output: PolyData (.vtp) and UnstructuredGrid (.vtu), ASCII or binary appended.
 #include <cmath>
+#include <cstdint>
 #include <string>
 #include <vector>
 
@@ -15,6 +16,8 @@ namespace {
 
 using mesh_io::PutDouble;
 using mesh_io::PutLE;
+
+constexpr uint8_t kVtkTriangle = 5, kVtkQuad = 9;
 
 std::string Base64(absl::string_view in) {
   static constexpr char kChars[] =
@@ -36,82 +39,287 @@ std::string XmlEscape(absl::string_view s) {
       s, {{"&", "&amp;"}, {"<", "&lt;"}, {">", "&gt;"}, {"\"", "&quot;"}, {"'", "&apos;"}});
 }
 
-/// One Float64 DataArray of `rows` x `cols` values given by value(r, c): ASCII, or
-/// inline base64 (UInt32 byte-count header encoded separately, as VTK writes it)
-/// when a value is not finite.
-template <typename Fn>
-void AppendFloat64Array(std::string* out, absl::string_view name, int64_t rows, int cols,
-                        Fn value) {
-  bool finite = true;
-  for (int64_t r = 0; r < rows && finite; ++r)
-    for (int c = 0; c < cols; ++c) finite = finite && std::isfinite(value(r, c));
-  absl::StrAppendFormat(out,
-                        "        <DataArray type=\"Float64\" Name=\"%s\" NumberOfComponents=\"%d\" "
-                        "format=\"%s\">\n",
-                        XmlEscape(name), cols, finite ? "ascii" : "binary");
-  if (finite) {
-    for (int64_t r = 0; r < rows; ++r) {
-      *out += "         ";
-      for (int c = 0; c < cols; ++c) absl::StrAppendFormat(out, " %.17g", value(r, c));
-      *out += '\n';
-    }
-  } else {
-    std::string raw, header;
-    for (int64_t r = 0; r < rows; ++r)
-      for (int c = 0; c < cols; ++c) PutDouble(&raw, value(r, c));
-    PutLE(&header, raw.size(), 4);
-    absl::StrAppend(out, "          ", Base64(header), Base64(raw), "\n");
+/// Array types written: the PointField types plus Int64 (offsets of binary files).
+enum class ArrayType { kFloat64, kInt32, kUInt8, kInt64 };
+
+ArrayType ToArrayType(VtkType t) {
+  switch (t) {
+    case VtkType::kInt32: return ArrayType::kInt32;
+    case VtkType::kUInt8: return ArrayType::kUInt8;
+    case VtkType::kFloat64: break;
   }
-  *out += "        </DataArray>\n";
+  return ArrayType::kFloat64;
+}
+
+const char* TypeName(ArrayType t) {
+  switch (t) {
+    case ArrayType::kFloat64: return "Float64";
+    case ArrayType::kInt32: return "Int32";
+    case ArrayType::kUInt8: return "UInt8";
+    case ArrayType::kInt64: return "Int64";
+  }
+  return "?";
+}
+
+int TypeBytes(ArrayType t) {
+  switch (t) {
+    case ArrayType::kUInt8: return 1;
+    case ArrayType::kInt32: return 4;
+    case ArrayType::kFloat64:
+    case ArrayType::kInt64: return 8;
+  }
+  return 0;
+}
+
+void PutValue(std::string* out, ArrayType t, double v) {
+  if (t == ArrayType::kFloat64)
+    PutDouble(out, v);
+  else
+    PutLE(out, static_cast<uint64_t>(static_cast<int64_t>(v)), TypeBytes(t));
+}
+
+/// The XML of one VTK file being built; binary data collects in the appended block.
+class VtkXml {
+ public:
+  VtkXml(absl::string_view type, VtkEncoding encoding) : type_(type), encoding_(encoding) {
+    absl::StrAppend(&xml_, "<?xml version=\"1.0\"?>\n<VTKFile type=\"", type_, "\" ");
+    xml_ += encoding_ == VtkEncoding::kAscii
+                ? "version=\"0.1\" byte_order=\"LittleEndian\">\n"
+                : "version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\">\n";
+    absl::StrAppend(&xml_, "  <", type_, ">\n");
+  }
+
+  bool binary() const { return encoding_ == VtkEncoding::kAppended; }
+  std::string& xml() { return xml_; }
+
+  /// One DataArray of `n` values value(i), `components` per tuple (0: no attribute).
+  /// ASCII puts `per_line(i)` values on the line starting at value i.
+  template <typename Value, typename PerLine>
+  void Array(ArrayType type, absl::string_view name, int components, int64_t n, Value value,
+             PerLine per_line) {
+    absl::StrAppendFormat(&xml_, "        <DataArray type=\"%s\" Name=\"%s\"", TypeName(type),
+                          XmlEscape(name));
+    if (components > 0) absl::StrAppend(&xml_, " NumberOfComponents=\"", components, "\"");
+    if (binary()) {
+      xml_ += " format=\"appended\" offset=\"";
+      pieces_.push_back(std::move(xml_));
+      xml_ = "\"/>\n";
+      std::string block;
+      block.reserve(8 + n * TypeBytes(type));
+      PutLE(&block, static_cast<uint64_t>(n) * TypeBytes(type), 8);
+      for (int64_t i = 0; i < n; ++i) PutValue(&block, type, value(i));
+      blocks_.push_back(std::move(block));
+      return;
+    }
+    bool finite = true;
+    for (int64_t i = 0; i < n && finite; ++i) finite = std::isfinite(value(i));
+    if (!finite) {  // only Float64 can hold these: inline base64, UInt32 size header
+      std::string raw, header;
+      for (int64_t i = 0; i < n; ++i) PutDouble(&raw, value(i));
+      PutLE(&header, raw.size(), 4);
+      absl::StrAppend(&xml_, " format=\"binary\">\n          ", Base64(header), Base64(raw),
+                      "\n        </DataArray>\n");
+      return;
+    }
+    xml_ += " format=\"ascii\">\n";
+    for (int64_t i = 0; i < n;) {
+      xml_ += "         ";
+      for (const int64_t end = std::min<int64_t>(n, i + per_line(i)); i < end; ++i) {
+        if (type == ArrayType::kFloat64)
+          absl::StrAppendFormat(&xml_, " %.17g", value(i));
+        else
+          absl::StrAppend(&xml_, " ", static_cast<int64_t>(value(i)));
+      }
+      xml_ += '\n';
+    }
+    xml_ += "        </DataArray>\n";
+  }
+
+  std::string Finish() {
+    absl::StrAppend(&xml_, "  </", type_, ">\n");
+    if (!binary()) return std::move(xml_) + "</VTKFile>\n";
+    // The blocks go in reverse order of their arrays: meshio 5.0 rewrites the offsets
+    // one by one, looking each up by value, and would find an already rewritten
+    // earlier array if one of its new offsets equalled a later array's old one.
+    std::vector<uint64_t> offset(blocks_.size());
+    uint64_t at = 0, total = 0;
+    for (size_t k = blocks_.size(); k-- > 0;) {
+      offset[k] = at;
+      at += blocks_[k].size();
+    }
+    for (const std::string& p : pieces_) total += p.size() + 20;
+    std::string out;
+    out.reserve(total + xml_.size() + at + 64);
+    for (size_t k = 0; k < pieces_.size(); ++k) absl::StrAppend(&out, pieces_[k], offset[k]);
+    absl::StrAppend(&out, xml_, "  <AppendedData encoding=\"raw\">\n   _");
+    for (size_t k = blocks_.size(); k-- > 0;) out += blocks_[k];
+    out += "\n  </AppendedData>\n</VTKFile>\n";
+    return out;
+  }
+
+ private:
+  std::string type_;
+  VtkEncoding encoding_;
+  std::string xml_;
+  /// Binary: the XML before each array's offset value, and each array's bytes.
+  std::vector<std::string> pieces_, blocks_;
+};
+
+absl::Status CheckFields(const Mesh& mesh, const std::vector<PointField>& fields,
+                         const VtkOptions& options) {
+  GF_RETURN_IF_ERROR(mesh_io::CheckWritable(mesh));
+  const int nv = mesh.NumVertices();
+  for (const PointField& f : fields) {
+    if (f.values.rows() != nv || f.values.cols() < 1)
+      return absl::InvalidArgumentError(absl::StrFormat(
+          "point field '%s' is %d x %d; expected %d rows (one per vertex) and at least 1 column",
+          f.name, f.values.rows(), f.values.cols(), nv));
+    if (f.type == VtkType::kFloat64) continue;
+    const double lo = f.type == VtkType::kUInt8 ? 0 : -2147483648.0;
+    const double hi = f.type == VtkType::kUInt8 ? 255 : 2147483647.0;
+    for (Eigen::Index r = 0; r < f.values.rows(); ++r)
+      for (Eigen::Index c = 0; c < f.values.cols(); ++c) {
+        const double v = f.values(r, c);
+        if (!(v >= lo && v <= hi && v == std::floor(v)))
+          return absl::InvalidArgumentError(
+              absl::StrFormat("point field '%s': value %g at vertex %d is not a %s", f.name, v, r,
+                              TypeName(ToArrayType(f.type))));
+      }
+  }
+  const auto check_active = [&](const std::string& name, const char* what, int min_cols,
+                                int max_cols) {
+    if (name.empty()) return absl::OkStatus();
+    for (const PointField& f : fields)
+      if (f.name == name && f.values.cols() >= min_cols && f.values.cols() <= max_cols)
+        return absl::OkStatus();
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "active %s '%s' names no point field with %d..%d components", what, name, min_cols,
+        max_cols));
+  };
+  GF_RETURN_IF_ERROR(check_active(options.normals, "normals", 3, 3));
+  return check_active(options.scalars, "scalars", 1, 4);
+}
+
+/// <PointData> and <Points>, shared by both file types.
+void AppendPoints(VtkXml* x, const Mesh& mesh, const std::vector<PointField>& fields,
+                  const VtkOptions& options) {
+  const int64_t nv = mesh.NumVertices();
+  std::string& xml = x->xml();
+  xml += "      <PointData";
+  if (!options.normals.empty()) absl::StrAppend(&xml, " Normals=\"", XmlEscape(options.normals), "\"");
+  if (!options.scalars.empty()) absl::StrAppend(&xml, " Scalars=\"", XmlEscape(options.scalars), "\"");
+  xml += ">\n";
+  for (const PointField& f : fields) {
+    const int cols = static_cast<int>(f.values.cols());
+    x->Array(
+        ToArrayType(f.type), f.name, cols, nv * cols,
+        [&](int64_t i) { return f.values(i / cols, i % cols); }, [&](int64_t) { return cols; });
+  }
+  x->xml() += "      </PointData>\n      <Points>\n";
+  x->Array(
+      ArrayType::kFloat64, "Points", 3, 3 * nv,
+      [&](int64_t i) { return mesh.positions(i / 3, i % 3); }, [](int64_t) { return 3; });
+  x->xml() += "      </Points>\n";
+}
+
+/// connectivity (one face a line in ASCII) and offsets (16 a line); Int64 offsets in
+/// binary files.
+void AppendFaces(VtkXml* x, const Mesh& mesh) {
+  const int nf = mesh.NumFaces();
+  std::vector<int64_t> offsets(nf), first(nf);  // first corner's position in `corners`
+  std::vector<int32_t> corners;
+  corners.reserve(4 * static_cast<size_t>(nf));
+  for (int f = 0; f < nf; ++f) {
+    first[f] = static_cast<int64_t>(corners.size());
+    for (int i = 0; i < mesh.FaceSize(f); ++i) corners.push_back(mesh.faces(f, i));
+    offsets[f] = static_cast<int64_t>(corners.size());
+  }
+  // Face of corner i, for the ASCII line breaks.
+  int face = 0;
+  x->Array(
+      ArrayType::kInt32, "connectivity", 0, static_cast<int64_t>(corners.size()),
+      [&](int64_t i) { return corners[i]; },
+      [&](int64_t i) {
+        while (face + 1 < nf && first[face + 1] <= i) ++face;
+        return offsets[face] - i;
+      });
+  x->Array(
+      x->binary() ? ArrayType::kInt64 : ArrayType::kInt32, "offsets", 0, nf,
+      [&](int64_t i) { return static_cast<double>(offsets[i]); }, [](int64_t) { return 16; });
+}
+
+std::string PieceVtp(const Mesh& mesh, const std::vector<PointField>& fields,
+                     const VtkOptions& options) {
+  VtkXml x("PolyData", options.encoding);
+  absl::StrAppendFormat(&x.xml(),
+                        "    <Piece NumberOfPoints=\"%d\" NumberOfVerts=\"0\" NumberOfLines=\"0\" "
+                        "NumberOfStrips=\"0\" NumberOfPolys=\"%d\">\n",
+                        mesh.NumVertices(), mesh.NumFaces());
+  AppendPoints(&x, mesh, fields, options);
+  x.xml() += "      <Polys>\n";
+  AppendFaces(&x, mesh);
+  x.xml() += "      </Polys>\n    </Piece>\n";
+  return x.Finish();
+}
+
+std::string PieceVtu(const Mesh& mesh, const std::vector<PointField>& fields,
+                     const VtkOptions& options) {
+  VtkXml x("UnstructuredGrid", options.encoding);
+  absl::StrAppendFormat(&x.xml(), "    <Piece NumberOfPoints=\"%d\" NumberOfCells=\"%d\">\n",
+                        mesh.NumVertices(), mesh.NumFaces());
+  AppendPoints(&x, mesh, fields, options);
+  x.xml() += "      <Cells>\n";
+  AppendFaces(&x, mesh);
+  x.Array(
+      ArrayType::kUInt8, "types", 0, mesh.NumFaces(),
+      [&](int64_t f) { return mesh.FaceSize(static_cast<int>(f)) == 3 ? kVtkTriangle : kVtkQuad; },
+      [](int64_t) { return 16; });
+  x.xml() += "      </Cells>\n    </Piece>\n";
+  return x.Finish();
+}
+
+absl::Status WithPath(const std::string& path, const absl::Status& s) {
+  return absl::Status(s.code(), absl::StrCat(path, ": ", s.message()));
 }
 
 }  // namespace
 
 absl::StatusOr<std::string> FormatVtp(const Mesh& mesh, const std::vector<PointField>& fields) {
-  const int nv = mesh.NumVertices(), nf = mesh.NumFaces();
-  GF_RETURN_IF_ERROR(mesh_io::CheckWritable(mesh));
-  for (const PointField& f : fields)
-    if (f.values.rows() != nv || f.values.cols() < 1)
-      return absl::InvalidArgumentError(absl::StrFormat(
-          "point field '%s' is %d x %d; expected %d rows (one per vertex) and at least 1 column",
-          f.name, f.values.rows(), f.values.cols(), nv));
-  std::string out = absl::StrFormat(
-      "<?xml version=\"1.0\"?>\n"
-      "<VTKFile type=\"PolyData\" version=\"0.1\" byte_order=\"LittleEndian\">\n"
-      "  <PolyData>\n"
-      "    <Piece NumberOfPoints=\"%d\" NumberOfVerts=\"0\" NumberOfLines=\"0\" "
-      "NumberOfStrips=\"0\" NumberOfPolys=\"%d\">\n"
-      "      <PointData>\n",
-      nv, nf);
-  for (const PointField& f : fields)
-    AppendFloat64Array(&out, f.name, nv, static_cast<int>(f.values.cols()),
-                       [&](int64_t r, int c) { return f.values(r, c); });
-  out += "      </PointData>\n      <Points>\n";
-  AppendFloat64Array(&out, "Points", nv, 3, [&](int64_t r, int c) { return mesh.positions(r, c); });
-  out += "      </Points>\n      <Polys>\n";
-  out += "        <DataArray type=\"Int32\" Name=\"connectivity\" format=\"ascii\">\n";
-  for (int f = 0; f < nf; ++f) {
-    out += "         ";
-    for (int i = 0; i < mesh.FaceSize(f); ++i) absl::StrAppend(&out, " ", mesh.faces(f, i));
-    out += '\n';
-  }
-  out += "        </DataArray>\n";
-  out += "        <DataArray type=\"Int32\" Name=\"offsets\" format=\"ascii\">\n";
-  int64_t offset = 0;
-  for (int f = 0; f < nf; ++f) {
-    offset += mesh.FaceSize(f);
-    absl::StrAppend(&out, f % 16 == 0 ? "          " : " ", offset,
-                    f % 16 == 15 || f == nf - 1 ? "\n" : "");
-  }
-  out += "        </DataArray>\n      </Polys>\n    </Piece>\n  </PolyData>\n</VTKFile>\n";
-  return out;
+  VtkOptions text;
+  text.encoding = VtkEncoding::kAscii;
+  return FormatVtp(mesh, fields, text);
+}
+
+absl::StatusOr<std::string> FormatVtp(const Mesh& mesh, const std::vector<PointField>& fields,
+                                      const VtkOptions& options) {
+  GF_RETURN_IF_ERROR(CheckFields(mesh, fields, options));
+  return PieceVtp(mesh, fields, options);
+}
+
+absl::StatusOr<std::string> FormatVtu(const Mesh& mesh, const std::vector<PointField>& fields,
+                                      const VtkOptions& options) {
+  GF_RETURN_IF_ERROR(CheckFields(mesh, fields, options));
+  return PieceVtu(mesh, fields, options);
 }
 
 absl::Status WriteVtp(const std::string& path, const Mesh& mesh,
                       const std::vector<PointField>& fields) {
-  absl::StatusOr<std::string> xml = FormatVtp(mesh, fields);
-  if (!xml.ok())
-    return absl::InvalidArgumentError(absl::StrCat(path, ": ", xml.status().message()));
+  VtkOptions text;
+  text.encoding = VtkEncoding::kAscii;
+  return WriteVtp(path, mesh, fields, text);
+}
+
+absl::Status WriteVtp(const std::string& path, const Mesh& mesh,
+                      const std::vector<PointField>& fields, const VtkOptions& options) {
+  absl::StatusOr<std::string> xml = FormatVtp(mesh, fields, options);
+  if (!xml.ok()) return WithPath(path, xml.status());
+  return WriteFileAtomically(path, *xml);
+}
+
+absl::Status WriteVtu(const std::string& path, const Mesh& mesh,
+                      const std::vector<PointField>& fields, const VtkOptions& options) {
+  absl::StatusOr<std::string> xml = FormatVtu(mesh, fields, options);
+  if (!xml.ok()) return WithPath(path, xml.status());
   return WriteFileAtomically(path, *xml);
 }
 
