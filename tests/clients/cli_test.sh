@@ -55,18 +55,28 @@ cmp -s stdout.txt out.tsv || fail "stdout TSV differs from out.tsv"
 # --- VTP and NPY ------------------------------------------------------------------
 run_ok curvature --local t.obj --degree 3 --method lop --two-pass --output out.vtp --verbose
 grep -q "read t.obj" stderr.txt || fail "--verbose printed no timings"
-grep -q '<VTKFile type="PolyData" version="0.1" byte_order="LittleEndian">' out.vtp ||
+# Binary appended by default (VTK's reader checks it in tests/python/test_vtk_output.py).
+grep -a -q '<VTKFile type="PolyData" version="1.0" byte_order="LittleEndian" header_type="UInt64">' out.vtp ||
   fail "VTP lacks the VTKFile element"
-grep -q "NumberOfPoints=\"$nv\"" out.vtp || fail "VTP point count is not $nv"
+grep -a -q '<AppendedData encoding="raw">' out.vtp || fail "VTP is not binary appended"
+grep -a -q "NumberOfPoints=\"$nv\"" out.vtp || fail "VTP point count is not $nv"
+grep -a -q '<PointData Normals="Normals" Scalars="MeanCurvature">' out.vtp ||
+  fail "VTP has no active normals and scalars"
 for name in Normals MeanCurvature GaussianCurvature k1 k2 Direction1 Direction2 \
-  CurvatureTensor DegreeUsed Points Flags; do
-  grep -q "Name=\"$name\"" out.vtp || fail "VTP lacks array $name"
+  CurvatureTensor DegreeUsed StencilPoints Flags; do
+  grep -a -q "Name=\"$name\"" out.vtp || fail "VTP lacks array $name"
 done
-/usr/bin/python3 - out.vtp "$nv" <<'PY' || fail "python could not read out.vtp"
+grep -a -q 'type="UInt8" Name="Flags"' out.vtp || fail "Flags is not UInt8"
+! grep -a -q 'Name="Points" NumberOfComponents="1"' out.vtp || fail "a point-data array is named Points"
+# --ascii: the same arrays as text.
+run_ok curvature --local t.obj --degree 3 --method lop --two-pass --output ascii.vtp --ascii
+/usr/bin/python3 - ascii.vtp "$nv" <<'PY' || fail "python could not read ascii.vtp"
 import sys, xml.etree.ElementTree as ET
 piece = ET.parse(sys.argv[1]).getroot().find("PolyData/Piece")
 nv = int(sys.argv[2])
 assert int(piece.get("NumberOfPoints")) == nv
+types = {a.get("Name"): a.get("type") for a in piece.find("PointData")}
+assert types["DegreeUsed"] == "Int32" and types["Flags"] == "UInt8", types
 for a in piece.find("PointData"):
     if a.get("format") == "ascii":
         assert len(a.text.split()) == nv * int(a.get("NumberOfComponents")), a.get("Name")

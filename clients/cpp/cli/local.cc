@@ -55,7 +55,7 @@ absl::Status RunCurvature(const std::vector<std::string>& argv) {
                                      FitMethodName(a.fit.method), fit_timer.Seconds()));
 
   Stopwatch write_timer;
-  GF_RETURN_IF_ERROR(WriteDifferentials(a.output, mesh, d));
+  GF_RETURN_IF_ERROR(WriteDifferentials(a.output, mesh, d, a.ascii));
   Verbose(a.verbose, absl::StrFormat("wrote %s in %.3f s", a.output.empty() ? "stdout" : a.output,
                                      write_timer.Seconds()));
   return absl::OkStatus();
@@ -99,7 +99,7 @@ absl::Status RunConvert(const std::vector<std::string>& argv) {
   bool verbose = false;
   ArgParser p("geomfit convert", "IN OUT",
               "Converts a mesh between formats, chosen by extension. Reads .obj .off .ply\n"
-              ".stl; writes those (PLY binary, STL binary) and .vtp.");
+              ".stl; writes those (PLY binary, STL binary), .vtp and .vtu.");
   p.Positional("IN", &in, "input mesh file")
       .Positional("OUT", &out, "output mesh file")
       .Flag("verbose", &verbose, "print timings to stderr");
@@ -109,7 +109,7 @@ absl::Status RunConvert(const std::vector<std::string>& argv) {
     return absl::OkStatus();
   }
   GF_RETURN_IF_ERROR(CheckMeshOutput(out));
-  if (FormatFromPath(in).value_or(MeshFormat::kVtp) == MeshFormat::kVtp)
+  if (IsOutputOnly(FormatFromPath(in).value_or(MeshFormat::kVtp)))
     return UsageError(absl::StrCat("input '", in, "': expected .obj, .off, .ply or .stl"));
 
   Stopwatch timer;

@@ -31,7 +31,7 @@ int NumVertices(const Differentials& d) {
 /// A #V x cols field copied out of any per-vertex array.
 template <typename M>
 PointField Field(const std::string& name, const M& m) {
-  return {name, Eigen::MatrixXd(m.template cast<double>())};
+  return {name, Eigen::MatrixXd(m.template cast<double>()), VtkType::kFloat64};
 }
 
 }  // namespace
@@ -41,8 +41,14 @@ absl::StatusOr<OutputKind> OutputKindFromPath(const std::string& path) {
   if (absl::EndsWith(lower, ".tsv") || absl::EndsWith(lower, ".txt")) return OutputKind::kTsv;
   if (absl::EndsWith(lower, ".npy")) return OutputKind::kNpy;
   if (absl::EndsWith(lower, ".vtp")) return OutputKind::kVtp;
-  return UsageError(
-      absl::StrCat("output '", path, "': unknown extension (expected .vtp, .npy, .tsv or .txt)"));
+  if (absl::EndsWith(lower, ".vtu")) return OutputKind::kVtu;
+  return UsageError(absl::StrCat("output '", path,
+                                 "': unknown extension (expected .vtp, .vtu, .npy, .tsv or .txt)"));
+}
+
+bool OutputNeedsMesh(const std::string& path) {
+  const OutputKind kind = OutputKindFromPath(path).value_or(OutputKind::kTsv);
+  return kind == OutputKind::kVtp || kind == OutputKind::kVtu;
 }
 
 const std::vector<std::string>& DifferentialsColumns() {
@@ -95,8 +101,10 @@ std::vector<PointField> DifferentialsFields(const Differentials& d) {
   if (d.tensor.rows() > 0) fields.push_back(Field("CurvatureTensor", d.tensor));
   if (!d.diagnostics.empty()) {
     const int nv = static_cast<int>(d.diagnostics.size());
-    PointField degree{"DegreeUsed", Eigen::MatrixXd(nv, 1)},
-        points{"Points", Eigen::MatrixXd(nv, 1)}, flags{"Flags", Eigen::MatrixXd(nv, 1)};
+    // "StencilPoints", not "Points": VTK names the geometry array Points.
+    PointField degree{"DegreeUsed", Eigen::MatrixXd(nv, 1), VtkType::kInt32},
+        points{"StencilPoints", Eigen::MatrixXd(nv, 1), VtkType::kInt32},
+        flags{"Flags", Eigen::MatrixXd(nv, 1), VtkType::kUInt8};
     for (int v = 0; v < nv; ++v) {
       degree.values(v, 0) = d.diagnostics[v].degree_used;
       points.values(v, 0) = d.diagnostics[v].points;
@@ -109,7 +117,8 @@ std::vector<PointField> DifferentialsFields(const Differentials& d) {
   return fields;
 }
 
-absl::Status WriteDifferentials(const std::string& path, const Mesh& mesh, const Differentials& d) {
+absl::Status WriteDifferentials(const std::string& path, const Mesh& mesh, const Differentials& d,
+                                bool ascii) {
   if (path.empty()) {
     const std::string tsv = DifferentialsTsv(d);
     if (std::fwrite(tsv.data(), 1, tsv.size(), stdout) != tsv.size() || std::fflush(stdout) != 0)
@@ -121,7 +130,18 @@ absl::Status WriteDifferentials(const std::string& path, const Mesh& mesh, const
   switch (*kind) {
     case OutputKind::kTsv: return WriteFileAtomically(path, DifferentialsTsv(d));
     case OutputKind::kNpy: return WriteNpy(path, DifferentialsTable(d));
-    case OutputKind::kVtp: return WriteVtp(path, mesh, DifferentialsFields(d));
+    case OutputKind::kVtp:
+    case OutputKind::kVtu: {
+      const std::vector<PointField> fields = DifferentialsFields(d);
+      VtkOptions options;
+      if (ascii) options.encoding = VtkEncoding::kAscii;
+      for (const PointField& f : fields) {
+        if (f.name == "Normals") options.normals = f.name;
+        if (f.name == "MeanCurvature") options.scalars = f.name;
+      }
+      return *kind == OutputKind::kVtp ? WriteVtp(path, mesh, fields, options)
+                                       : WriteVtu(path, mesh, fields, options);
+    }
   }
   return absl::InternalError("unreachable");
 }

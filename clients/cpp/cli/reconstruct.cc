@@ -292,7 +292,7 @@ absl::Status RunNodes(const std::vector<std::string>& argv) {
     GF_ASSIGN_OR_RETURN(ho, MakeHighOrderMesh(*l.surface, l.topo, order, a.threads));
     // For viewing: each element split along its nodes (the same lattice) as PREFIX.vtp.
     GF_ASSIGN_OR_RETURN(const Mesh split, RefineMesh(*l.surface, l.topo, order, a.threads));
-    GF_RETURN_IF_ERROR(WriteVtp(a.output + ".vtp", split, {}));
+    GF_RETURN_IF_ERROR(WriteVtp(a.output + ".vtp", split, {}, VtkOptions{}));
   }
   std::string nodes = "x\ty\tz\n", elements;
   for (int i = 0; i < ho.nodes.rows(); ++i)

@@ -182,7 +182,7 @@ absl::Status CheckFields(const Mesh& mesh, const std::vector<PointField>& fields
         const double v = f.values(r, c);
         if (!(v >= lo && v <= hi && v == std::floor(v)))
           return absl::InvalidArgumentError(
-              absl::StrFormat("point field '%s': value %g at vertex %d is not a %s", f.name, v, r,
+              absl::StrFormat("point field '%s': value %g at vertex %d is not representable as %s", f.name, v, r,
                               TypeName(ToArrayType(f.type))));
       }
   }
