@@ -178,7 +178,8 @@ std::vector<BadMesh> BadMeshes() {
 TEST(WriterValidationTest, EveryFormatRefusesBrokenConnectivity) {
   for (const BadMesh& b : BadMeshes())
     for (MeshFormat f :
-         {MeshFormat::kObj, MeshFormat::kOff, MeshFormat::kPly, MeshFormat::kStl, MeshFormat::kVtp}) {
+         {MeshFormat::kObj, MeshFormat::kOff, MeshFormat::kPly, MeshFormat::kStl,
+          MeshFormat::kVtp, MeshFormat::kVtu}) {
       SCOPED_TRACE(MeshFormatName(f));
       std::vector<std::string> words = b.words;
       words.push_back("refusing to write an invalid mesh");

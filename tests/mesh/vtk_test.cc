@@ -136,7 +136,7 @@ TEST(VtkTest, BadFieldsAndAttributesAreRefused) {
   std::vector<PointField> f = Fields();
   f[3].values(2, 0) = 256;
   EXPECT_THAT(std::string(FormatVtp(Mixed(), f, VtkOptions{}).status().message()),
-              HasSubstr("point field 'Flags': value 256 at vertex 2 is not representable as UInt8"));
+              HasSubstr("'Flags': value 256 at vertex 2 is not representable as UInt8"));
   f = Fields();
   f[2].values(1, 0) = 2.5;
   EXPECT_THAT(std::string(FormatVtu(Mixed(), f).status().message()),

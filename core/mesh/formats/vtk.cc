@@ -181,9 +181,9 @@ absl::Status CheckFields(const Mesh& mesh, const std::vector<PointField>& fields
       for (Eigen::Index c = 0; c < f.values.cols(); ++c) {
         const double v = f.values(r, c);
         if (!(v >= lo && v <= hi && v == std::floor(v)))
-          return absl::InvalidArgumentError(
-              absl::StrFormat("point field '%s': value %g at vertex %d is not representable as %s", f.name, v, r,
-                              TypeName(ToArrayType(f.type))));
+          return absl::InvalidArgumentError(absl::StrFormat(
+              "point field '%s': value %g at vertex %d is not representable as %s", f.name, v, r,
+              TypeName(ToArrayType(f.type))));
       }
   }
   const auto check_active = [&](const std::string& name, const char* what, int min_cols,
@@ -206,8 +206,10 @@ void AppendPoints(VtkXml* x, const Mesh& mesh, const std::vector<PointField>& fi
   const int64_t nv = mesh.NumVertices();
   std::string& xml = x->xml();
   xml += "      <PointData";
-  if (!options.normals.empty()) absl::StrAppend(&xml, " Normals=\"", XmlEscape(options.normals), "\"");
-  if (!options.scalars.empty()) absl::StrAppend(&xml, " Scalars=\"", XmlEscape(options.scalars), "\"");
+  if (!options.normals.empty())
+    absl::StrAppend(&xml, " Normals=\"", XmlEscape(options.normals), "\"");
+  if (!options.scalars.empty())
+    absl::StrAppend(&xml, " Scalars=\"", XmlEscape(options.scalars), "\"");
   xml += ">\n";
   for (const PointField& f : fields) {
     const int cols = static_cast<int>(f.values.cols());
