@@ -119,6 +119,13 @@ absl::StatusOr<std::string> FormatMesh(const Mesh& mesh, MeshFormat format) {
   }
 }
 
+absl::Status WriteMesh(const Mesh& mesh, const std::string& path, const VtkOptions& vtk) {
+  GF_ASSIGN_OR_RETURN(const MeshFormat format, FormatFromPath(path));
+  if (format == MeshFormat::kVtp) return WriteVtp(path, mesh, {}, vtk);
+  if (format == MeshFormat::kVtu) return WriteVtu(path, mesh, {}, vtk);
+  return WriteMesh(mesh, path);
+}
+
 absl::Status WriteMesh(const Mesh& mesh, const std::string& path) {
   GF_ASSIGN_OR_RETURN(const MeshFormat format, FormatFromPath(path));
   absl::StatusOr<std::string> bytes = FormatMesh(mesh, format);

@@ -10,6 +10,8 @@
 
 namespace geomfit {
 
+struct VtkOptions;
+
 /// Mesh file formats. VTP (VTK XML PolyData) and VTU (VTK XML UnstructuredGrid) are
 /// write-only.
 enum class MeshFormat { kObj, kOff, kPly, kStl, kVtp, kVtu };
@@ -52,6 +54,8 @@ absl::StatusOr<std::string> FormatMesh(const Mesh& mesh, MeshFormat format);
 /// Like every writer here it writes `path + ".tmp"` and renames it, so a failed write
 /// never leaves a partial file under `path`.
 absl::Status WriteMesh(const Mesh& mesh, const std::string& path);
+/// The same; `vtk` applies to .vtp and .vtu (e.g. ASCII).
+absl::Status WriteMesh(const Mesh& mesh, const std::string& path, const VtkOptions& vtk);
 
 /// The VTK type a point field is stored as. Integer types need integral values in range.
 enum class VtkType { kFloat64, kInt32, kUInt8 };

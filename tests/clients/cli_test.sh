@@ -96,6 +96,9 @@ run_ok curvature --local t.ply --degree 2 --output ply.tsv
 cmp -s ply.tsv out.tsv || fail "curvature of the PLY copy differs"
 run_ok convert t.ply t.off
 run_ok convert t.off t.vtp
+grep -a -q '<AppendedData encoding="raw">' t.vtp || fail "convert: t.vtp is not binary"
+run_ok convert t.off t_ascii.vtu --ascii
+grep -q 'type="UInt8" Name="types" format="ascii"' t_ascii.vtu || fail "convert --ascii: not text"
 
 # --- help and version ------------------------------------------------------------
 run_ok --help

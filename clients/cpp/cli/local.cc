@@ -96,12 +96,13 @@ absl::Status RunGenerate(const std::vector<std::string>& argv) {
 
 absl::Status RunConvert(const std::vector<std::string>& argv) {
   std::string in, out;
-  bool verbose = false;
-  ArgParser p("geomfit convert", "IN OUT",
+  bool verbose = false, ascii = false;
+  ArgParser p("geomfit convert", "IN OUT [--ascii]",
               "Converts a mesh between formats, chosen by extension. Reads .obj .off .ply\n"
               ".stl; writes those (PLY binary, STL binary), .vtp and .vtu.");
   p.Positional("IN", &in, "input mesh file")
       .Positional("OUT", &out, "output mesh file")
+      .Flag("ascii", &ascii, ".vtp/.vtu as text (default: binary, appended raw)")
       .Flag("verbose", &verbose, "print timings to stderr");
   GF_RETURN_IF_ERROR(p.Parse(argv));
   if (p.help_requested()) {
@@ -117,7 +118,9 @@ absl::Status RunConvert(const std::vector<std::string>& argv) {
   Verbose(verbose, absl::StrFormat("read %s: %d vertices, %d faces in %.3f s", in,
                                    mesh.NumVertices(), mesh.NumFaces(), timer.Seconds()));
   Stopwatch write_timer;
-  GF_RETURN_IF_ERROR(WriteMesh(mesh, out));
+  VtkOptions vtk;
+  if (ascii) vtk.encoding = VtkEncoding::kAscii;
+  GF_RETURN_IF_ERROR(WriteMesh(mesh, out, vtk));
   Verbose(verbose, absl::StrFormat("wrote %s in %.3f s", out, write_timer.Seconds()));
   return absl::OkStatus();
 }
