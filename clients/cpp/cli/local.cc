@@ -72,7 +72,7 @@ absl::Status RunGenerate(const std::vector<std::string>& argv) {
       .Int("level", &g.n, "resolution n (edge length ~ 1/n), 2..4096")
       .Double("jitter", &g.jitter, "vertex jitter along the surface, x local spacing, 0..0.3")
       .UInt64("seed", &g.seed, "random seed of the jitter and diagonals")
-      .String("output", &output, "output file (.obj .off .ply .stl .vtp)", "FILE")
+      .String("output", &output, "output file (.obj .off .ply .stl .vtp .vtu)", "FILE")
       .Flag("verbose", &verbose, "print timings to stderr");
   GF_RETURN_IF_ERROR(p.Parse(argv));
   if (p.help_requested()) {
