@@ -102,6 +102,19 @@ absl::StatusOr<std::string> FormatVtu(const Mesh& mesh, const std::vector<PointF
 absl::Status WriteVtu(const std::string& path, const Mesh& mesh,
                       const std::vector<PointField>& fields, const VtkOptions& options = {});
 
+/// Cells of any VTK type (Lagrange elements, say) for .vtu output.
+struct VtkCells {
+  std::vector<int64_t> offsets = {0};  ///< cell c: connectivity[offsets[c] .. offsets[c + 1])
+  std::vector<int32_t> connectivity;   ///< point ids
+  std::vector<uint8_t> types;          ///< VTK cell type of each cell
+};
+/// Errors name the cell whose point id is out of range, or the sizes that disagree.
+absl::StatusOr<std::string> FormatVtu(const Positions& points, const VtkCells& cells,
+                                      const std::vector<PointField>& fields,
+                                      const VtkOptions& options = {});
+absl::Status WriteVtu(const std::string& path, const Positions& points, const VtkCells& cells,
+                      const std::vector<PointField>& fields, const VtkOptions& options = {});
+
 using RowMajorMatrixXd = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
 
 /// NumPy .npy v1.0: '<f8', fortran_order False, shape (rows, cols).

@@ -163,3 +163,30 @@ TEST(VtkTest, VtuIsAnOutputFormat) {
 
 }  // namespace
 }  // namespace geomfit
+
+namespace geomfit {
+namespace {
+
+TEST(VtkTest, GeneralCellsAreChecked) {
+  Positions p(3, 3);
+  p << 0, 0, 0, 1, 0, 0, 0, 1, 0;
+  VtkCells cells;
+  cells.connectivity = {0, 1, 2};
+  cells.offsets.push_back(3);
+  cells.types = {5};
+  auto ok = FormatVtu(p, cells, {});
+  ASSERT_TRUE(ok.ok()) << ok.status();
+  EXPECT_THAT(*ok, HasSubstr("NumberOfCells=\"1\""));
+  cells.connectivity[2] = 3;
+  EXPECT_THAT(std::string(FormatVtu(p, cells, {}).status().message()),
+              HasSubstr("cell 0: point 3 is out of range [0, 3)"));
+  cells.connectivity[2] = 2;
+  cells.types.push_back(5);
+  EXPECT_THAT(std::string(FormatVtu(p, cells, {}).status().message()),
+              HasSubstr("2 types, 2 offsets and 3 point ids do not match"));
+  EXPECT_THAT(std::string(WriteVtu("/nonexistent/x.vtu", p, cells, {}).message()),
+              HasSubstr("/nonexistent/x.vtu: cells:"));
+}
+
+}  // namespace
+}  // namespace geomfit

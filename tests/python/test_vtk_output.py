@@ -167,3 +167,49 @@ def test_mixed_triangles_and_quads(tmp_path):
             assert [data.GetCellType(c) for c in range(4)] == [vtk.VTK_QUAD] + [vtk.VTK_TRIANGLE] * 3
     m = meshio.read(str(tmp_path / "mixed.vtu"))
     assert {b.type: len(b.data) for b in m.cells} == {"quad": 1, "triangle": 3}
+
+
+@pytest.mark.parametrize("order", [2, 3])
+def test_nodes_vtu_is_lagrange_cells_in_vtk_order(tmp_path, order):
+    """`geomfit nodes` on a flat, non-uniform grid of quads and triangles: the surface is
+    the plane, so every node must sit where VTK's own parametric coordinates of that
+    node put it on the cell's bilinear (quad) or linear (triangle) map. Nodes in another
+    order than VTK's (e.g. quad edges 2-3 and 3-0 not reversed at order 3) miss by the
+    node spacing."""
+    rng = np.random.default_rng(3)
+    xs, ys = [0, 0.9, 2.1, 2.9, 4.2], [0, 1.1, 1.9, 3.2]
+    verts = [(x + 0.1 * rng.random(), y + 0.1 * rng.random(), 0.0) for y in ys for x in xs]
+    faces = []
+    for j in range(3):
+        for i in range(4):
+            a = j * 5 + i
+            b, c, d = a + 1, a + 6, a + 5
+            faces += [(a, b, c, d)] if (i + j) % 2 else [(a, b, c), (a, c, d)]
+    obj = str(tmp_path / "grid.obj")
+    with open(obj, "w") as f:
+        f.writelines("v %r %r %r\n" % v for v in verts)
+        f.writelines("f %s\n" % " ".join(str(x + 1) for x in face) for face in faces)
+    prefix = str(tmp_path / "grid")
+    run("nodes", obj, "--order", str(order), "--output", prefix)
+    g = read_vtk(prefix + ".vtu")
+    assert g.GetNumberOfCells() == len(faces)
+    nodes = vtk_to_numpy(g.GetPoints().GetData())
+    expect_n = {vtk.VTK_LAGRANGE_TRIANGLE: (order + 1) * (order + 2) // 2,
+                vtk.VTK_LAGRANGE_QUADRILATERAL: (order + 1) ** 2}
+    worst = 0.0
+    for c in range(g.GetNumberOfCells()):
+        cell, kind = g.GetCell(c), g.GetCellType(c)
+        assert kind == (vtk.VTK_LAGRANGE_TRIANGLE if len(faces[c]) == 3 else vtk.VTK_LAGRANGE_QUADRILATERAL)
+        n = cell.GetNumberOfPoints()
+        assert n == expect_n[kind]
+        x = nodes[[cell.GetPointId(i) for i in range(n)]]
+        np.testing.assert_array_equal(x[:len(faces[c])], np.array(verts)[list(faces[c])])
+        pc = cell.GetParametricCoords()
+        for i in range(n):
+            r, s = pc[3 * i], pc[3 * i + 1]
+            if kind == vtk.VTK_LAGRANGE_TRIANGLE:
+                want = (1 - r - s) * x[0] + r * x[1] + s * x[2]
+            else:
+                want = (1 - r) * (1 - s) * x[0] + r * (1 - s) * x[1] + r * s * x[2] + (1 - r) * s * x[3]
+            worst = max(worst, float(np.abs(want - x[i]).max()))
+    assert worst < 1e-12, worst

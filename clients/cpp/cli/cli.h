@@ -13,6 +13,10 @@
 #include "core/mesh/mesh.h"
 #include "core/quantities/differentials.h"
 
+namespace geomfit {
+struct HighOrderMesh;
+}  // namespace geomfit
+
 namespace geomfit::cli {
 
 inline constexpr char kVersion[] = "0.1.0";
@@ -124,6 +128,10 @@ std::vector<PointField> DifferentialsFields(const Differentials& d);
 /// as the active normals and scalars.
 absl::Status WriteDifferentials(const std::string& path, const Mesh& mesh, const Differentials& d,
                                 bool ascii = false);
+
+/// High-order elements (`geomfit nodes`) as VTK Lagrange triangles and quadrilaterals
+/// (binary appended), which ParaView draws curved.
+absl::Status WriteLagrangeVtu(const std::string& path, const HighOrderMesh& ho);
 
 // ---- Commands: each returns OK, a usage error or a runtime error ----
 

@@ -10,6 +10,7 @@
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_join.h"
 #include "clients/cpp/cli/cli.h"
+#include "core/reconstruction/meshing.h"
 
 namespace geomfit::cli {
 namespace {
@@ -115,6 +116,30 @@ std::vector<PointField> DifferentialsFields(const Differentials& d) {
     fields.push_back(std::move(flags));
   }
   return fields;
+}
+
+absl::Status WriteLagrangeVtu(const std::string& path, const HighOrderMesh& ho) {
+  constexpr uint8_t kVtkLagrangeTriangle = 69, kVtkLagrangeQuadrilateral = 70;
+  const int k = ho.order, tri_nodes = (k + 1) * (k + 2) / 2;
+  VtkCells cells;
+  for (size_t f = 0; f + 1 < ho.offsets.size(); ++f) {
+    const int32_t* e = ho.elements.data() + ho.offsets[f];
+    const int n = ho.offsets[f + 1] - ho.offsets[f];
+    if (n == tri_nodes) {  // corners, edges 0-1, 1-2, 2-0, interior: VTK's order
+      cells.connectivity.insert(cells.connectivity.end(), e, e + n);
+      cells.types.push_back(kVtkLagrangeTriangle);
+    } else {
+      // VTK runs the edges of a quadrilateral along its parameter directions: 0-1, 1-2,
+      // 3-2, 0-3; ours run around it (0-1, 1-2, 2-3, 3-0), so the last two reverse.
+      cells.connectivity.insert(cells.connectivity.end(), e, e + 4 + 2 * (k - 1));
+      for (int edge = 2; edge < 4; ++edge)
+        for (int t = k - 2; t >= 0; --t) cells.connectivity.push_back(e[4 + edge * (k - 1) + t]);
+      cells.connectivity.insert(cells.connectivity.end(), e + 4 + 4 * (k - 1), e + n);
+      cells.types.push_back(kVtkLagrangeQuadrilateral);
+    }
+    cells.offsets.push_back(static_cast<int64_t>(cells.connectivity.size()));
+  }
+  return WriteVtu(path, ho.nodes, cells, {});
 }
 
 absl::Status WriteDifferentials(const std::string& path, const Mesh& mesh, const Differentials& d,

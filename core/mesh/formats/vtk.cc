@@ -165,10 +165,8 @@ class VtkXml {
   std::vector<std::string> pieces_, blocks_;
 };
 
-absl::Status CheckFields(const Mesh& mesh, const std::vector<PointField>& fields,
+absl::Status CheckFields(int64_t nv, const std::vector<PointField>& fields,
                          const VtkOptions& options) {
-  GF_RETURN_IF_ERROR(mesh_io::CheckWritable(mesh));
-  const int nv = mesh.NumVertices();
   for (const PointField& f : fields) {
     if (f.values.rows() != nv || f.values.cols() < 1)
       return absl::InvalidArgumentError(absl::StrFormat(
@@ -200,10 +198,41 @@ absl::Status CheckFields(const Mesh& mesh, const std::vector<PointField>& fields
   return check_active(options.scalars, "scalars", 1, 4);
 }
 
+absl::Status CheckCells(int64_t nv, const VtkCells& c) {
+  const size_t n = c.types.size();
+  if (c.offsets.size() != n + 1 || c.offsets.front() != 0 ||
+      c.offsets.back() != static_cast<int64_t>(c.connectivity.size()))
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "cells: %d types, %d offsets and %d point ids do not match", n, c.offsets.size(),
+        c.connectivity.size()));
+  for (size_t k = 0; k < n; ++k) {
+    if (c.offsets[k + 1] <= c.offsets[k])
+      return absl::InvalidArgumentError(absl::StrFormat("cell %d has no points", k));
+    for (int64_t i = c.offsets[k]; i < c.offsets[k + 1]; ++i)
+      if (c.connectivity[i] < 0 || c.connectivity[i] >= nv)
+        return absl::InvalidArgumentError(absl::StrFormat(
+            "cell %d: point %d is out of range [0, %d)", k, c.connectivity[i], nv));
+  }
+  return absl::OkStatus();
+}
+
+VtkCells CellsOf(const Mesh& mesh) {
+  VtkCells c;
+  c.offsets.reserve(mesh.NumFaces() + 1);
+  c.connectivity.reserve(4 * static_cast<size_t>(mesh.NumFaces()));
+  c.types.reserve(mesh.NumFaces());
+  for (int f = 0; f < mesh.NumFaces(); ++f) {
+    for (int i = 0; i < mesh.FaceSize(f); ++i) c.connectivity.push_back(mesh.faces(f, i));
+    c.offsets.push_back(static_cast<int64_t>(c.connectivity.size()));
+    c.types.push_back(mesh.FaceSize(f) == 3 ? kVtkTriangle : kVtkQuad);
+  }
+  return c;
+}
+
 /// <PointData> and <Points>, shared by both file types.
-void AppendPoints(VtkXml* x, const Mesh& mesh, const std::vector<PointField>& fields,
+void AppendPoints(VtkXml* x, const Positions& points, const std::vector<PointField>& fields,
                   const VtkOptions& options) {
-  const int64_t nv = mesh.NumVertices();
+  const int64_t nv = points.rows();
   std::string& xml = x->xml();
   xml += "      <PointData";
   if (!options.normals.empty())
@@ -220,34 +249,29 @@ void AppendPoints(VtkXml* x, const Mesh& mesh, const std::vector<PointField>& fi
   x->xml() += "      </PointData>\n      <Points>\n";
   x->Array(
       ArrayType::kFloat64, "Points", 3, 3 * nv,
-      [&](int64_t i) { return mesh.positions(i / 3, i % 3); }, [](int64_t) { return 3; });
+      [&](int64_t i) { return points(i / 3, i % 3); }, [](int64_t) { return 3; });
   x->xml() += "      </Points>\n";
 }
 
-/// connectivity (one face a line in ASCII) and offsets (16 a line); Int64 offsets in
-/// binary files.
-void AppendFaces(VtkXml* x, const Mesh& mesh) {
-  const int nf = mesh.NumFaces();
-  std::vector<int64_t> offsets(nf), first(nf);  // first corner's position in `corners`
-  std::vector<int32_t> corners;
-  corners.reserve(4 * static_cast<size_t>(nf));
-  for (int f = 0; f < nf; ++f) {
-    first[f] = static_cast<int64_t>(corners.size());
-    for (int i = 0; i < mesh.FaceSize(f); ++i) corners.push_back(mesh.faces(f, i));
-    offsets[f] = static_cast<int64_t>(corners.size());
-  }
-  // Face of corner i, for the ASCII line breaks.
-  int face = 0;
+/// connectivity (one cell a line in ASCII), offsets (16 a line; Int64 in binary files)
+/// and, for unstructured grids, types.
+void AppendCells(VtkXml* x, const VtkCells& c, bool with_types) {
+  const int64_t n = static_cast<int64_t>(c.types.size());
+  int64_t cell = 0;  // the cell of point id i, for the ASCII line breaks
   x->Array(
-      ArrayType::kInt32, "connectivity", 0, static_cast<int64_t>(corners.size()),
-      [&](int64_t i) { return corners[i]; },
+      ArrayType::kInt32, "connectivity", 0, static_cast<int64_t>(c.connectivity.size()),
+      [&](int64_t i) { return c.connectivity[i]; },
       [&](int64_t i) {
-        while (face + 1 < nf && first[face + 1] <= i) ++face;
-        return offsets[face] - i;
+        while (c.offsets[cell + 1] <= i) ++cell;
+        return c.offsets[cell + 1] - i;
       });
   x->Array(
-      x->binary() ? ArrayType::kInt64 : ArrayType::kInt32, "offsets", 0, nf,
-      [&](int64_t i) { return static_cast<double>(offsets[i]); }, [](int64_t) { return 16; });
+      x->binary() ? ArrayType::kInt64 : ArrayType::kInt32, "offsets", 0, n,
+      [&](int64_t i) { return static_cast<double>(c.offsets[i + 1]); }, [](int64_t) { return 16; });
+  if (with_types)
+    x->Array(
+        ArrayType::kUInt8, "types", 0, n, [&](int64_t i) { return c.types[i]; },
+        [](int64_t) { return 16; });
 }
 
 std::string PieceVtp(const Mesh& mesh, const std::vector<PointField>& fields,
@@ -257,31 +281,30 @@ std::string PieceVtp(const Mesh& mesh, const std::vector<PointField>& fields,
                         "    <Piece NumberOfPoints=\"%d\" NumberOfVerts=\"0\" NumberOfLines=\"0\" "
                         "NumberOfStrips=\"0\" NumberOfPolys=\"%d\">\n",
                         mesh.NumVertices(), mesh.NumFaces());
-  AppendPoints(&x, mesh, fields, options);
+  AppendPoints(&x, mesh.positions, fields, options);
   x.xml() += "      <Polys>\n";
-  AppendFaces(&x, mesh);
+  AppendCells(&x, CellsOf(mesh), /*with_types=*/false);
   x.xml() += "      </Polys>\n    </Piece>\n";
   return x.Finish();
 }
 
-std::string PieceVtu(const Mesh& mesh, const std::vector<PointField>& fields,
-                     const VtkOptions& options) {
+std::string PieceVtu(const Positions& points, const VtkCells& cells,
+                     const std::vector<PointField>& fields, const VtkOptions& options) {
   VtkXml x("UnstructuredGrid", options.encoding);
   absl::StrAppendFormat(&x.xml(), "    <Piece NumberOfPoints=\"%d\" NumberOfCells=\"%d\">\n",
-                        mesh.NumVertices(), mesh.NumFaces());
-  AppendPoints(&x, mesh, fields, options);
+                        points.rows(), cells.types.size());
+  AppendPoints(&x, points, fields, options);
   x.xml() += "      <Cells>\n";
-  AppendFaces(&x, mesh);
-  x.Array(
-      ArrayType::kUInt8, "types", 0, mesh.NumFaces(),
-      [&](int64_t f) { return mesh.FaceSize(static_cast<int>(f)) == 3 ? kVtkTriangle : kVtkQuad; },
-      [](int64_t) { return 16; });
+  AppendCells(&x, cells, /*with_types=*/true);
   x.xml() += "      </Cells>\n    </Piece>\n";
   return x.Finish();
 }
 
-absl::Status WithPath(const std::string& path, const absl::Status& s) {
-  return absl::Status(s.code(), absl::StrCat(path, ": ", s.message()));
+/// Writes a formatted file, or returns its error prefixed with the path.
+absl::Status WriteXml(const std::string& path, const absl::StatusOr<std::string>& xml) {
+  if (!xml.ok())
+    return absl::Status(xml.status().code(), absl::StrCat(path, ": ", xml.status().message()));
+  return WriteFileAtomically(path, *xml);
 }
 
 }  // namespace
@@ -294,14 +317,24 @@ absl::StatusOr<std::string> FormatVtp(const Mesh& mesh, const std::vector<PointF
 
 absl::StatusOr<std::string> FormatVtp(const Mesh& mesh, const std::vector<PointField>& fields,
                                       const VtkOptions& options) {
-  GF_RETURN_IF_ERROR(CheckFields(mesh, fields, options));
+  GF_RETURN_IF_ERROR(mesh_io::CheckWritable(mesh));
+  GF_RETURN_IF_ERROR(CheckFields(mesh.NumVertices(), fields, options));
   return PieceVtp(mesh, fields, options);
 }
 
 absl::StatusOr<std::string> FormatVtu(const Mesh& mesh, const std::vector<PointField>& fields,
                                       const VtkOptions& options) {
-  GF_RETURN_IF_ERROR(CheckFields(mesh, fields, options));
-  return PieceVtu(mesh, fields, options);
+  GF_RETURN_IF_ERROR(mesh_io::CheckWritable(mesh));
+  GF_RETURN_IF_ERROR(CheckFields(mesh.NumVertices(), fields, options));
+  return PieceVtu(mesh.positions, CellsOf(mesh), fields, options);
+}
+
+absl::StatusOr<std::string> FormatVtu(const Positions& points, const VtkCells& cells,
+                                      const std::vector<PointField>& fields,
+                                      const VtkOptions& options) {
+  GF_RETURN_IF_ERROR(CheckCells(points.rows(), cells));
+  GF_RETURN_IF_ERROR(CheckFields(points.rows(), fields, options));
+  return PieceVtu(points, cells, fields, options);
 }
 
 absl::Status WriteVtp(const std::string& path, const Mesh& mesh,
@@ -313,16 +346,17 @@ absl::Status WriteVtp(const std::string& path, const Mesh& mesh,
 
 absl::Status WriteVtp(const std::string& path, const Mesh& mesh,
                       const std::vector<PointField>& fields, const VtkOptions& options) {
-  absl::StatusOr<std::string> xml = FormatVtp(mesh, fields, options);
-  if (!xml.ok()) return WithPath(path, xml.status());
-  return WriteFileAtomically(path, *xml);
+  return WriteXml(path, FormatVtp(mesh, fields, options));
 }
 
 absl::Status WriteVtu(const std::string& path, const Mesh& mesh,
                       const std::vector<PointField>& fields, const VtkOptions& options) {
-  absl::StatusOr<std::string> xml = FormatVtu(mesh, fields, options);
-  if (!xml.ok()) return WithPath(path, xml.status());
-  return WriteFileAtomically(path, *xml);
+  return WriteXml(path, FormatVtu(mesh, fields, options));
+}
+
+absl::Status WriteVtu(const std::string& path, const Positions& points, const VtkCells& cells,
+                      const std::vector<PointField>& fields, const VtkOptions& options) {
+  return WriteXml(path, FormatVtu(points, cells, fields, options));
 }
 
 }  // namespace geomfit
