@@ -10,18 +10,25 @@
 
 namespace geomfit {
 
-/// Mesh file formats. VTP (VTK XML PolyData) is write-only.
-enum class MeshFormat { kObj, kOff, kPly, kStl, kVtp };
+struct VtkOptions;
 
-/// The format named by a path's extension (.obj .off .ply .stl .vtp, any case).
+/// Mesh file formats. VTP (VTK XML PolyData) and VTU (VTK XML UnstructuredGrid) are
+/// write-only.
+enum class MeshFormat { kObj, kOff, kPly, kStl, kVtp, kVtu };
+
+/// The format named by a path's extension (.obj .off .ply .stl .vtp .vtu, any case).
 absl::StatusOr<MeshFormat> FormatFromPath(std::string_view path);
 const char* MeshFormatName(MeshFormat format);
+/// True for the formats geomfit writes but does not read (VTP, VTU).
+bool IsOutputOnly(MeshFormat format);
 
 /// Parses a mesh held in memory (an uploaded file, a test's bytes). Readers check
-/// syntax, counts and face sizes (3 or 4) and never trust a count further than the
-/// bytes that follow it; indices out of range and non-finite coordinates are passed
-/// through for ValidateMesh to reject. Errors (INVALID_ARGUMENT) start with
-/// `source_name` and give the line (text) or byte offset (binary).
+/// syntax, counts, face sizes (3 or 4) and that every face index names an existing
+/// vertex, and never trust a count further than the bytes that follow it; what they
+/// return always has valid connectivity arrays. Non-finite coordinates, zero-area and
+/// non-manifold faces are passed through for ValidateMesh to reject. Errors
+/// (INVALID_ARGUMENT) start with `source_name` and give the line (text) or the face
+/// and byte offset (binary).
 ///  - OBJ: `v` and `f` lines (v, v/vt, v/vt/vn, v//vn; negative = relative); rest ignored.
 ///  - OFF: optional [ST][C][N]OFF keyword, `#` comments; one vertex or face per line,
 ///    extra fields (colours) ignored.
@@ -35,29 +42,78 @@ absl::StatusOr<Mesh> ParseMesh(std::string_view bytes, MeshFormat format,
 /// Reads a mesh file; the format comes from the extension.
 absl::StatusOr<Mesh> ReadMesh(const std::string& path);
 
-/// Serializes a mesh: OBJ and OFF as text with %.17g (exact round trip), PLY as
+/// Serializes a mesh; every writer (VTP too) refuses, with INVALID_ARGUMENT naming the
+/// face, a mesh whose faces are not 3 or 4 indices of existing vertices (a triangle
+/// carries -1 last). OBJ and OFF as text with %.17g (exact round trip), PLY as
 /// binary little endian with double coordinates and int indices, STL as binary
 /// (float32 coordinates; quads split along their 0-2 diagonal).
 absl::StatusOr<std::string> FormatMesh(const Mesh& mesh, MeshFormat format);
 
-/// Writes a mesh in the format named by the extension (.vtp writes no point data).
+/// Writes a mesh in the format named by the extension (.vtp and .vtu: no point data,
+/// binary appended; see VtkOptions).
 /// Like every writer here it writes `path + ".tmp"` and renames it, so a failed write
 /// never leaves a partial file under `path`.
 absl::Status WriteMesh(const Mesh& mesh, const std::string& path);
+/// The same; `vtk` applies to .vtp and .vtu (e.g. ASCII).
+absl::Status WriteMesh(const Mesh& mesh, const std::string& path, const VtkOptions& vtk);
 
-/// A per-vertex array for VTP output: rows = #V, cols = components (1, 3, 9, ...).
+/// The VTK type a point field is stored as. Integer types need integral values in range.
+enum class VtkType { kFloat64, kInt32, kUInt8 };
+
+/// A per-vertex array for VTK output: rows = #V, cols = components (1, 3, 9, ...).
 struct PointField {
   std::string name;
   Eigen::MatrixXd values;
+  VtkType type = VtkType::kFloat64;
 };
 
-/// VTK XML PolyData (ParaView's .vtp): Points, Polys (triangles and quads) and one
-/// Float64 PointData array per field. Arrays are ASCII with %.17g; an array holding a
-/// NaN or infinity (which VTK's ASCII parser cannot read) is written inline base64
-/// ("binary") instead, bit-exact.
+/// How VTK XML files store their arrays.
+enum class VtkEncoding {
+  /// Text, %.17g (an array holding a NaN or infinity, which VTK's ASCII parser cannot
+  /// read, goes inline base64 instead, bit-exact).
+  kAscii,
+  /// Raw little-endian bytes in one <AppendedData> block (UInt64 size headers), as
+  /// VTK's own writers do: about a quarter of the ASCII size, read several times faster.
+  kAppended,
+};
+
+struct VtkOptions {
+  VtkEncoding encoding = VtkEncoding::kAppended;
+  /// Fields made the active attributes of <PointData> (`Normals="..."`, `Scalars="..."`:
+  /// viewers smooth-shade with the normals and colour by the scalars); empty = none.
+  /// Must name a field with 3 components (normals) or 1 (scalars).
+  std::string normals, scalars;
+};
+
+/// VTK XML PolyData (.vtp): Points, Polys (triangles and quads) and one PointData
+/// array per field. The two-argument forms write ASCII without active attributes.
 absl::StatusOr<std::string> FormatVtp(const Mesh& mesh, const std::vector<PointField>& fields);
+absl::StatusOr<std::string> FormatVtp(const Mesh& mesh, const std::vector<PointField>& fields,
+                                      const VtkOptions& options);
 absl::Status WriteVtp(const std::string& path, const Mesh& mesh,
                       const std::vector<PointField>& fields);
+absl::Status WriteVtp(const std::string& path, const Mesh& mesh,
+                      const std::vector<PointField>& fields, const VtkOptions& options);
+
+/// VTK XML UnstructuredGrid (.vtu, read by meshio too): the same points and fields,
+/// faces as VTK_TRIANGLE / VTK_QUAD cells.
+absl::StatusOr<std::string> FormatVtu(const Mesh& mesh, const std::vector<PointField>& fields,
+                                      const VtkOptions& options = {});
+absl::Status WriteVtu(const std::string& path, const Mesh& mesh,
+                      const std::vector<PointField>& fields, const VtkOptions& options = {});
+
+/// Cells of any VTK type (Lagrange elements, say) for .vtu output.
+struct VtkCells {
+  std::vector<int64_t> offsets = {0};  ///< cell c: connectivity[offsets[c] .. offsets[c + 1])
+  std::vector<int32_t> connectivity;   ///< point ids
+  std::vector<uint8_t> types;          ///< VTK cell type of each cell
+};
+/// Errors name the cell whose point id is out of range, or the sizes that disagree.
+absl::StatusOr<std::string> FormatVtu(const Positions& points, const VtkCells& cells,
+                                      const std::vector<PointField>& fields,
+                                      const VtkOptions& options = {});
+absl::Status WriteVtu(const std::string& path, const Positions& points, const VtkCells& cells,
+                      const std::vector<PointField>& fields, const VtkOptions& options = {});
 
 using RowMajorMatrixXd = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
 

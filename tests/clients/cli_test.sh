@@ -55,18 +55,28 @@ cmp -s stdout.txt out.tsv || fail "stdout TSV differs from out.tsv"
 # --- VTP and NPY ------------------------------------------------------------------
 run_ok curvature --local t.obj --degree 3 --method lop --two-pass --output out.vtp --verbose
 grep -q "read t.obj" stderr.txt || fail "--verbose printed no timings"
-grep -q '<VTKFile type="PolyData" version="0.1" byte_order="LittleEndian">' out.vtp ||
+# Binary appended by default (VTK's reader checks it in tests/python/test_vtk_output.py).
+grep -a -q '<VTKFile type="PolyData" version="1.0" byte_order="LittleEndian" header_type="UInt64">' out.vtp ||
   fail "VTP lacks the VTKFile element"
-grep -q "NumberOfPoints=\"$nv\"" out.vtp || fail "VTP point count is not $nv"
+grep -a -q '<AppendedData encoding="raw">' out.vtp || fail "VTP is not binary appended"
+grep -a -q "NumberOfPoints=\"$nv\"" out.vtp || fail "VTP point count is not $nv"
+grep -a -q '<PointData Normals="Normals" Scalars="MeanCurvature">' out.vtp ||
+  fail "VTP has no active normals and scalars"
 for name in Normals MeanCurvature GaussianCurvature k1 k2 Direction1 Direction2 \
-  CurvatureTensor DegreeUsed Points Flags; do
-  grep -q "Name=\"$name\"" out.vtp || fail "VTP lacks array $name"
+  CurvatureTensor DegreeUsed StencilPoints Flags; do
+  grep -a -q "Name=\"$name\"" out.vtp || fail "VTP lacks array $name"
 done
-/usr/bin/python3 - out.vtp "$nv" <<'PY' || fail "python could not read out.vtp"
+grep -a -q 'type="UInt8" Name="Flags"' out.vtp || fail "Flags is not UInt8"
+! grep -a -q 'Name="Points" NumberOfComponents="1"' out.vtp || fail "a point-data array is named Points"
+# --ascii: the same arrays as text.
+run_ok curvature --local t.obj --degree 3 --method lop --two-pass --output ascii.vtp --ascii
+/usr/bin/python3 - ascii.vtp "$nv" <<'PY' || fail "python could not read ascii.vtp"
 import sys, xml.etree.ElementTree as ET
 piece = ET.parse(sys.argv[1]).getroot().find("PolyData/Piece")
 nv = int(sys.argv[2])
 assert int(piece.get("NumberOfPoints")) == nv
+types = {a.get("Name"): a.get("type") for a in piece.find("PointData")}
+assert types["DegreeUsed"] == "Int32" and types["Flags"] == "UInt8", types
 for a in piece.find("PointData"):
     if a.get("format") == "ascii":
         assert len(a.text.split()) == nv * int(a.get("NumberOfComponents")), a.get("Name")
@@ -86,6 +96,9 @@ run_ok curvature --local t.ply --degree 2 --output ply.tsv
 cmp -s ply.tsv out.tsv || fail "curvature of the PLY copy differs"
 run_ok convert t.ply t.off
 run_ok convert t.off t.vtp
+grep -a -q '<AppendedData encoding="raw">' t.vtp || fail "convert: t.vtp is not binary"
+run_ok convert t.off t_ascii.vtu --ascii
+grep -q 'type="UInt8" Name="types" format="ascii"' t_ascii.vtu || fail "convert --ascii: not text"
 
 # --- help and version ------------------------------------------------------------
 run_ok --help
@@ -104,6 +117,10 @@ expect_error 1 "missing.obj" curvature --local missing.obj
 expect_error 1 "not finite" curvature --local nan.obj
 expect_error 1 "line 6.*5 vertices" curvature --local pentagon.obj
 expect_error 1 "out of range" curvature --local range.obj
+# convert refuses faces naming vertices that do not exist (it used to write 0 1 998).
+printf 'v 0 0 0\nv 1 0 0\nv 1 1 0\nf 1 2 999\n' >bad999.obj
+expect_error 1 "bad999.obj: line 4: face 0: vertex index 999 is out of range" convert bad999.obj bad.ply
+[ ! -e bad.ply ] || fail "convert of an invalid mesh left bad.ply"
 expect_error 2 "degree" curvature --local t.obj --degree 9 --output bad.tsv
 [ ! -e bad.tsv ] || fail "a failed run left bad.tsv"
 expect_error 2 "not an integer" curvature --local t.obj --degree two

@@ -43,7 +43,12 @@ def test_remote_commands_and_outputs_match_local(server, mesh_file, tmp_path):
     assert open(remote).read() == open(local).read()
     vtp = str(tmp_path / "remote.vtp")
     run("curvature", "--server", address, mesh_id, "--output", vtp)
-    assert "<VTKFile" in open(vtp).read(200)
+    assert b"<VTKFile" in open(vtp, "rb").read(200)  # binary appended: read as bytes
+    # The mesh is downloaded for VTK outputs: the same bytes as the local .vtu.
+    local_vtu, remote_vtu = str(tmp_path / "local.vtu"), str(tmp_path / "remote.vtu")
+    run("curvature", mesh_file, "--degree", "3", "--output", local_vtu)
+    run("curvature", "--server", address, mesh_id, "--degree", "3", "--output", remote_vtu)
+    assert open(remote_vtu, "rb").read() == open(local_vtu, "rb").read()
 
     updated = run("update", "--server", address, mesh_id, mesh_file, "--expected-revision", "1").stdout
     assert updated.splitlines()[1].split("\t")[1] == "2"

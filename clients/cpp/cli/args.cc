@@ -185,7 +185,9 @@ void AddCurvatureOptions(ArgParser* p, CurvatureArgs* a) {
             "the fit need not pass through the vertex (least squares only)")
       .Double("angle", &f.safeguard_angle_deg, "normal-angle safeguard in degrees")
       .Int("threads", &a->threads, "worker threads; 0 = all cores")
-      .String("output", &a->output, ".vtp, .npy, .tsv or .txt (default: TSV on stdout)", "FILE")
+      .String("output", &a->output, ".vtp, .vtu, .npy, .tsv or .txt (default: TSV on stdout)",
+              "FILE")
+      .Flag("ascii", &a->ascii, ".vtp/.vtu arrays as text (default: binary, appended raw)")
       .Flag("verbose", &a->verbose, "print timings to stderr");
 }
 

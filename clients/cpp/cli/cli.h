@@ -13,6 +13,10 @@
 #include "core/mesh/mesh.h"
 #include "core/quantities/differentials.h"
 
+namespace geomfit {
+struct HighOrderMesh;
+}  // namespace geomfit
+
 namespace geomfit::cli {
 
 inline constexpr char kVersion[] = "0.1.0";
@@ -87,7 +91,8 @@ struct CurvatureArgs {
   std::string method = "lhf";
   bool interpolate = false;  ///< --interpolate: explicit default
   bool approximate = false;  ///< --approximate: fit need not pass through the vertex
-  std::string output;        ///< .vtp, .npy, .tsv / .txt; empty = TSV on stdout
+  std::string output;        ///< .vtp, .vtu, .npy, .tsv / .txt; empty = TSV on stdout
+  bool ascii = false;        ///< --ascii: .vtp/.vtu arrays as text (default binary appended)
   bool verbose = false;
   int threads = 0;           ///< --threads; 0 = all cores
 };
@@ -102,9 +107,11 @@ absl::Status ParseCurvatureArgs(const std::vector<std::string>& argv, CurvatureA
 
 // ---- Output of per-vertex differential quantities (output.cc) ----
 
-enum class OutputKind { kTsv, kNpy, kVtp };
-/// By extension: .tsv/.txt, .npy, .vtp (any case). Unknown: a usage error.
+enum class OutputKind { kTsv, kNpy, kVtp, kVtu };
+/// By extension: .tsv/.txt, .npy, .vtp, .vtu (any case). Unknown: a usage error.
 absl::StatusOr<OutputKind> OutputKindFromPath(const std::string& path);
+/// True if writing `path` needs the mesh (VTK outputs).
+bool OutputNeedsMesh(const std::string& path);
 
 /// Column names of the table (the TSV header); the first 13 are the NPY columns.
 const std::vector<std::string>& DifferentialsColumns();
@@ -113,11 +120,19 @@ RowMajorMatrixXd DifferentialsTable(const Differentials& d);
 /// Header line, then one tab-separated line per vertex (%.17g; then degree_used,
 /// points, flags from the diagnostics, 0 when absent).
 std::string DifferentialsTsv(const Differentials& d);
-/// VTP point arrays: Normals, MeanCurvature, GaussianCurvature, k1, k2, Direction1,
-/// Direction2, CurvatureTensor, DegreeUsed, Points, Flags (those present).
+/// VTK point arrays: Normals, MeanCurvature, GaussianCurvature, k1, k2, Direction1,
+/// Direction2, CurvatureTensor (Float64), DegreeUsed, StencilPoints (Int32), Flags
+/// (UInt8) (those present).
 std::vector<PointField> DifferentialsFields(const Differentials& d);
-/// Writes by extension; an empty path writes TSV to stdout. `mesh` is needed for VTP.
-absl::Status WriteDifferentials(const std::string& path, const Mesh& mesh, const Differentials& d);
+/// Writes by extension; an empty path writes TSV to stdout. `mesh` is needed for
+/// .vtp/.vtu, written binary appended (`ascii`: as text) with Normals and MeanCurvature
+/// as the active normals and scalars.
+absl::Status WriteDifferentials(const std::string& path, const Mesh& mesh, const Differentials& d,
+                                bool ascii = false);
+
+/// High-order elements (`geomfit nodes`) as VTK Lagrange triangles and quadrilaterals
+/// (binary appended), which ParaView draws curved.
+absl::Status WriteLagrangeVtu(const std::string& path, const HighOrderMesh& ho);
 
 // ---- Commands: each returns OK, a usage error or a runtime error ----
 

@@ -55,7 +55,7 @@ absl::Status RunCurvature(const std::vector<std::string>& argv) {
                                      FitMethodName(a.fit.method), fit_timer.Seconds()));
 
   Stopwatch write_timer;
-  GF_RETURN_IF_ERROR(WriteDifferentials(a.output, mesh, d));
+  GF_RETURN_IF_ERROR(WriteDifferentials(a.output, mesh, d, a.ascii));
   Verbose(a.verbose, absl::StrFormat("wrote %s in %.3f s", a.output.empty() ? "stdout" : a.output,
                                      write_timer.Seconds()));
   return absl::OkStatus();
@@ -72,7 +72,7 @@ absl::Status RunGenerate(const std::vector<std::string>& argv) {
       .Int("level", &g.n, "resolution n (edge length ~ 1/n), 2..4096")
       .Double("jitter", &g.jitter, "vertex jitter along the surface, x local spacing, 0..0.3")
       .UInt64("seed", &g.seed, "random seed of the jitter and diagonals")
-      .String("output", &output, "output file (.obj .off .ply .stl .vtp)", "FILE")
+      .String("output", &output, "output file (.obj .off .ply .stl .vtp .vtu)", "FILE")
       .Flag("verbose", &verbose, "print timings to stderr");
   GF_RETURN_IF_ERROR(p.Parse(argv));
   if (p.help_requested()) {
@@ -96,12 +96,13 @@ absl::Status RunGenerate(const std::vector<std::string>& argv) {
 
 absl::Status RunConvert(const std::vector<std::string>& argv) {
   std::string in, out;
-  bool verbose = false;
-  ArgParser p("geomfit convert", "IN OUT",
+  bool verbose = false, ascii = false;
+  ArgParser p("geomfit convert", "IN OUT [--ascii]",
               "Converts a mesh between formats, chosen by extension. Reads .obj .off .ply\n"
-              ".stl; writes those (PLY binary, STL binary) and .vtp.");
+              ".stl; writes those (PLY binary, STL binary), .vtp and .vtu.");
   p.Positional("IN", &in, "input mesh file")
       .Positional("OUT", &out, "output mesh file")
+      .Flag("ascii", &ascii, ".vtp/.vtu as text (default: binary, appended raw)")
       .Flag("verbose", &verbose, "print timings to stderr");
   GF_RETURN_IF_ERROR(p.Parse(argv));
   if (p.help_requested()) {
@@ -109,7 +110,7 @@ absl::Status RunConvert(const std::vector<std::string>& argv) {
     return absl::OkStatus();
   }
   GF_RETURN_IF_ERROR(CheckMeshOutput(out));
-  if (FormatFromPath(in).value_or(MeshFormat::kVtp) == MeshFormat::kVtp)
+  if (IsOutputOnly(FormatFromPath(in).value_or(MeshFormat::kVtp)))
     return UsageError(absl::StrCat("input '", in, "': expected .obj, .off, .ply or .stl"));
 
   Stopwatch timer;
@@ -117,7 +118,9 @@ absl::Status RunConvert(const std::vector<std::string>& argv) {
   Verbose(verbose, absl::StrFormat("read %s: %d vertices, %d faces in %.3f s", in,
                                    mesh.NumVertices(), mesh.NumFaces(), timer.Seconds()));
   Stopwatch write_timer;
-  GF_RETURN_IF_ERROR(WriteMesh(mesh, out));
+  VtkOptions vtk;
+  if (ascii) vtk.encoding = VtkEncoding::kAscii;
+  GF_RETURN_IF_ERROR(WriteMesh(mesh, out, vtk));
   Verbose(verbose, absl::StrFormat("wrote %s in %.3f s", out, write_timer.Seconds()));
   return absl::OkStatus();
 }

@@ -10,6 +10,7 @@
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_join.h"
 #include "clients/cpp/cli/cli.h"
+#include "core/reconstruction/meshing.h"
 
 namespace geomfit::cli {
 namespace {
@@ -31,7 +32,7 @@ int NumVertices(const Differentials& d) {
 /// A #V x cols field copied out of any per-vertex array.
 template <typename M>
 PointField Field(const std::string& name, const M& m) {
-  return {name, Eigen::MatrixXd(m.template cast<double>())};
+  return {name, Eigen::MatrixXd(m.template cast<double>()), VtkType::kFloat64};
 }
 
 }  // namespace
@@ -41,8 +42,14 @@ absl::StatusOr<OutputKind> OutputKindFromPath(const std::string& path) {
   if (absl::EndsWith(lower, ".tsv") || absl::EndsWith(lower, ".txt")) return OutputKind::kTsv;
   if (absl::EndsWith(lower, ".npy")) return OutputKind::kNpy;
   if (absl::EndsWith(lower, ".vtp")) return OutputKind::kVtp;
-  return UsageError(
-      absl::StrCat("output '", path, "': unknown extension (expected .vtp, .npy, .tsv or .txt)"));
+  if (absl::EndsWith(lower, ".vtu")) return OutputKind::kVtu;
+  return UsageError(absl::StrCat("output '", path,
+                                 "': unknown extension (expected .vtp, .vtu, .npy, .tsv or .txt)"));
+}
+
+bool OutputNeedsMesh(const std::string& path) {
+  const OutputKind kind = OutputKindFromPath(path).value_or(OutputKind::kTsv);
+  return kind == OutputKind::kVtp || kind == OutputKind::kVtu;
 }
 
 const std::vector<std::string>& DifferentialsColumns() {
@@ -95,8 +102,10 @@ std::vector<PointField> DifferentialsFields(const Differentials& d) {
   if (d.tensor.rows() > 0) fields.push_back(Field("CurvatureTensor", d.tensor));
   if (!d.diagnostics.empty()) {
     const int nv = static_cast<int>(d.diagnostics.size());
-    PointField degree{"DegreeUsed", Eigen::MatrixXd(nv, 1)},
-        points{"Points", Eigen::MatrixXd(nv, 1)}, flags{"Flags", Eigen::MatrixXd(nv, 1)};
+    // "StencilPoints", not "Points": VTK names the geometry array Points.
+    PointField degree{"DegreeUsed", Eigen::MatrixXd(nv, 1), VtkType::kInt32},
+        points{"StencilPoints", Eigen::MatrixXd(nv, 1), VtkType::kInt32},
+        flags{"Flags", Eigen::MatrixXd(nv, 1), VtkType::kUInt8};
     for (int v = 0; v < nv; ++v) {
       degree.values(v, 0) = d.diagnostics[v].degree_used;
       points.values(v, 0) = d.diagnostics[v].points;
@@ -109,7 +118,32 @@ std::vector<PointField> DifferentialsFields(const Differentials& d) {
   return fields;
 }
 
-absl::Status WriteDifferentials(const std::string& path, const Mesh& mesh, const Differentials& d) {
+absl::Status WriteLagrangeVtu(const std::string& path, const HighOrderMesh& ho) {
+  constexpr uint8_t kVtkLagrangeTriangle = 69, kVtkLagrangeQuadrilateral = 70;
+  const int k = ho.order, tri_nodes = (k + 1) * (k + 2) / 2;
+  VtkCells cells;
+  for (size_t f = 0; f + 1 < ho.offsets.size(); ++f) {
+    const int32_t* e = ho.elements.data() + ho.offsets[f];
+    const int n = ho.offsets[f + 1] - ho.offsets[f];
+    if (n == tri_nodes) {  // corners, edges 0-1, 1-2, 2-0, interior: VTK's order
+      cells.connectivity.insert(cells.connectivity.end(), e, e + n);
+      cells.types.push_back(kVtkLagrangeTriangle);
+    } else {
+      // VTK runs the edges of a quadrilateral along its parameter directions: 0-1, 1-2,
+      // 3-2, 0-3; ours run around it (0-1, 1-2, 2-3, 3-0), so the last two reverse.
+      cells.connectivity.insert(cells.connectivity.end(), e, e + 4 + 2 * (k - 1));
+      for (int edge = 2; edge < 4; ++edge)
+        for (int t = k - 2; t >= 0; --t) cells.connectivity.push_back(e[4 + edge * (k - 1) + t]);
+      cells.connectivity.insert(cells.connectivity.end(), e + 4 + 4 * (k - 1), e + n);
+      cells.types.push_back(kVtkLagrangeQuadrilateral);
+    }
+    cells.offsets.push_back(static_cast<int64_t>(cells.connectivity.size()));
+  }
+  return WriteVtu(path, ho.nodes, cells, {});
+}
+
+absl::Status WriteDifferentials(const std::string& path, const Mesh& mesh, const Differentials& d,
+                                bool ascii) {
   if (path.empty()) {
     const std::string tsv = DifferentialsTsv(d);
     if (std::fwrite(tsv.data(), 1, tsv.size(), stdout) != tsv.size() || std::fflush(stdout) != 0)
@@ -121,7 +155,18 @@ absl::Status WriteDifferentials(const std::string& path, const Mesh& mesh, const
   switch (*kind) {
     case OutputKind::kTsv: return WriteFileAtomically(path, DifferentialsTsv(d));
     case OutputKind::kNpy: return WriteNpy(path, DifferentialsTable(d));
-    case OutputKind::kVtp: return WriteVtp(path, mesh, DifferentialsFields(d));
+    case OutputKind::kVtp:
+    case OutputKind::kVtu: {
+      const std::vector<PointField> fields = DifferentialsFields(d);
+      VtkOptions options;
+      if (ascii) options.encoding = VtkEncoding::kAscii;
+      for (const PointField& f : fields) {
+        if (f.name == "Normals") options.normals = f.name;
+        if (f.name == "MeanCurvature") options.scalars = f.name;
+      }
+      return *kind == OutputKind::kVtp ? WriteVtp(path, mesh, fields, options)
+                                       : WriteVtu(path, mesh, fields, options);
+    }
   }
   return absl::InternalError("unreachable");
 }

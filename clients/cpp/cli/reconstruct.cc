@@ -267,8 +267,9 @@ absl::Status RunNodes(const std::vector<std::string>& argv) {
   ArgParser p("geomfit nodes", "MESH --output PREFIX [--order 2|3] [options]",
               "High-order (quadratic or cubic) elements on the reconstructed surface (4.2.1).\n"
               "Writes PREFIX.nodes.tsv (x y z per node; mesh vertices first) and\n"
-              "PREFIX.elements.tsv (node ids per face: corners, edge nodes, interior); in-process\n"
-              "also PREFIX.vtp, every element split along its nodes, for viewing.");
+              "PREFIX.elements.tsv (node ids per face: corners, edge nodes, interior),\n"
+              "PREFIX.vtu (the elements as VTK Lagrange cells) and, in-process, PREFIX.vtp\n"
+              "(every element split along its nodes).");
   AddSurfaceOptions(&p, &a);
   p.Int("order", &order, "element order: 2 or 3");
   bool help;
@@ -291,7 +292,7 @@ absl::Status RunNodes(const std::vector<std::string>& argv) {
     GF_ASSIGN_OR_RETURN(ho, MakeHighOrderMesh(*l.surface, l.topo, order, RunContext(nullptr, a.threads)));
     // For viewing: each element split along its nodes (the same lattice) as PREFIX.vtp.
     GF_ASSIGN_OR_RETURN(const Mesh split, RefineMesh(*l.surface, l.topo, order, RunContext(nullptr, a.threads)));
-    GF_RETURN_IF_ERROR(WriteVtp(a.output + ".vtp", split, {}));
+    GF_RETURN_IF_ERROR(WriteVtp(a.output + ".vtp", split, {}, VtkOptions{}));
   }
   std::string nodes = "x\ty\tz\n", elements;
   for (int i = 0; i < ho.nodes.rows(); ++i)
@@ -301,6 +302,7 @@ absl::Status RunNodes(const std::vector<std::string>& argv) {
       absl::StrAppend(&elements, q > ho.offsets[f] ? "\t" : "", ho.elements[q]);
     elements += "\n";
   }
+  GF_RETURN_IF_ERROR(WriteLagrangeVtu(a.output + ".vtu", ho));
   GF_RETURN_IF_ERROR(WriteFileAtomically(a.output + ".nodes.tsv", nodes));
   return WriteFileAtomically(a.output + ".elements.tsv", elements);
 }

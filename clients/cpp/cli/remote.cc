@@ -137,8 +137,8 @@ absl::Status RunCurvatureRemote(const CurvatureArgs& a) {
   // MESH is a file (uploaded first; idempotent) or the id of a stored mesh.
   Mesh mesh;
   GF_ASSIGN_OR_RETURN(const std::string id, RemoteMeshId(*client, a.mesh, a.verbose, &mesh));
-  if (mesh.NumVertices() == 0 && OutputKindFromPath(a.output).value_or(OutputKind::kTsv) == OutputKind::kVtp) {
-    GF_ASSIGN_OR_RETURN(mesh, client->Download(id));  // VTP needs the mesh
+  if (mesh.NumVertices() == 0 && OutputNeedsMesh(a.output)) {
+    GF_ASSIGN_OR_RETURN(mesh, client->Download(id));  // VTP/VTU need the mesh
   }
   GF_ASSIGN_OR_RETURN(RemoteDifferentials d, client->ComputeDifferentials(id, a.fit, kAllQuantities, 0, true));
   if (a.verbose) {
@@ -146,7 +146,7 @@ absl::Status RunCurvatureRemote(const CurvatureArgs& a) {
                  static_cast<long long>(d.summary.revision), d.summary.degree_requested, d.summary.min_degree_used,
                  d.summary.fit_cache_hit ? "cached" : "computed", d.summary.fit_ms, d.summary.evaluate_ms);
   }
-  return WriteDifferentials(a.output, mesh, d.values);
+  return WriteDifferentials(a.output, mesh, d.values, a.ascii);
 }
 
 absl::Status RunRemoteCommand(const std::string& command, const std::vector<std::string>& args) {

@@ -1,0 +1,156 @@
+#include "core/mesh/formats/common.h"
+
+#include <cstring>
+
+#include "absl/strings/numbers.h"
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "absl/strings/str_split.h"
+
+namespace geomfit::mesh_io {
+
+Mesh MeshBuilder::Build() const {
+  Mesh m;
+  m.positions = Eigen::Map<const Positions>(xyz_.data(), NumVertices(), 3);
+  m.faces = Eigen::Map<const Faces>(faces_.data(), NumFaces(), 4);
+  return m;
+}
+
+int32_t VertexWelder::Add(const double p[3]) {
+  Key key;
+  std::memcpy(key.data(), p, sizeof(key));
+  auto [it, inserted] = index_.emplace(key, static_cast<int32_t>(builder_->NumVertices()));
+  if (inserted) builder_->AddVertex(p);
+  return it->second;
+}
+
+size_t VertexWelder::KeyHash::operator()(const Key& k) const {
+  uint64_t h = 0x9e3779b97f4a7c15ull;
+  for (uint64_t x : k) {
+    h ^= x + 0x9e3779b97f4a7c15ull + (h << 6) + (h >> 2);
+    h *= 0xbf58476d1ce4e5b9ull;
+  }
+  return static_cast<size_t>(h ^ (h >> 31));
+}
+
+std::string IndexRangeMessage(int64_t face, int64_t index, int64_t num_vertices) {
+  return absl::StrFormat("face %d: vertex index %d is out of range [0, %d)", face, index,
+                         num_vertices);
+}
+
+absl::Status CheckFaces(const Mesh& mesh) {
+  const int nv = mesh.NumVertices();
+  for (int f = 0; f < mesh.NumFaces(); ++f) {
+    const int32_t last = mesh.faces(f, 3);
+    if (last < -1)
+      return absl::InvalidArgumentError(absl::StrFormat(
+          "face %d: fourth corner %d is neither a vertex index nor -1 (a triangle)", f, last));
+    for (int i = 0; i < mesh.FaceSize(f); ++i)
+      if (mesh.faces(f, i) < 0 || mesh.faces(f, i) >= nv)
+        return absl::InvalidArgumentError(IndexRangeMessage(f, mesh.faces(f, i), nv));
+  }
+  return absl::OkStatus();
+}
+
+absl::Status CheckWritable(const Mesh& mesh) {
+  absl::Status faces = CheckFaces(mesh);
+  if (faces.ok()) return faces;
+  return absl::InvalidArgumentError(
+      absl::StrCat("refusing to write an invalid mesh: ", faces.message()));
+}
+
+void PutLE(std::string* out, uint64_t bits, int nbytes) {
+  for (int i = 0; i < nbytes; ++i) out->push_back(static_cast<char>((bits >> (8 * i)) & 0xff));
+}
+
+void PutDouble(std::string* out, double d) {
+  uint64_t u;
+  std::memcpy(&u, &d, 8);
+  PutLE(out, u, 8);
+}
+
+void PutFloat(std::string* out, float f) {
+  uint32_t u;
+  std::memcpy(&u, &f, 4);
+  PutLE(out, u, 4);
+}
+
+uint64_t GetLE(const char* p, int nbytes) {
+  uint64_t u = 0;
+  for (int i = 0; i < nbytes; ++i)
+    u |= static_cast<uint64_t>(static_cast<uint8_t>(p[i])) << (8 * i);
+  return u;
+}
+
+float GetFloat(const char* p) {
+  const uint32_t u = static_cast<uint32_t>(GetLE(p, 4));
+  float f;
+  std::memcpy(&f, &u, 4);
+  return f;
+}
+
+bool LineReader::Next(absl::string_view* line) {
+  if (pos_ >= text_.size()) return false;
+  size_t end = text_.find('\n', pos_);
+  if (end == absl::string_view::npos) end = text_.size();
+  *line = text_.substr(pos_, end - pos_);
+  pos_ = end + 1;
+  ++line_number_;
+  if (comment_ != 0) *line = line->substr(0, line->find(comment_));
+  return true;
+}
+
+bool LineReader::NextTokens(std::vector<absl::string_view>* tokens) {
+  absl::string_view line;
+  while (Next(&line)) {
+    *tokens = absl::StrSplit(line, absl::ByAnyChar(" \t\r\f\v"), absl::SkipEmpty());
+    if (!tokens->empty()) return true;
+  }
+  tokens->clear();
+  return false;
+}
+
+absl::Status LineReader::ErrorAt(int64_t line, absl::string_view what) const {
+  return absl::InvalidArgumentError(absl::StrCat(source_, ": line ", line, ": ", what));
+}
+
+absl::Status ParseCoordinates(const LineReader& lines, const std::vector<absl::string_view>& tok,
+                              size_t first, double p[3]) {
+  if (tok.size() < first + 3)
+    return lines.Error(absl::StrCat("vertex needs 3 coordinates, found ", tok.size() - first));
+  for (int c = 0; c < 3; ++c)
+    if (!absl::SimpleAtod(tok[first + c], &p[c]))
+      return lines.Error(absl::StrCat("'", tok[first + c], "' is not a number"));
+  return absl::OkStatus();
+}
+
+bool ParseInteger(absl::string_view token, int64_t* value) {
+  return absl::SimpleAtoi(token, value);
+}
+
+absl::Status CheckFaceSize(const LineReader& lines, int64_t face, int64_t n) {
+  if (n >= 3 && n <= 4) return absl::OkStatus();
+  return lines.Error(absl::StrFormat(
+      "face %d has %d vertices; only triangles and quads (3 or 4) are supported", face, n));
+}
+
+absl::Status CountError(absl::string_view source, absl::string_view what, int64_t count,
+                        size_t available) {
+  return absl::InvalidArgumentError(absl::StrFormat(
+      "%s: header claims %d %s but only %d bytes follow", source, count, what, available));
+}
+
+void AppendTextBody(std::string* out, const Mesh& m, TextDialect dialect) {
+  const bool obj = dialect == TextDialect::kObj;
+  for (int v = 0; v < m.NumVertices(); ++v)
+    absl::StrAppendFormat(out, "%s%.17g %.17g %.17g\n", obj ? "v " : "", m.positions(v, 0),
+                          m.positions(v, 1), m.positions(v, 2));
+  for (int f = 0; f < m.NumFaces(); ++f) {
+    absl::StrAppend(out, obj ? "f" : absl::StrCat(m.FaceSize(f)));
+    for (int i = 0; i < m.FaceSize(f); ++i)
+      absl::StrAppend(out, " ", m.faces(f, i) + (obj ? 1 : 0));
+    *out += '\n';
+  }
+}
+
+}  // namespace geomfit::mesh_io

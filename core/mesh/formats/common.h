@@ -1,0 +1,123 @@
+#pragma once
+// Internal to core/mesh: pieces shared by the format readers and writers.
+#include <algorithm>
+#include <array>
+#include <cstdint>
+#include <limits>
+#include <string>
+#include <unordered_map>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "absl/strings/string_view.h"
+#include "core/mesh/mesh.h"
+
+namespace geomfit::mesh_io {
+
+constexpr int64_t kMaxInt32 = std::numeric_limits<int32_t>::max();
+
+// ---------------------------------------------------------------------------
+// Mesh assembly
+
+/// Collects vertices and faces (4 slots per face, -1 for triangles).
+class MeshBuilder {
+ public:
+  void ReserveVertices(int64_t n) { xyz_.reserve(3 * n); }
+  void ReserveFaces(int64_t n) { faces_.reserve(4 * n); }
+  int64_t NumVertices() const { return static_cast<int64_t>(xyz_.size() / 3); }
+  int64_t NumFaces() const { return static_cast<int64_t>(faces_.size() / 4); }
+  void AddVertex(const double p[3]) { xyz_.insert(xyz_.end(), p, p + 3); }
+  void AddFace(const int32_t* v, int n) {
+    for (int i = 0; i < 4; ++i) faces_.push_back(i < n ? v[i] : -1);
+  }
+  Mesh Build() const;
+
+ private:
+  std::vector<double> xyz_;
+  std::vector<int32_t> faces_;
+};
+
+/// Welds vertices whose coordinates are bitwise equal (STL stores every corner).
+class VertexWelder {
+ public:
+  explicit VertexWelder(MeshBuilder* builder) : builder_(builder) {}
+  int32_t Add(const double p[3]);
+
+ private:
+  using Key = std::array<uint64_t, 3>;
+  struct KeyHash {
+    size_t operator()(const Key& k) const;
+  };
+  MeshBuilder* builder_;
+  std::unordered_map<Key, int32_t, KeyHash> index_;
+};
+
+/// The connectivity every reader guarantees and every writer requires: each face has
+/// 3 or 4 corners (a triangle carries -1 in its fourth slot) that index existing
+/// vertices. Errors (INVALID_ARGUMENT) name the face. Geometry and manifoldness are
+/// ValidateMesh's business (topology.h).
+absl::Status CheckFaces(const Mesh& mesh);
+
+/// CheckFaces for writers: "refusing to write an invalid mesh: face ...".
+absl::Status CheckWritable(const Mesh& mesh);
+
+/// "face <f>: vertex index <k> is out of range [0, <nv>)" (the readers' and writers' words).
+std::string IndexRangeMessage(int64_t face, int64_t index, int64_t num_vertices);
+
+// ---------------------------------------------------------------------------
+// Little-endian bytes
+
+void PutLE(std::string* out, uint64_t bits, int nbytes);
+void PutDouble(std::string* out, double d);
+void PutFloat(std::string* out, float f);
+uint64_t GetLE(const char* p, int nbytes);
+float GetFloat(const char* p);
+
+// ---------------------------------------------------------------------------
+// Text: lines, tokens, numbers
+
+/// Splits text into lines (LF or CRLF), strips `comment` to end of line, counts lines.
+class LineReader {
+ public:
+  LineReader(absl::string_view text, absl::string_view source, char comment)
+      : text_(text), source_(source), comment_(comment) {}
+
+  /// The next line; false at the end of the text.
+  bool Next(absl::string_view* line);
+  /// The next line with at least one token; false at the end of the text.
+  bool NextTokens(std::vector<absl::string_view>* tokens);
+  /// Byte offset just past the last line returned.
+  size_t position() const { return std::min(pos_, text_.size()); }
+  size_t remaining() const { return text_.size() - position(); }
+  int64_t line_number() const { return line_number_; }
+  /// INVALID_ARGUMENT "<source>: line <n>: <what>".
+  absl::Status Error(absl::string_view what) const { return ErrorAt(line_number_, what); }
+  absl::Status ErrorAt(int64_t line, absl::string_view what) const;
+
+ private:
+  absl::string_view text_, source_;
+  char comment_;
+  size_t pos_ = 0;
+  int64_t line_number_ = 0;
+};
+
+/// Three coordinates from tok[first], tok[first + 1], tok[first + 2].
+absl::Status ParseCoordinates(const LineReader& lines, const std::vector<absl::string_view>& tok,
+                              size_t first, double p[3]);
+
+/// A decimal integer token; false if it is not one (or overflows int64).
+bool ParseInteger(absl::string_view token, int64_t* value);
+
+/// OK for 3 or 4 corners, else the line's error naming the face.
+absl::Status CheckFaceSize(const LineReader& lines, int64_t face, int64_t n);
+
+/// "<source>: header claims <count> <what> but only <available> bytes follow".
+absl::Status CountError(absl::string_view source, absl::string_view what, int64_t count,
+                        size_t available);
+
+/// Vertex and face lines of OBJ ("v x y z", "f 1 2 3": 1-based) or OFF ("x y z",
+/// "3 0 1 2"), coordinates with %.17g (exact round trip).
+enum class TextDialect { kObj, kOff };
+void AppendTextBody(std::string* out, const Mesh& mesh, TextDialect dialect);
+
+}  // namespace geomfit::mesh_io

@@ -1,0 +1,47 @@
+// Whole-file reads and atomic writes.
+#include <cerrno>
+#include <cstdio>
+#include <memory>
+#include <string>
+
+#include "absl/strings/str_cat.h"
+#include "core/mesh/io.h"
+
+namespace geomfit {
+
+absl::StatusOr<std::string> ReadFileToString(const std::string& path) {
+  std::unique_ptr<FILE, int (*)(FILE*)> f(std::fopen(path.c_str(), "rb"), &std::fclose);
+  if (!f) return absl::ErrnoToStatus(errno, absl::StrCat("cannot open '", path, "'"));
+  std::string out;
+  char buf[1 << 16];
+  size_t n;
+  while ((n = std::fread(buf, 1, sizeof(buf), f.get())) > 0) out.append(buf, n);
+  if (std::ferror(f.get()))
+    return absl::ErrnoToStatus(errno, absl::StrCat("cannot read '", path, "'"));
+  return out;
+}
+
+absl::Status WriteFileAtomically(const std::string& path, std::string_view contents) {
+  const std::string tmp = path + ".tmp";
+  FILE* f = std::fopen(tmp.c_str(), "wb");
+  if (!f) return absl::ErrnoToStatus(errno, absl::StrCat("cannot write '", path, "'"));
+  bool ok =
+      std::fwrite(contents.data(), 1, contents.size(), f) == contents.size() && std::fflush(f) == 0;
+  int err = ok ? 0 : errno;
+  if (std::fclose(f) != 0 && ok) {
+    ok = false;
+    err = errno;
+  }
+  if (!ok) {
+    std::remove(tmp.c_str());
+    return absl::ErrnoToStatus(err, absl::StrCat("cannot write '", path, "'"));
+  }
+  if (std::rename(tmp.c_str(), path.c_str()) != 0) {
+    err = errno;
+    std::remove(tmp.c_str());
+    return absl::ErrnoToStatus(err, absl::StrCat("cannot rename '", tmp, "' to '", path, "'"));
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace geomfit
