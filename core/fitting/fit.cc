@@ -78,6 +78,7 @@ void FitVertex(int v, const FitInput& in, const FitOutput& out) {
   S.weight_epsilon = o.weight_epsilon;
   S.cond_threshold = o.cond_threshold;
   S.oscillation_safeguard = o.oscillation_safeguard;
+  S.op_rows = out.stencil_rows;
   double op[kMaxCoefficients * kMaxStencil];
   const WlsSolution sol = SolveWls(P, S, out.coefficients, out.stencil ? op : nullptr);
   diag.degree_used = static_cast<int8_t>(sol.degree_used);

@@ -157,7 +157,7 @@ absl::StatusOr<std::unique_ptr<FlowStepper>> FlowStepper::Create(const Mesh& mes
   s->assembler_ = std::make_unique<OperatorAssembler>(s->nb_);
   SolverOptions so = options.solver;
   if (so.kind == SolverKind::kAuto) {  // see SolverOptions::kind
-    const SolverKind direct = SolverAvailable(SolverKind::kKlu) ? SolverKind::kKlu : SolverKind::kSparseLU;
+    const SolverKind direct = SolverAvailable(SolverKind::kUmfpack) ? SolverKind::kUmfpack : SolverKind::kSparseLU;
     so.kind = options.kind == FlowKind::kMeanCurvature ? SolverKind::kBiCGSTAB : direct;
   }
   s->solver_ = SparseSolver(so);
