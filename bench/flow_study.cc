@@ -157,7 +157,10 @@ void Steps(const std::vector<int>& sizes, int threads, const std::string& solver
         o.kind = kind;
         o.scheme = scheme;
         o.dt = kind == FlowKind::kMeanCurvature ? 1e-3 : 1e-6;
-        o.solver.kind = ParseSolverKind(solver).value();
+        // "bicgstab-ilut" selects BiCGSTAB with the ILUT preconditioner.
+        const bool ilut = solver == "bicgstab-ilut";
+        o.solver.kind = ParseSolverKind(ilut ? "bicgstab" : solver).value();
+        if (ilut) o.solver.preconditioner = Preconditioner::kIlut;
         const RunContext ctx = RunContext().WithThreads(threads);
         auto stepper = FlowStepper::Create(mesh, o, ctx);
         if (!stepper.ok()) {

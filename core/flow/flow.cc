@@ -157,8 +157,8 @@ absl::StatusOr<std::unique_ptr<FlowStepper>> FlowStepper::Create(const Mesh& mes
   s->assembler_ = std::make_unique<OperatorAssembler>(s->nb_);
   SolverOptions so = options.solver;
   if (so.kind == SolverKind::kAuto) {  // see SolverOptions::kind
-    const SolverKind direct = SolverAvailable(SolverKind::kUmfpack) ? SolverKind::kUmfpack : SolverKind::kSparseLU;
-    so.kind = options.kind == FlowKind::kMeanCurvature ? SolverKind::kBiCGSTAB : direct;
+    so.kind = SolverKind::kBiCGSTAB;
+    so.preconditioner = options.kind == FlowKind::kMeanCurvature ? Preconditioner::kDiagonal : Preconditioner::kIlut;
   }
   s->solver_ = SparseSolver(so);
   return s;

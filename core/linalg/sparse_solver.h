@@ -32,12 +32,12 @@ absl::StatusOr<SolverKind> ParseSolverKind(const std::string& name);
 bool SolverAvailable(SolverKind kind);
 
 struct SolverOptions {
-  /// kAuto lets the caller choose; flows take BiCGSTAB (Jacobi, warm-started) for MCF,
-  /// whose GFD stencils of 25-40 points per row fill direct factorizations badly (at
-  /// 5768 vertices ~10 ms a solve against ~1 s for SparseLU, UMFPACK or KLU), and
-  /// UMFPACK (SparseLU without SuiteSparse) for surface diffusion's block system, on
-  /// which Jacobi-BiCGSTAB stalls; UMFPACK is the fastest direct solver there (1946
-  /// vertices: 320 ms against 430 SparseLU, 710 KLU; bench/README.md, "Flows").
+  /// kAuto lets the caller choose. Flows take BiCGSTAB, warm-started: with Jacobi for
+  /// MCF, and with ILUT for surface diffusion's block system (on which Jacobi stalls).
+  /// GFD stencils of 25-40 points per row fill direct factorizations badly: MCF at 5768
+  /// vertices solves in ~10 ms against ~1 s for SparseLU, UMFPACK or KLU; SD at 10k
+  /// vertices in ~0.7 s against 5 s for UMFPACK, the best direct one
+  /// (bench/README.md, "Flows").
   SolverKind kind = SolverKind::kAuto;
   double tolerance = 1e-12;   ///< BiCGSTAB relative residual
   int max_iterations = 1000;  ///< BiCGSTAB
