@@ -7,7 +7,7 @@ pkgs=(
   libeigen3-dev libabsl-dev libspdlog-dev libfmt-dev
   libgtest-dev libgmock-dev libbenchmark-dev libcgal-dev libgmp-dev libmpfr-dev
   libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc
-  libsqlite3-dev prometheus-cpp-dev
+  libsqlite3-dev prometheus-cpp-dev libsuitesparse-dev
   python3 python3-grpcio python3-protobuf python3-numpy python3-pytest
   python3-vtk9 python3-meshio
   python3-dev pybind11-dev

@@ -23,7 +23,8 @@ struct FitOutput {
   LocalFrame* frame;
   double* coefficients;  // dims x ncoef
   VertexDiagnostics* diag;
-  double* stencil;       // ncoef x stencil size, or null
+  double* stencil;       // stencil_rows x stencil size, or null
+  int stencil_rows;      // leading Taylor coefficients kept in `stencil`
 };
 
 // The fit of one vertex (2.2-2.4): its stencil in the frame of its approximate normal,
@@ -77,6 +78,7 @@ void FitVertex(int v, const FitInput& in, const FitOutput& out) {
   S.weight_epsilon = o.weight_epsilon;
   S.cond_threshold = o.cond_threshold;
   S.oscillation_safeguard = o.oscillation_safeguard;
+  S.op_rows = out.stencil_rows;
   double op[kMaxCoefficients * kMaxStencil];
   const WlsSolution sol = SolveWls(P, S, out.coefficients, out.stencil ? op : nullptr);
   diag.degree_used = static_cast<int8_t>(sol.degree_used);
@@ -86,9 +88,9 @@ void FitVertex(int v, const FitInput& in, const FitOutput& out) {
   if (sol.oscillation_downgraded) diag.flags |= kFlagOscillation;
 
   if (out.stencil) {  // operator rows over the stencil points (centre first)
-    std::fill(out.stencil, out.stencil + static_cast<size_t>(ncoef) * n_pts, 0.0);
+    std::fill(out.stencil, out.stencil + static_cast<size_t>(out.stencil_rows) * n_pts, 0.0);
     if (sol.degree_used < 1) return;
-    for (int c = 0; c < ncoef; ++c) {
+    for (int c = 0; c < out.stencil_rows; ++c) {
       double* row = out.stencil + static_cast<size_t>(c) * n_pts;
       double sum = 0;
       for (int r = 0; r < P.rows; ++r) sum += row[r + first] = op[c * P.rows + r];
@@ -199,10 +201,12 @@ class SurfaceFitter {
     f.coefficients_.assign(static_cast<size_t>(nv) * f.dims() * f.num_coefficients(), 0.0);
     f.diagnostics_.assign(nv, VertexDiagnostics{});
     if (req.stencils) {
+      const int order = req.stencil_order < 0 ? o.degree : std::min(req.stencil_order, o.degree);
+      f.stencil_rows_ = NumCoefficients(order);
       f.stencil_offsets_.resize(nv + 1);
       f.stencil_offsets_[0] = 0;
       for (int v = 0; v < nv; ++v)
-        f.stencil_offsets_[v + 1] = f.stencil_offsets_[v] + static_cast<size_t>(f.num_coefficients()) * nb->Size(v);
+        f.stencil_offsets_[v + 1] = f.stencil_offsets_[v] + static_cast<size_t>(f.stencil_rows_) * nb->Size(v);
       f.stencils_.assign(f.stencil_offsets_[nv], 0.0);
     }
     const FitInput in{mesh, *nb, normals, o};
@@ -212,7 +216,8 @@ class SurfaceFitter {
       for (int64_t v = chunk * kGrain; v < end; ++v) {
         if (topo.is_boundary[v]) f.diagnostics_[v].flags |= kFlagBoundary;
         FitOutput out{&f.frames_[v], f.coefficients_.data() + v * f.dims() * f.num_coefficients(),
-                      &f.diagnostics_[v], req.stencils ? f.stencils_.data() + f.stencil_offsets_[v] : nullptr};
+                      &f.diagnostics_[v], req.stencils ? f.stencils_.data() + f.stencil_offsets_[v] : nullptr,
+                      f.stencil_rows_};
         FitVertex(static_cast<int>(v), in, out);
       }
       if (on_fitted && *on_fitted) (*on_fitted)(f, chunk * kGrain, end);

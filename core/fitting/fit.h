@@ -74,8 +74,11 @@ class SurfaceFits {
   LocalPoint Evaluate(int v, const Eigen::Vector3d& x) const;
   /// Stencil operators (if requested): coefficient i of vertex v's fit of any nodal
   /// field g over v's frame is sum_k stencil(v)[i * n + k] * g[points(v)[k]],
-  /// with n = neighborhoods().Size(v). The GFD operators of chapter 5 use these.
+  /// with n = neighborhoods().Size(v), for i < stencil_rows(). The GFD operators of
+  /// chapter 5 use these.
   bool has_stencils() const { return !stencil_offsets_.empty(); }
+  /// Leading Taylor coefficients whose stencil rows are kept (FitRequest::stencil_order).
+  int stencil_rows() const { return stencil_rows_; }
   const double* stencil(int v) const { return stencils_.data() + stencil_offsets_[v]; }
   size_t Bytes() const;
 
@@ -88,11 +91,15 @@ class SurfaceFits {
   std::vector<VertexDiagnostics> diagnostics_;
   std::vector<size_t> stencil_offsets_;
   std::vector<double> stencils_;
+  int stencil_rows_ = 0;
 };
 
 /// What to build besides the fits.
 struct FitRequest {
   bool stencils = false;  ///< also build the stencil operators
+  /// Keep only the stencil rows of Taylor order <= this (2: value, first and second
+  /// derivatives, what the GFD operators need); -1 keeps every row.
+  int stencil_order = -1;
 };
 
 /// Called once vertices [begin, end) of the final pass are fitted, from the fitting

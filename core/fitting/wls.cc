@@ -207,23 +207,20 @@ WlsSolution SolveWls(const WlsProblem& P, const WlsSettings& S, double* coeffici
 
   if (op) {
     // Operator rows: coefficients = S R_k^-1 Q_k^T Omega g, i.e. row c of the operator
-    // is s_c / h^p * sum_l Rinv(c, l) (Q e_l)^T Omega.
-    double q[kMaxCoef * kMaxStencil];  // columns Q e_l, l < k
-    for (int l = 0; l < k; ++l) {
-      double* ql = q + l * rows;
-      std::fill(ql, ql + rows, 0.0);
-      ql[l] = 1;
-      ApplyQ(a, ld, rows, kq, tau, ql);
-    }
+    // is s_c / h^p * (Q z_c)^T Omega with z_c = (R_k^-T e_c; 0): one application of Q
+    // per row, and only for the rows asked for.
+    const int op_rows = S.op_rows < 0 ? ncoef : std::min(S.op_rows, ncoef);
+    double z[kMaxStencil];
     int c = 0;
     for (int p = first_col; p <= degree; ++p)
       for (int kk = 0; kk <= p; ++kk, ++c) {
-        double* row = op + static_cast<size_t>(TaylorIdx(p - kk, kk)) * P.rows;
-        for (int i = 0; i < rows; ++i) {
-          double acc = 0;
-          for (int l = c; l < k; ++l) acc += rinv[l * usable + c] * q[l * rows + i];
-          row[keep[i]] = weight[i] * acc * scale[c] / hp[p];
-        }
+        const int t = TaylorIdx(p - kk, kk);
+        if (t >= op_rows) continue;
+        std::fill(z, z + rows, 0.0);
+        for (int l = c; l < k; ++l) z[l] = rinv[l * usable + c];
+        ApplyQ(a, ld, rows, kq, tau, z);
+        double* row = op + static_cast<size_t>(t) * P.rows;
+        for (int i = 0; i < rows; ++i) row[keep[i]] = weight[i] * z[i] * scale[c] / hp[p];
       }
   }
   return sol;

@@ -22,6 +22,8 @@ struct WlsSettings {
   const double* cond_threshold = nullptr;  ///< per degree, index 1..6
   bool oscillation_safeguard = false;      ///< (4.1.3)
   double oscillation_epsilon = 0.01;
+  /// Operator rows to build (leading Taylor coefficients); -1 builds all.
+  int op_rows = -1;
 };
 
 struct WlsSolution {

@@ -1,0 +1,178 @@
+#include "core/linalg/sparse_solver.h"
+
+#include <cstring>
+
+#include <Eigen/IterativeLinearSolvers>
+#include <Eigen/SparseLU>
+#ifdef GEOMFIT_HAVE_SUITESPARSE
+#include <Eigen/KLUSupport>
+#include <Eigen/UmfPackSupport>
+#endif
+
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+
+namespace geomfit {
+
+using ColMatrix = Eigen::SparseMatrix<double, Eigen::ColMajor, int>;
+
+const char* SolverKindName(SolverKind kind) {
+  switch (kind) {
+    case SolverKind::kAuto: return "auto";
+    case SolverKind::kSparseLU: return "sparselu";
+    case SolverKind::kUmfpack: return "umfpack";
+    case SolverKind::kKlu: return "klu";
+    case SolverKind::kBiCGSTAB: return "bicgstab";
+  }
+  return "unknown";
+}
+
+absl::StatusOr<SolverKind> ParseSolverKind(const std::string& name) {
+  for (SolverKind k : {SolverKind::kAuto, SolverKind::kSparseLU, SolverKind::kUmfpack, SolverKind::kKlu,
+                       SolverKind::kBiCGSTAB})
+    if (name == SolverKindName(k)) return k;
+  return absl::InvalidArgumentError(
+      absl::StrCat("solver: unknown '", name, "' (auto, sparselu, umfpack, klu, bicgstab)"));
+}
+
+bool SolverAvailable(SolverKind kind) {
+#ifdef GEOMFIT_HAVE_SUITESPARSE
+  (void)kind;
+  return true;
+#else
+  return kind == SolverKind::kAuto || kind == SolverKind::kSparseLU || kind == SolverKind::kBiCGSTAB;
+#endif
+}
+
+absl::Status ValidateSolverOptions(const SolverOptions& o) {
+  if (!SolverAvailable(o.kind))
+    return absl::InvalidArgumentError(
+        absl::StrCat("solver: ", SolverKindName(o.kind), " is not available in this build (needs SuiteSparse)"));
+  if (!(o.tolerance > 0 && o.tolerance < 1))
+    return absl::InvalidArgumentError(absl::StrFormat("solver.tolerance %g is out of range (0, 1)", o.tolerance));
+  if (o.max_iterations < 1)
+    return absl::InvalidArgumentError(absl::StrFormat("solver.max_iterations %d must be >= 1", o.max_iterations));
+  if (!(o.ilut_drop >= 0) || o.ilut_fill < 1)
+    return absl::InvalidArgumentError("solver.ilut_drop must be >= 0 and solver.ilut_fill >= 1");
+  return absl::OkStatus();
+}
+
+struct SparseSolver::Impl {
+  ColMatrix A;
+  std::vector<int> outer, inner;  // pattern of the last analysis
+  Eigen::SparseLU<ColMatrix, Eigen::COLAMDOrdering<int>> lu;
+  Eigen::BiCGSTAB<ColMatrix, Eigen::IncompleteLUT<double, int>> bicgstab_ilut;
+  Eigen::BiCGSTAB<ColMatrix, Eigen::DiagonalPreconditioner<double>> bicgstab_diag;
+  // Factorizes (preconditioner set-up) or solves with the chosen BiCGSTAB.
+  template <typename Fn>
+  auto WithBicgstab(const SolverOptions& o, Fn&& fn) {
+    return o.preconditioner == Preconditioner::kIlut ? fn(bicgstab_ilut) : fn(bicgstab_diag);
+  }
+#ifdef GEOMFIT_HAVE_SUITESPARSE
+  Eigen::UmfPackLU<ColMatrix> umfpack;
+  Eigen::KLU<ColMatrix> klu;
+#endif
+  bool SamePattern() const {
+    const size_t no = A.outerSize() + 1, ni = A.nonZeros();
+    return outer.size() == no && inner.size() == ni &&
+           std::memcmp(outer.data(), A.outerIndexPtr(), no * sizeof(int)) == 0 &&
+           std::memcmp(inner.data(), A.innerIndexPtr(), ni * sizeof(int)) == 0;
+  }
+};
+
+SparseSolver::SparseSolver(const SolverOptions& options) : options_(options), impl_(std::make_unique<Impl>()) {
+  if (options_.kind == SolverKind::kAuto) options_.kind = SolverKind::kSparseLU;
+}
+SparseSolver::~SparseSolver() = default;
+SparseSolver::SparseSolver(SparseSolver&&) noexcept = default;
+SparseSolver& SparseSolver::operator=(SparseSolver&&) noexcept = default;
+
+absl::Status SparseSolver::Factorize(const Matrix& A) {
+  if (A.rows() != A.cols()) return absl::InvalidArgumentError("the system matrix is not square");
+  Impl& m = *impl_;
+  m.A = A;
+  m.A.makeCompressed();
+  const bool analyze = !m.SamePattern();
+  if (analyze) {
+    m.outer.assign(m.A.outerIndexPtr(), m.A.outerIndexPtr() + m.A.outerSize() + 1);
+    m.inner.assign(m.A.innerIndexPtr(), m.A.innerIndexPtr() + m.A.nonZeros());
+    ++analyses_;
+  }
+  Eigen::ComputationInfo info = Eigen::Success;
+  switch (options_.kind) {
+    case SolverKind::kSparseLU:
+      if (analyze) m.lu.analyzePattern(m.A);
+      m.lu.factorize(m.A);
+      info = m.lu.info();
+      break;
+    case SolverKind::kBiCGSTAB:
+      m.bicgstab_ilut.preconditioner().setDroptol(options_.ilut_drop);
+      m.bicgstab_ilut.preconditioner().setFillfactor(options_.ilut_fill);
+      info = m.WithBicgstab(options_, [&](auto& solver) {
+        solver.setTolerance(options_.tolerance);
+        solver.setMaxIterations(options_.max_iterations);
+        solver.compute(m.A);
+        return solver.info();
+      });
+      break;
+#ifdef GEOMFIT_HAVE_SUITESPARSE
+    case SolverKind::kUmfpack:
+      if (analyze) m.umfpack.analyzePattern(m.A);
+      m.umfpack.factorize(m.A);
+      info = m.umfpack.info();
+      break;
+    case SolverKind::kKlu:
+      if (analyze) m.klu.analyzePattern(m.A);
+      m.klu.factorize(m.A);
+      info = m.klu.info();
+      break;
+#endif
+    default:
+      return ValidateSolverOptions(options_);
+  }
+  if (info != Eigen::Success)
+    return absl::FailedPreconditionError(
+        absl::StrCat(SolverKindName(options_.kind), ": factorization failed (singular or not finite system)"));
+  return absl::OkStatus();
+}
+
+absl::Status SparseSolver::Solve(const Eigen::VectorXd& b, Eigen::VectorXd* x) {
+  Impl& m = *impl_;
+  if (b.size() != m.A.rows()) return absl::InvalidArgumentError("right-hand side size does not match the system");
+  iterations_ = 1;
+  Eigen::ComputationInfo info = Eigen::Success;
+  switch (options_.kind) {
+    case SolverKind::kSparseLU:
+      *x = m.lu.solve(b);
+      info = m.lu.info();
+      break;
+    case SolverKind::kBiCGSTAB:
+      if (x->size() != b.size()) x->setZero(b.size());
+      info = m.WithBicgstab(options_, [&](auto& solver) {
+        *x = solver.solveWithGuess(b, *x);
+        iterations_ = static_cast<int>(solver.iterations());
+        return solver.info();
+      });
+      break;
+#ifdef GEOMFIT_HAVE_SUITESPARSE
+    case SolverKind::kUmfpack:
+      *x = m.umfpack.solve(b);
+      info = m.umfpack.info();
+      break;
+    case SolverKind::kKlu:
+      *x = m.klu.solve(b);
+      info = m.klu.info();
+      break;
+#endif
+    default:
+      return ValidateSolverOptions(options_);
+  }
+  if (info != Eigen::Success || !x->allFinite())
+    return absl::FailedPreconditionError(absl::StrCat(SolverKindName(options_.kind), ": solve failed",
+                                                      options_.kind == SolverKind::kBiCGSTAB
+                                                          ? absl::StrFormat(" (no convergence in %d iterations)", iterations_)
+                                                          : std::string()));
+  return absl::OkStatus();
+}
+
+}  // namespace geomfit
