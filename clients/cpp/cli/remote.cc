@@ -155,6 +155,7 @@ absl::Status RunRemoteCommand(const std::string& command, const std::vector<std:
   if (command == "info") return Info(args);
   if (command == "list") return List(args);
   if (command == "delete") return Delete(args);
+  if (command == "jobs") return RunJobs(args);
   return UsageError(absl::StrCat("unknown service command '", command, "'"));
 }
 
