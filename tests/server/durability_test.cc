@@ -173,32 +173,17 @@ TEST_F(DurabilityTest, SigtermDrainsAndExitsCleanly) {
 
 TEST_F(DurabilityTest, JobsSurviveARestart) {
   // A finished job stays SUCCEEDED with readable results; one killed mid-run is FAILED.
-  auto start_refine = [](v1::GeomFit::Stub& stub, const std::string& mesh_id, int levels) {
-    grpc::ClientContext ctx;
-    v1::StartJobRequest request;
-    request.mutable_refine()->set_mesh_id(mesh_id);
-    request.mutable_refine()->set_levels(levels);
-    v1::Job job;
-    EXPECT_TRUE(stub.StartJob(&ctx, request, &job).ok());
-    return job.job_id();
-  };
   /// Watches until `until` holds for an event (or the stream ends); returns the last event.
   auto watch = [](v1::GeomFit::Stub& stub, const std::string& job_id,
                   const std::function<bool(const v1::JobEvent&)>& until) {
-    grpc::ClientContext ctx;
-    v1::WatchJobRequest request;
-    request.set_job_id(job_id);
-    auto reader = stub.WatchJob(&ctx, request);
-    v1::JobEvent e, last;
-    while (reader->Read(&e)) {
-      last = e;
-      if (until(e)) {
-        ctx.TryCancel();
-        break;
-      }
-    }
-    reader->Finish();
-    return last;
+    std::vector<v1::JobEvent> events;
+    testing::WatchJob(stub, job_id, 0, &events, until);
+    return events.empty() ? v1::JobEvent() : events.back();
+  };
+  auto start_refine = [](v1::GeomFit::Stub& stub, const std::string& mesh_id, int levels) {
+    absl::StatusOr<v1::Job> job = testing::StartRefineJob(stub, mesh_id, levels);
+    EXPECT_TRUE(job.ok()) << job.status();
+    return job.ok() ? job->job_id() : std::string();
   };
   std::string done, killed, level;
   {

@@ -12,43 +12,8 @@ namespace {
 
 using testing::InProcessServer;
 
-v1::StartJobRequest RefineSpec(const std::string& mesh_id, int levels, int factor = 2) {
-  v1::StartJobRequest r;
-  v1::RefineJob* spec = r.mutable_refine();
-  spec->set_mesh_id(mesh_id);
-  spec->set_levels(levels);
-  spec->set_factor(factor);
-  spec->mutable_options()->mutable_fit()->set_degree(2);
-  return r;
-}
-
-absl::StatusOr<v1::Job> Start(v1::GeomFit::Stub& stub, const v1::StartJobRequest& request) {
-  grpc::ClientContext ctx;
-  v1::Job job;
-  const grpc::Status s = stub.StartJob(&ctx, request, &job);
-  if (!s.ok()) return absl::Status(static_cast<absl::StatusCode>(s.error_code()), s.error_message());
-  return job;
-}
-
-/// Reads WatchJob(from) until the stream ends, or until `stop` says so (then the call
-/// is cancelled: a client that goes away).
-grpc::Status Watch(v1::GeomFit::Stub& stub, const std::string& job_id, int64_t from, std::vector<v1::JobEvent>* out,
-                   const std::function<bool(const v1::JobEvent&)>& stop = nullptr) {
-  grpc::ClientContext ctx;
-  v1::WatchJobRequest request;
-  request.set_job_id(job_id);
-  request.set_from_event(from);
-  auto reader = stub.WatchJob(&ctx, request);
-  v1::JobEvent e;
-  while (reader->Read(&e)) {
-    out->push_back(e);
-    if (stop && stop(e)) {
-      ctx.TryCancel();
-      break;
-    }
-  }
-  return reader->Finish();
-}
+using testing::StartRefineJob;
+using testing::WatchJob;
 
 std::set<std::string> MeshIds(v1::GeomFit::Stub& stub) {
   grpc::ClientContext ctx;
@@ -64,14 +29,14 @@ TEST(JobsTest, RefineJobLifecycleAndResume) {
   const Mesh mesh = testing::TestTorus(8);
   absl::StatusOr<v1::MeshInfo> info = testing::UploadMesh(server.stub(), mesh, "torus");
   ASSERT_TRUE(info.ok()) << info.status();
-  absl::StatusOr<v1::Job> job = Start(server.stub(), RefineSpec(info->mesh_id(), 2));
+  absl::StatusOr<v1::Job> job = StartRefineJob(server.stub(), info->mesh_id(), 2);
   ASSERT_TRUE(job.ok()) << job.status();
   EXPECT_EQ(job->kind(), "refine");
   EXPECT_EQ(job->request().refine().levels(), 2);
   EXPECT_EQ(job->request().refine().mesh_id(), info->mesh_id());
 
   std::vector<v1::JobEvent> all;
-  ASSERT_TRUE(Watch(server.stub(), job->job_id(), 0, &all).ok());
+  ASSERT_TRUE(WatchJob(server.stub(), job->job_id(), 0, &all).ok());
   ASSERT_GE(all.size(), 7u);  // queued, started, 2 x (refine, stored), final
   for (size_t i = 0; i < all.size(); ++i) {
     EXPECT_EQ(all[i].seq(), static_cast<int64_t>(i + 1));
@@ -108,7 +73,7 @@ TEST(JobsTest, RefineJobLifecycleAndResume) {
   // A watcher reconnecting from event k gets exactly the events >= k.
   for (int64_t k : {int64_t{3}, static_cast<int64_t>(all.size())}) {
     std::vector<v1::JobEvent> rest;
-    ASSERT_TRUE(Watch(server.stub(), job->job_id(), k, &rest).ok());
+    ASSERT_TRUE(WatchJob(server.stub(), job->job_id(), k, &rest).ok());
     ASSERT_EQ(rest.size(), all.size() - k + 1) << "from " << k;
     for (size_t i = 0; i < rest.size(); ++i) EXPECT_TRUE(google::protobuf::util::MessageDifferencer::Equals(rest[i], all[k - 1 + i]));
   }
@@ -136,12 +101,12 @@ TEST(JobsTest, ReconnectThenCancelStoresNothing) {
   ASSERT_TRUE(info.ok());
   const std::set<std::string> before = MeshIds(server.stub());
   // Six levels would take minutes: it is cancelled during level 2.
-  absl::StatusOr<v1::Job> job = Start(server.stub(), RefineSpec(info->mesh_id(), 6));
+  absl::StatusOr<v1::Job> job = StartRefineJob(server.stub(), info->mesh_id(), 6);
   ASSERT_TRUE(job.ok()) << job.status();
 
   // Watch until level 1 is stored, then drop the stream (a client that disconnects).
   std::vector<v1::JobEvent> first;
-  Watch(server.stub(), job->job_id(), 0, &first,
+  WatchJob(server.stub(), job->job_id(), 0, &first,
         [](const v1::JobEvent& e) { return e.phase() == "stored" && e.step() == 1; });
   ASSERT_FALSE(first.empty());
   ASSERT_EQ(first.back().phase(), "stored");
@@ -151,7 +116,7 @@ TEST(JobsTest, ReconnectThenCancelStoresNothing) {
   // Reconnect from k: the stream resumes exactly there; cancel once it has.
   std::vector<v1::JobEvent> rest;
   bool cancelled = false;
-  ASSERT_TRUE(Watch(server.stub(), job->job_id(), k, &rest, [&](const v1::JobEvent& e) {
+  ASSERT_TRUE(WatchJob(server.stub(), job->job_id(), k, &rest, [&](const v1::JobEvent& e) {
                 if (!cancelled) {
                   grpc::ClientContext ctx;
                   v1::CancelJobRequest c;
@@ -188,16 +153,18 @@ TEST(JobsTest, BadInputs) {
   absl::StatusOr<v1::MeshInfo> info = testing::UploadMesh(stub, testing::TestTorus(8), "torus");
   ASSERT_TRUE(info.ok());
 
-  absl::StatusOr<v1::Job> zero = Start(stub, RefineSpec(info->mesh_id(), 0));
+  absl::StatusOr<v1::Job> zero = StartRefineJob(stub, info->mesh_id(), 0);
   EXPECT_EQ(zero.status().code(), absl::StatusCode::kInvalidArgument);
   EXPECT_NE(zero.status().message().find("refine.levels"), std::string::npos) << zero.status();
-  absl::StatusOr<v1::Job> factor = Start(stub, RefineSpec(info->mesh_id(), 1, 5));
+  absl::StatusOr<v1::Job> factor = StartRefineJob(stub, info->mesh_id(), 1, 5);
   EXPECT_EQ(factor.status().code(), absl::StatusCode::kInvalidArgument);
   EXPECT_NE(factor.status().message().find("refine.factor"), std::string::npos) << factor.status();
-  EXPECT_EQ(Start(stub, RefineSpec("m-nope", 1)).status().code(), absl::StatusCode::kNotFound);
-  absl::StatusOr<v1::Job> none = Start(stub, v1::StartJobRequest());
-  EXPECT_EQ(none.status().code(), absl::StatusCode::kInvalidArgument);
-  EXPECT_NE(none.status().message().find("spec"), std::string::npos);
+  EXPECT_EQ(StartRefineJob(stub, "m-nope", 1).status().code(), absl::StatusCode::kNotFound);
+  grpc::ClientContext none_ctx;
+  v1::Job none_job;
+  const grpc::Status none = stub.StartJob(&none_ctx, v1::StartJobRequest(), &none_job);
+  EXPECT_EQ(none.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(none.error_message().find("spec"), std::string::npos);
 
   grpc::ClientContext c1, c2;
   v1::Job j;
@@ -208,7 +175,7 @@ TEST(JobsTest, BadInputs) {
   cancel.set_job_id("j-nope");
   EXPECT_EQ(stub.CancelJob(&c2, cancel, &j).error_code(), grpc::StatusCode::NOT_FOUND);
   std::vector<v1::JobEvent> events;
-  EXPECT_EQ(Watch(stub, "j-nope", 0, &events).error_code(), grpc::StatusCode::NOT_FOUND);
+  EXPECT_EQ(WatchJob(stub, "j-nope", 0, &events).error_code(), grpc::StatusCode::NOT_FOUND);
   EXPECT_TRUE(events.empty());
   EXPECT_EQ(MeshIds(stub).size(), 1u);  // no job ran
 }

@@ -134,6 +134,9 @@ absl::Status RunIntegrate(const std::vector<std::string>& args);  ///< reconstru
 namespace geomfit::cli {
 /// A client of the server at HOST:PORT (remote.cc).
 std::unique_ptr<Client> ConnectTo(const std::string& server);
+/// Parses a service subcommand that takes --server and positionals; false with OK =
+/// --help was printed.
+absl::StatusOr<bool> ParseRemote(ArgParser& p, const std::vector<std::string>& args, const std::string& server);
 /// MESH on the command line is a file (uploaded, idempotently; read into *mesh) or the
 /// id of a stored mesh (*mesh left empty). Returns the mesh id.
 absl::StatusOr<std::string> RemoteMeshId(Client& client, const std::string& mesh_arg, bool verbose, Mesh* mesh);

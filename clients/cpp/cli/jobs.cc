@@ -40,17 +40,6 @@ absl::Status Outcome(const v1::JobEvent& last) {
   return absl::AbortedError(absl::StrCat("job ", last.job_id(), " ", StateName(last.state()), ": ", last.message()));
 }
 
-/// Parses `geomfit jobs SUB` options; false with OK = --help was printed.
-absl::StatusOr<bool> ParseJobs(ArgParser& p, const std::vector<std::string>& args, const std::string& server) {
-  GF_RETURN_IF_ERROR(p.Parse(args));
-  if (p.help_requested()) {
-    std::fputs(p.Usage().c_str(), stdout);
-    return false;
-  }
-  if (server.empty()) return UsageError("this command needs --server HOST:PORT");
-  return true;
-}
-
 }  // namespace
 
 std::string FormatJobEvent(const v1::JobEvent& e) {
@@ -85,7 +74,7 @@ absl::Status RunJobs(const std::vector<std::string>& args) {
   if (sub == "list") {
     ArgParser p("geomfit jobs list", "--server HOST:PORT", "Lists the server's jobs in creation order.");
     p.String("server", &server, "geomfit server", "HOST:PORT");
-    GF_ASSIGN_OR_RETURN(bool run, ParseJobs(p, rest, server));
+    GF_ASSIGN_OR_RETURN(bool run, ParseRemote(p, rest, server));
     if (!run) return absl::OkStatus();
     GF_ASSIGN_OR_RETURN(std::vector<v1::Job> jobs, ConnectTo(server)->ListJobs());
     return PrintJobs(jobs);
@@ -94,7 +83,7 @@ absl::Status RunJobs(const std::vector<std::string>& args) {
     ArgParser p("geomfit jobs " + sub, "--server HOST:PORT JOB_ID",
                 sub == "get" ? "Prints one job." : "Cancels a job; prints it (CANCELLED once it stopped).");
     p.String("server", &server, "geomfit server", "HOST:PORT").Positional("JOB_ID", &id, "the job");
-    GF_ASSIGN_OR_RETURN(bool run, ParseJobs(p, rest, server));
+    GF_ASSIGN_OR_RETURN(bool run, ParseRemote(p, rest, server));
     if (!run) return absl::OkStatus();
     std::unique_ptr<Client> client = ConnectTo(server);
     GF_ASSIGN_OR_RETURN(v1::Job job, sub == "get" ? client->GetJob(id) : client->CancelJob(id));
@@ -108,7 +97,7 @@ absl::Status RunJobs(const std::vector<std::string>& args) {
     p.String("server", &server, "geomfit server", "HOST:PORT")
         .Positional("JOB_ID", &id, "the job")
         .Int("from", &from, "first event (seq) to print; 0 = from the beginning");
-    GF_ASSIGN_OR_RETURN(bool run, ParseJobs(p, rest, server));
+    GF_ASSIGN_OR_RETURN(bool run, ParseRemote(p, rest, server));
     if (!run) return absl::OkStatus();
     if (from < 0) return UsageError("--from must not be negative");
     v1::JobEvent last;

@@ -419,11 +419,14 @@ class Client:
         return self._call(run)
 
     def list_meshes(self) -> List["pb.MeshInfo"]:
+        return self._all_pages(self._stub.ListMeshes, pb.ListMeshesRequest, "meshes")
+
+    def _all_pages(self, rpc, request_type, field: str) -> list:
+        """Every item of a paged List* call (pages of 1000)."""
         out, token = [], ""
         while True:
-            r = self._call(lambda: self._stub.ListMeshes(
-                pb.ListMeshesRequest(page_size=1000, page_token=token), timeout=self.timeout))
-            out.extend(r.meshes)
+            r = self._call(lambda: rpc(request_type(page_size=1000, page_token=token), timeout=self.timeout))
+            out.extend(getattr(r, field))
             if not r.next_page_token:
                 return out
             token = r.next_page_token
@@ -602,14 +605,7 @@ class Client:
 
     def list_jobs(self) -> List["pb.Job"]:
         """Every job, in creation order."""
-        out, token = [], ""
-        while True:
-            r = self._call(lambda: self._stub.ListJobs(
-                pb.ListJobsRequest(page_size=1000, page_token=token), timeout=self.timeout))
-            out.extend(r.jobs)
-            if not r.next_page_token:
-                return out
-            token = r.next_page_token
+        return self._all_pages(self._stub.ListJobs, pb.ListJobsRequest, "jobs")
 
     def refine_job(self, mesh_id: str, levels: int, factor: int = 2, surface: str = "walf", degree: int = 3,
                    safeguard: bool = True, feature_angle: float = 0.0, name: str = "",
