@@ -235,5 +235,35 @@ TEST_F(DurabilityTest, JobsSurviveARestart) {
   EXPECT_EQ(chunks.back().summary().num_vertices(), info.num_vertices());
 }
 
+TEST_F(DurabilityTest, SigtermInterruptsRunningJobs) {
+  std::string id;
+  {
+    ServerProcess server(dir_);
+    auto mesh = testing::UploadMesh(server.stub(), testing::TestTorus(16), "large");
+    ASSERT_TRUE(mesh.ok());
+    absl::StatusOr<v1::Job> job = testing::StartRefineJob(server.stub(), mesh->mesh_id(), 6);  // minutes of work
+    ASSERT_TRUE(job.ok()) << job.status();
+    id = job->job_id();
+    std::vector<v1::JobEvent> events;
+    testing::WatchJob(server.stub(), id, 0, &events, [](const v1::JobEvent& e) { return e.step() == 2; });
+    ASSERT_EQ(events.back().state(), v1::JOB_STATE_RUNNING);
+    const int status = server.Signal(SIGTERM);  // the job is cancelled, not waited for
+    ASSERT_TRUE(WIFEXITED(status)) << "status " << status;
+    EXPECT_EQ(WEXITSTATUS(status), 0);
+  }
+  ServerProcess restarted(dir_);
+  grpc::ClientContext ctx;
+  v1::GetJobRequest get;
+  get.set_job_id(id);
+  v1::Job job;
+  ASSERT_TRUE(restarted.stub().GetJob(&ctx, get, &job).ok());
+  EXPECT_EQ(job.state(), v1::JOB_STATE_FAILED);
+  EXPECT_EQ(job.error(), "interrupted by server shutdown");
+  grpc::ClientContext list_ctx;
+  v1::ListMeshesResponse list;
+  ASSERT_TRUE(restarted.stub().ListMeshes(&list_ctx, v1::ListMeshesRequest(), &list).ok());
+  EXPECT_EQ(list.meshes_size(), 1) << "the interrupted job's levels were not rolled back";
+}
+
 }  // namespace
 }  // namespace geomfit::server
