@@ -159,7 +159,7 @@ class JobManager {
 
   MeshStore* store_;
   const JobManagerOptions options_;
-  std::mutex mu_;  ///< guards the maps, queue, counters; never held while a job's mu is taken... see .cc
+  std::mutex mu_;  ///< guards the maps, queue and counters; taken before a Job's mu, never after
   std::condition_variable ready_;
   std::map<std::string, std::shared_ptr<Job>> jobs_;  ///< in memory: live and recently finished
   std::deque<std::shared_ptr<Job>> queue_;
