@@ -66,6 +66,20 @@ class JobManager::Events final : public JobEvents {
       std::lock_guard<std::mutex> lock(progress_mu_);
       step_ = event.step;
     }
+    // Meshes stored so far join the record, durably before the event is seen: a job
+    // interrupted by a crash still names what it left in the store.
+    if (!event.results.empty()) {
+      JobRecord record;
+      {
+        std::lock_guard<std::mutex> lock(job_->mu);
+        std::vector<JobResultMesh>& r = job_->record.results;
+        r.insert(r.end(), event.results.begin(), event.results.end());
+        record = job_->record;
+        record.last_seq = job_->next_seq;  // this event's
+      }
+      if (absl::Status s = manager_->store_->PutJob(record); !s.ok())
+        spdlog::warn("job {}: cannot record its results: {}", record.job_id, std::string(s.message()));
+    }
     std::vector<std::function<void()>> fire;
     {
       std::lock_guard<std::mutex> lock(job_->mu);

@@ -76,8 +76,9 @@ class JobEvents {
 };
 
 /// The work of a job: polls ctx (its token is the job's cancellation) and returns the
-/// results, or an error. A cancelled run returns ctx.Check()'s status and must leave
-/// nothing stored.
+/// results, or an error. A cancelled run returns ctx.Check()'s status; a cancelled or
+/// failed run must leave nothing stored. Events that carry results (meshes stored so far)
+/// add them to the job's record at once, so a job interrupted by a crash names them.
 using JobRunFn = std::function<absl::StatusOr<JobResult>(const RunContext&, JobEvents*)>;
 
 struct JobManagerOptions {

@@ -46,7 +46,9 @@ struct JobRecord {
   JobState state = JobState::kPending;
   int64_t created_unix_ms = 0;
   int64_t updated_unix_ms = 0;
-  std::vector<JobResultMesh> results;  ///< SUCCEEDED jobs only
+  /// Meshes stored so far (RUNNING), all of them (SUCCEEDED); none after FAILED or
+  /// CANCELLED, except for a job interrupted by a restart: what it had stored.
+  std::vector<JobResultMesh> results;
   int error_code = 0;                  ///< absl::StatusCode of a FAILED or CANCELLED job
   std::string error;                   ///< its message
   int64_t last_seq = 0;                ///< seq of the job's latest event when written

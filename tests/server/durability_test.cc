@@ -216,6 +216,14 @@ TEST_F(DurabilityTest, JobsSurviveARestart) {
   EXPECT_EQ(list.jobs(1).state(), v1::JOB_STATE_FAILED);
   EXPECT_EQ(list.jobs(1).error(), "interrupted by restart");
   EXPECT_EQ(list.jobs(1).request().refine().levels(), 6);
+  ASSERT_EQ(list.jobs(1).results_size(), 1);  // level 1 was stored before the kill: it is named
+  {
+    grpc::ClientContext ctx;
+    v1::GetMeshRequest get;
+    get.set_mesh_id(list.jobs(1).results(0).mesh_id());
+    v1::MeshInfo left;
+    EXPECT_TRUE(stub.GetMesh(&ctx, get, &left).ok());
+  }
   // The interrupted job's watchers learn its end.
   const v1::JobEvent end = watch(stub, killed, [](const v1::JobEvent&) { return false; });
   EXPECT_TRUE(end.final());

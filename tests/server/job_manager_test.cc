@@ -217,6 +217,30 @@ TEST(JobManagerTest, MaxJobsCountsPendingAndRunning) {
   EXPECT_TRUE(m->Start("test", "", Steps(1)).ok());  // room again
 }
 
+TEST(JobManagerTest, ResultsOfEventsAreRecordedAtOnceAndDroppedOnFailure) {
+  auto store = NewMemoryStore();
+  auto m = NewManager(store.get());
+  std::atomic<bool> release{false};
+  const std::string id =
+      m->Start("test", "", [&](const RunContext& ctx, JobEvents* events) -> absl::StatusOr<JobResult> {
+         JobEvent e;
+         e.phase = "stored";
+         e.results.push_back({"m-level1", 1});
+         events->Emit(std::move(e));
+         while (!release) {
+           if (absl::Status s = ctx.Check(); !s.ok()) return s;
+           std::this_thread::sleep_for(std::chrono::milliseconds(1));
+         }
+         return absl::InternalError("level 2 failed");  // (a real run deletes level 1 first)
+       })->record.job_id;
+  WaitForPhase(*m, id, "stored");
+  EXPECT_EQ(store->GetJob(id)->results, (std::vector<JobResultMesh>{{"m-level1", 1}}));
+  EXPECT_EQ(m->Get(id)->record.results.size(), 1u);
+  release = true;
+  EXPECT_EQ(AllEvents(*m, id).back().state, JobState::kFailed);
+  EXPECT_TRUE(store->GetJob(id)->results.empty());
+}
+
 TEST(JobManagerTest, FailedRunKeepsItsError) {
   auto store = NewMemoryStore();
   auto m = NewManager(store.get());
@@ -357,12 +381,13 @@ TEST(JobManagerTest, RestartFailsInterruptedJobsAndKeepsFinishedOnes) {
     done = m->Start("test", "", Steps(2))->record.job_id;
     AllEvents(*m, done);
   }
-  // A job a crashed process left RUNNING, after 7 events.
+  // A job a crashed process left RUNNING, after 7 events, having stored one mesh.
   JobRecord crashed;
   crashed.job_id = "j-0000000000001-000000";
   crashed.kind = "test";
   crashed.state = JobState::kRunning;
   crashed.last_seq = 7;
+  crashed.results = {{"m-partial", 1}};
   ASSERT_TRUE(store->PutJob(crashed).ok());
 
   auto m = NewManager(store.get());
@@ -370,6 +395,7 @@ TEST(JobManagerTest, RestartFailsInterruptedJobsAndKeepsFinishedOnes) {
   ASSERT_TRUE(c.ok()) << c.status();
   EXPECT_EQ(c->record.state, JobState::kFailed);
   EXPECT_EQ(c->record.error, "interrupted by restart");
+  EXPECT_EQ(c->record.results, crashed.results);  // what it left in the store
   EXPECT_EQ(c->last_seq, 8);
   absl::StatusOr<JobEventBatch> b = m->Read(crashed.job_id, 3, 10);  // its log is gone: the final event
   ASSERT_EQ(b->events.size(), 1u);
