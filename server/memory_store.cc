@@ -28,6 +28,21 @@ absl::Status CheckVertexCount(const std::string& id, int64_t rows, int64_t num_v
       absl::StrCat("positions: ", rows, " rows, mesh '", id, "' has ", num_vertices, " vertices"));
 }
 
+absl::Status JobNotFound(const std::string& job_id) {
+  return absl::NotFoundError(absl::StrCat("job '", job_id, "' not found"));
+}
+
+absl::Status MeshStore::PutJob(const JobRecord&) {
+  return absl::UnimplementedError(Kind() + " store keeps no job records");
+}
+absl::StatusOr<JobRecord> MeshStore::GetJob(const std::string&) {
+  return absl::UnimplementedError(Kind() + " store keeps no job records");
+}
+absl::StatusOr<std::vector<JobRecord>> MeshStore::ListJobs(const std::string&, int) {
+  return absl::UnimplementedError(Kind() + " store keeps no job records");
+}
+
+
 FaceKind FaceKindOf(const Mesh& mesh) {
   int quads = 0;
   for (int f = 0; f < mesh.NumFaces(); ++f) quads += mesh.FaceSize(f) == 4;
@@ -121,9 +136,31 @@ class MemoryStore final : public MeshStore {
     return s;
   }
 
+  absl::Status PutJob(const JobRecord& record) override {
+    std::lock_guard<std::mutex> lock(mu_);
+    jobs_[record.job_id] = record;
+    return absl::OkStatus();
+  }
+
+  absl::StatusOr<JobRecord> GetJob(const std::string& job_id) override {
+    std::lock_guard<std::mutex> lock(mu_);
+    auto it = jobs_.find(job_id);
+    if (it == jobs_.end()) return JobNotFound(job_id);
+    return it->second;
+  }
+
+  absl::StatusOr<std::vector<JobRecord>> ListJobs(const std::string& after_id, int limit) override {
+    std::lock_guard<std::mutex> lock(mu_);
+    std::vector<JobRecord> out;
+    for (auto it = jobs_.upper_bound(after_id); it != jobs_.end() && static_cast<int>(out.size()) < limit; ++it)
+      out.push_back(it->second);
+    return out;
+  }
+
  private:
   std::mutex mu_;
   std::map<std::string, StoredMesh> meshes_;
+  std::map<std::string, JobRecord> jobs_;
 };
 
 }  // namespace

@@ -10,6 +10,7 @@
 #include <map>
 
 #include "core/mesh/mesh.h"
+#include "server/jobs/job_record.h"
 
 namespace geomfit::server {
 
@@ -66,6 +67,14 @@ class MeshStore {
   /// NOT_FOUND for an unknown id.
   virtual absl::Status Delete(const std::string& id) = 0;
   virtual StoreStats Stats() = 0;
+
+  // Job records (server/jobs/job_manager.h). The defaults answer UNIMPLEMENTED.
+  /// Inserts or replaces the record of record.job_id; durable on return.
+  virtual absl::Status PutJob(const JobRecord& record);
+  /// NOT_FOUND for an unknown id.
+  virtual absl::StatusOr<JobRecord> GetJob(const std::string& job_id);
+  /// Up to `limit` jobs with id > after_id, in id order.
+  virtual absl::StatusOr<std::vector<JobRecord>> ListJobs(const std::string& after_id, int limit);
 };
 
 /// In-process store for throwaway runs and tests.
@@ -80,6 +89,8 @@ int64_t NowUnixMs();
 absl::Status MeshNotFound(const std::string& id);
 absl::Status StaleRevision(const std::string& id, int64_t expected, int64_t actual);
 /// INVALID_ARGUMENT unless an update carries one row per vertex.
+/// NOT_FOUND naming the job.
+absl::Status JobNotFound(const std::string& job_id);
 absl::Status CheckVertexCount(const std::string& id, int64_t rows, int64_t num_vertices);
 
 }  // namespace geomfit::server

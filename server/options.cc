@@ -103,6 +103,10 @@ const std::vector<Flag>& Flags() {
       {"spin-us", "microseconds one idle compute worker polls for the next task before it sleeps, so that a "
                   "time-stepping client's next update starts at once on a core that has not gone idle; 0: off",
        IntSetter(&ServerOptions::spin_us, "spin-us", 0, 1'000'000)},
+      {"job-threads", "jobs (StartJob) running at once, on threads of their own",
+       IntSetter(&ServerOptions::job_threads, "job-threads", 1, 256)},
+      {"max-jobs", "pending + running jobs beyond which StartJob is RESOURCE_EXHAUSTED",
+       IntSetter(&ServerOptions::max_jobs, "max-jobs", 1, 1 << 20)},
       {"log-level", "trace|debug|info|warn|error|off",
        [](const std::string& v, ServerOptions* o) {
          for (const char* level : {"trace", "debug", "info", "warn", "error", "off"}) {

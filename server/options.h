@@ -27,6 +27,8 @@ struct ServerOptions {
   std::string log_level = "info";
   int prefetch = 1;                        ///< 1: after UpdatePositions, recompute last step's differentials
   int spin_us = 1000;                      ///< one idle compute worker polls this long before sleeping
+  int job_threads = 1;                     ///< jobs running at once (own threads, apart from the pools)
+  int max_jobs = 16;                       ///< pending + running jobs beyond which StartJob is RESOURCE_EXHAUSTED
 
   std::string Address() const { return host + ":" + std::to_string(port); }
 };

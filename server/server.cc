@@ -10,6 +10,8 @@
 #include "absl/strings/str_cat.h"
 #include "core/util/status_macros.h"
 #include "server/handlers/handlers.h"
+#include "server/handlers/jobs.h"
+#include "server/jobs/job_manager.h"
 #include "server/mesh_store.h"
 #include "server/metrics.h"
 #include "server/request_stats.h"
@@ -48,6 +50,13 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   s->compute_ = std::make_unique<ThreadPool>(options.workers, options.queue, std::chrono::microseconds(options.spin_us));
   s->io_ = std::make_unique<ThreadPool>(2, options.queue);
   s->service_ = std::make_unique<Service>(s->handlers_.get(), s->compute_.get(), s->io_.get(), s->stats_.get());
+  JobManagerOptions jobs;
+  jobs.threads = options.job_threads;
+  jobs.max_jobs = options.max_jobs;
+  jobs.numeric_threads = options.threads;
+  GF_ASSIGN_OR_RETURN(s->jobs_, JobManager::Create(s->store_.get(), jobs));
+  s->job_handlers_ = std::make_unique<JobHandlers>(s->jobs_.get(), s->handlers_.get(), options.max_vertices);
+  s->service_->SetJobs(s->job_handlers_.get());
 
   grpc::EnableDefaultHealthCheckService(true);
   grpc::reflection::InitProtoReflectionServerBuilderPlugin();
@@ -86,6 +95,7 @@ void Server::Shutdown(double drain_seconds) {
   spdlog::info("draining: health NOT_SERVING, finishing in-flight calls within {}s", drain_seconds);
   grpc_server_->GetHealthCheckService()->SetServingStatus(false);
   service_->StartDraining();
+  jobs_->Shutdown();  // running jobs end now: their watchers get the final event
   // Our calls get until the deadline; then Shutdown cancels what is left at once
   // (waiting in Shutdown itself would also wait out the health service's idle
   // internal calls, i.e. always the full deadline).

@@ -15,6 +15,8 @@ namespace geomfit::server {
 class Cache;
 class Handlers;
 class Workspace;
+class JobHandlers;
+class JobManager;
 class MeshStore;
 class MetricsCollectable;
 class RequestStats;
@@ -30,8 +32,9 @@ class Server {
   ~Server();
 
   int port() const { return port_; }
-  /// Health NOT_SERVING, new calls UNAVAILABLE, in-flight calls get `drain_seconds`
-  /// to finish (then they are cancelled), pools stop. Idempotent.
+  /// Health NOT_SERVING, new calls UNAVAILABLE, running jobs are cancelled (they end
+  /// FAILED, "interrupted by server shutdown"), in-flight calls get `drain_seconds` to
+  /// finish (then they are cancelled), pools stop. Idempotent.
   void Shutdown(double drain_seconds);
 
  private:
@@ -48,6 +51,8 @@ class Server {
   std::unique_ptr<grpc::Server> grpc_server_;
   std::shared_ptr<MetricsCollectable> metrics_;
   std::unique_ptr<prometheus::Exposer> exposer_;
+  std::unique_ptr<JobManager> jobs_;  // last: shut down first (its jobs use the handlers)
+  std::unique_ptr<JobHandlers> job_handlers_;
   int port_ = 0;
   bool stopped_ = false;
 };

@@ -7,7 +7,9 @@
 #include <filesystem>
 #include <mutex>
 
+#include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
+#include "absl/strings/str_split.h"
 #include "core/util/status_macros.h"
 #include "server/mesh_record.h"
 #include "server/mesh_store.h"
@@ -53,6 +55,11 @@ class Statement {
   int rc_;
 };
 
+#define GF_JOB_COLUMNS "id, kind, options, state, created, updated, results, error_code, error, last_seq"
+constexpr char kSelectJob[] = "SELECT " GF_JOB_COLUMNS " FROM jobs WHERE id = ?";
+constexpr char kListJobs[] = "SELECT " GF_JOB_COLUMNS " FROM jobs WHERE id > ? ORDER BY id LIMIT ?";
+#undef GF_JOB_COLUMNS
+
 class SqliteStore final : public MeshStore {
  public:
   ~SqliteStore() override { sqlite3_close(db_); }
@@ -69,9 +76,13 @@ class SqliteStore final : public MeshStore {
     sqlite3_busy_timeout(db_, 5000);
     GF_RETURN_IF_ERROR(Exec("PRAGMA journal_mode=WAL"));
     GF_RETURN_IF_ERROR(Exec("PRAGMA synchronous=FULL"));
-    return Exec(
+    GF_RETURN_IF_ERROR(Exec(
         "CREATE TABLE IF NOT EXISTS meshes (id TEXT PRIMARY KEY, revision INTEGER NOT NULL, "
-        "info BLOB NOT NULL, faces BLOB NOT NULL, positions BLOB NOT NULL)");
+        "info BLOB NOT NULL, faces BLOB NOT NULL, positions BLOB NOT NULL)"));
+    return Exec(
+        "CREATE TABLE IF NOT EXISTS jobs (id TEXT PRIMARY KEY, kind TEXT NOT NULL, options BLOB NOT NULL, "
+        "state INTEGER NOT NULL, created INTEGER NOT NULL, updated INTEGER NOT NULL, results BLOB NOT NULL, "
+        "error_code INTEGER NOT NULL, error BLOB NOT NULL, last_seq INTEGER NOT NULL)");
   }
 
   std::string Kind() const override { return "sqlite"; }
@@ -157,7 +168,78 @@ class SqliteStore final : public MeshStore {
     return s;
   }
 
+  absl::Status PutJob(const JobRecord& r) override {
+    std::lock_guard<std::mutex> lock(mu_);
+    Statement st(db_,
+                 "INSERT OR REPLACE INTO jobs (id, kind, options, state, created, updated, results, error_code, "
+                 "error, last_seq) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)");
+    GF_RETURN_IF_ERROR(st.status());
+    std::string results;  // "mesh_id revision" lines (mesh ids hold no blanks)
+    for (const JobResultMesh& m : r.results) absl::StrAppend(&results, m.mesh_id, " ", m.revision, "\n");
+    st.Bind(1, r.job_id);
+    st.Bind(2, r.kind);
+    st.BindBlob(3, r.options.data(), r.options.size());
+    st.Bind(4, int64_t{static_cast<int>(r.state)});
+    st.Bind(5, r.created_unix_ms);
+    st.Bind(6, r.updated_unix_ms);
+    st.BindBlob(7, results.data(), results.size());
+    st.Bind(8, int64_t{r.error_code});
+    st.BindBlob(9, r.error.data(), r.error.size());
+    st.Bind(10, r.last_seq);
+    return st.Step().status();  // autocommit: durable (synchronous=FULL) on return
+  }
+
+  absl::StatusOr<JobRecord> GetJob(const std::string& job_id) override {
+    std::lock_guard<std::mutex> lock(mu_);
+    Statement st(db_, kSelectJob);
+    GF_RETURN_IF_ERROR(st.status());
+    st.Bind(1, job_id);
+    GF_ASSIGN_OR_RETURN(bool row, st.Step());
+    if (!row) return JobNotFound(job_id);
+    return ReadJob(st);
+  }
+
+  absl::StatusOr<std::vector<JobRecord>> ListJobs(const std::string& after_id, int limit) override {
+    std::lock_guard<std::mutex> lock(mu_);
+    Statement st(db_, kListJobs);
+    GF_RETURN_IF_ERROR(st.status());
+    st.Bind(1, after_id);
+    st.Bind(2, int64_t{limit});
+    std::vector<JobRecord> out;
+    while (true) {
+      GF_ASSIGN_OR_RETURN(bool row, st.Step());
+      if (!row) break;
+      GF_ASSIGN_OR_RETURN(JobRecord r, ReadJob(st));
+      out.push_back(std::move(r));
+    }
+    return out;
+  }
+
  private:
+  static absl::StatusOr<JobRecord> ReadJob(Statement& st) {
+    JobRecord r;
+    r.job_id = st.Blob(0);
+    r.kind = st.Blob(1);
+    r.options = st.Blob(2);
+    const int64_t state = st.Int(3);
+    if (state < static_cast<int>(JobState::kPending) || state > static_cast<int>(JobState::kCancelled))
+      return absl::DataLossError(absl::StrCat("job '", r.job_id, "': stored state ", state, " is unknown"));
+    r.state = static_cast<JobState>(state);
+    r.created_unix_ms = st.Int(4);
+    r.updated_unix_ms = st.Int(5);
+    for (absl::string_view line : absl::StrSplit(st.Blob(6), '\n', absl::SkipEmpty())) {
+      std::pair<std::string, std::string> f = absl::StrSplit(line, ' ');
+      JobResultMesh m{f.first, 0};
+      if (!absl::SimpleAtoi(f.second, &m.revision))
+        return absl::DataLossError(absl::StrCat("job '", r.job_id, "': corrupt result '", line, "'"));
+      r.results.push_back(std::move(m));
+    }
+    r.error_code = static_cast<int>(st.Int(7));
+    r.error = st.Blob(8);
+    r.last_seq = st.Int(9);
+    return r;
+  }
+
   absl::Status Exec(const char* sql) {
     char* err = nullptr;
     if (sqlite3_exec(db_, sql, nullptr, nullptr, &err) != SQLITE_OK) {

@@ -11,6 +11,7 @@
 #include "absl/status/status.h"
 #include "server/rpc/grpc_status.h"
 #include "server/rpc/reactors.h"
+#include "server/rpc/watch_job_reactor.h"
 
 namespace geomfit::server {
 absl::Status Service::Admit() const {
@@ -174,6 +175,53 @@ grpc::ServerUnaryReactor* Service::Integrate(grpc::CallbackServerContext* ctx, c
                                              v1::IntegrateResponse* response) {
   return Unary<v1::IntegrateResponse>(ctx, {"Integrate", request->mesh_id()}, compute_, response,
                                       [this, ctx, request] { return handlers_->Integrate(*request, *TokenFor(ctx)); });
+}
+
+// ---- Jobs ------------------------------------------------------------------------------
+
+namespace {
+absl::Status NoJobs() { return absl::UnimplementedError("this server runs no jobs"); }
+}  // namespace
+
+grpc::ServerUnaryReactor* Service::StartJob(grpc::CallbackServerContext* ctx, const v1::StartJobRequest* request,
+                                            v1::Job* response) {
+  Call call{"StartJob", request->has_refine() ? request->refine().mesh_id() : ""};
+  return Unary<v1::Job>(ctx, std::move(call), io_, response, [this, request]() -> absl::StatusOr<v1::Job> {
+    if (jobs_ == nullptr) return NoJobs();
+    return jobs_->StartJob(*request);
+  });
+}
+
+grpc::ServerWriteReactor<v1::JobEvent>* Service::WatchJob(grpc::CallbackServerContext*,
+                                                          const v1::WatchJobRequest* request) {
+  return new WatchJobReactor(this, jobs_, *request);
+}
+
+grpc::ServerUnaryReactor* Service::CancelJob(grpc::CallbackServerContext* ctx, const v1::CancelJobRequest* request,
+                                             v1::Job* response) {
+  return Unary<v1::Job>(ctx, {"CancelJob", request->job_id()}, io_, response,
+                        [this, request]() -> absl::StatusOr<v1::Job> {
+                          if (jobs_ == nullptr) return NoJobs();
+                          return jobs_->CancelJob(*request);
+                        });
+}
+
+grpc::ServerUnaryReactor* Service::GetJob(grpc::CallbackServerContext* ctx, const v1::GetJobRequest* request,
+                                          v1::Job* response) {
+  return Unary<v1::Job>(ctx, {"GetJob", request->job_id()}, io_, response,
+                        [this, request]() -> absl::StatusOr<v1::Job> {
+                          if (jobs_ == nullptr) return NoJobs();
+                          return jobs_->GetJob(*request);
+                        });
+}
+
+grpc::ServerUnaryReactor* Service::ListJobs(grpc::CallbackServerContext* ctx, const v1::ListJobsRequest* request,
+                                            v1::ListJobsResponse* response) {
+  return Unary<v1::ListJobsResponse>(ctx, {"ListJobs", ""}, io_, response,
+                                     [this, request]() -> absl::StatusOr<v1::ListJobsResponse> {
+                                       if (jobs_ == nullptr) return NoJobs();
+                                       return jobs_->ListJobs(*request);
+                                     });
 }
 
 }  // namespace geomfit::server

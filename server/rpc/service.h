@@ -9,6 +9,7 @@
 #include "absl/status/status.h"
 #include "geomfit/v1/geomfit.grpc.pb.h"
 #include "server/handlers/handlers.h"
+#include "server/handlers/jobs.h"
 #include "server/request_stats.h"
 #include "server/thread_pool.h"
 
@@ -59,6 +60,19 @@ class Service final : public v1::GeomFit::CallbackService {
   grpc::ServerUnaryReactor* Integrate(grpc::CallbackServerContext* ctx, const v1::IntegrateRequest* request,
                                       v1::IntegrateResponse* response) override;
 
+  // Jobs (job_handlers.h); UNIMPLEMENTED until SetJobs.
+  grpc::ServerUnaryReactor* StartJob(grpc::CallbackServerContext* ctx, const v1::StartJobRequest* request,
+                                     v1::Job* response) override;
+  grpc::ServerWriteReactor<v1::JobEvent>* WatchJob(grpc::CallbackServerContext* ctx,
+                                                   const v1::WatchJobRequest* request) override;
+  grpc::ServerUnaryReactor* CancelJob(grpc::CallbackServerContext* ctx, const v1::CancelJobRequest* request,
+                                      v1::Job* response) override;
+  grpc::ServerUnaryReactor* GetJob(grpc::CallbackServerContext* ctx, const v1::GetJobRequest* request,
+                                   v1::Job* response) override;
+  grpc::ServerUnaryReactor* ListJobs(grpc::CallbackServerContext* ctx, const v1::ListJobsRequest* request,
+                                     v1::ListJobsResponse* response) override;
+  void SetJobs(JobHandlers* jobs) { jobs_ = jobs; }
+
   /// What one call did, for the request log line.
   struct Call {
     const char* method;
@@ -94,6 +108,7 @@ class Service final : public v1::GeomFit::CallbackService {
   RequestStats* stats_;
   std::atomic<bool> draining_{false};
   std::atomic<int> in_flight_{0};
+  JobHandlers* jobs_ = nullptr;
 };
 
 }  // namespace geomfit::server

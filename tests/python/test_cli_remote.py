@@ -96,3 +96,24 @@ def test_chapter4_commands_remote_match_local(server, tmp_path):
     assert bad.returncode == 1
     assert "outside triangle face 0" in bad.stderr
     assert run("list", "--server", address).returncode == 0
+
+
+def test_refine_job_and_jobs_commands(server, mesh_file, tmp_path):
+    address = server.address
+    out = str(tmp_path / "fine.obj")
+    r = run("refine", "--server", address, mesh_file, "--job", "--levels", "2", "--degree", "2", "--output", out)
+    rows = [line.split("\t") for line in r.stdout.splitlines()]
+    assert rows[0][:2] == ["level", "mesh_id"] and [row[0] for row in rows[1:]] == ["1", "2"]
+    assert int(rows[2][4]) == 4 * int(rows[1][4])
+    assert "stored" in r.stderr and "SUCCEEDED" in r.stderr
+    assert os.path.getsize(out) > 0
+    listed = run("jobs", "list", "--server", address).stdout.splitlines()
+    job_id, kind, state = listed[1].split("\t")[:3]
+    assert (kind, state) == ("refine", "SUCCEEDED")
+    watched = run("jobs", "watch", "--server", address, job_id, "--from", "3").stdout.splitlines()
+    assert watched[0].startswith("job %s #3 " % job_id) and "SUCCEEDED" in watched[-1]
+    assert run("jobs", "cancel", "--server", address, job_id).stdout.splitlines()[1].split("\t")[2] == "SUCCEEDED"
+    missing = run("jobs", "get", "--server", address, "j-nope", check=False)
+    assert missing.returncode == 1 and "not found" in missing.stderr
+    bad = run("refine", "--server", address, mesh_file, "--job", "--levels", "0", check=False)
+    assert bad.returncode == 2 and "--levels" in bad.stderr

@@ -171,5 +171,107 @@ TEST_F(DurabilityTest, SigtermDrainsAndExitsCleanly) {
   EXPECT_LT(seconds, 3.0) << "an idle server should stop at once";
 }
 
+TEST_F(DurabilityTest, JobsSurviveARestart) {
+  // A finished job stays SUCCEEDED with readable results; one killed mid-run is FAILED.
+  /// Watches until `until` holds for an event (or the stream ends); returns the last event.
+  auto watch = [](v1::GeomFit::Stub& stub, const std::string& job_id,
+                  const std::function<bool(const v1::JobEvent&)>& until) {
+    std::vector<v1::JobEvent> events;
+    testing::WatchJob(stub, job_id, 0, &events, until);
+    return events.empty() ? v1::JobEvent() : events.back();
+  };
+  auto start_refine = [](v1::GeomFit::Stub& stub, const std::string& mesh_id, int levels) {
+    absl::StatusOr<v1::Job> job = testing::StartRefineJob(stub, mesh_id, levels);
+    EXPECT_TRUE(job.ok()) << job.status();
+    return job.ok() ? job->job_id() : std::string();
+  };
+  std::string done, killed, level;
+  {
+    ServerProcess server(dir_);
+    auto small = testing::UploadMesh(server.stub(), testing::TestTorus(8), "small");
+    auto large = testing::UploadMesh(server.stub(), testing::TestTorus(16), "large");
+    ASSERT_TRUE(small.ok() && large.ok());
+    done = start_refine(server.stub(), small->mesh_id(), 1);
+    const v1::JobEvent last = watch(server.stub(), done, [](const v1::JobEvent&) { return false; });
+    ASSERT_EQ(last.state(), v1::JOB_STATE_SUCCEEDED) << last.message();
+    ASSERT_EQ(last.results_size(), 1);
+    level = last.results(0).mesh_id();
+    killed = start_refine(server.stub(), large->mesh_id(), 6);  // minutes of work
+    const v1::JobEvent running =
+        watch(server.stub(), killed, [](const v1::JobEvent& e) { return e.phase() == "refine" && e.step() == 2; });
+    ASSERT_EQ(running.state(), v1::JOB_STATE_RUNNING);
+    server.Signal(SIGKILL);
+  }
+  ServerProcess restarted(dir_);
+  auto& stub = restarted.stub();
+  grpc::ClientContext list_ctx;
+  v1::ListJobsResponse list;
+  ASSERT_TRUE(stub.ListJobs(&list_ctx, v1::ListJobsRequest(), &list).ok());
+  ASSERT_EQ(list.jobs_size(), 2);
+  EXPECT_EQ(list.jobs(0).job_id(), done);
+  EXPECT_EQ(list.jobs(0).state(), v1::JOB_STATE_SUCCEEDED);
+  ASSERT_EQ(list.jobs(0).results_size(), 1);
+  EXPECT_EQ(list.jobs(0).results(0).mesh_id(), level);
+  EXPECT_EQ(list.jobs(1).job_id(), killed);
+  EXPECT_EQ(list.jobs(1).state(), v1::JOB_STATE_FAILED);
+  EXPECT_EQ(list.jobs(1).error(), "interrupted by restart");
+  EXPECT_EQ(list.jobs(1).request().refine().levels(), 6);
+  ASSERT_EQ(list.jobs(1).results_size(), 1);  // level 1 was stored before the kill: it is named
+  {
+    grpc::ClientContext ctx;
+    v1::GetMeshRequest get;
+    get.set_mesh_id(list.jobs(1).results(0).mesh_id());
+    v1::MeshInfo left;
+    EXPECT_TRUE(stub.GetMesh(&ctx, get, &left).ok());
+  }
+  // The interrupted job's watchers learn its end.
+  const v1::JobEvent end = watch(stub, killed, [](const v1::JobEvent&) { return false; });
+  EXPECT_TRUE(end.final());
+  EXPECT_EQ(end.state(), v1::JOB_STATE_FAILED);
+  EXPECT_EQ(end.message(), "interrupted by restart");
+  // The finished job's result is a stored mesh like any other.
+  grpc::ClientContext get_ctx;
+  v1::GetMeshRequest get;
+  get.set_mesh_id(level);
+  v1::MeshInfo info;
+  ASSERT_TRUE(stub.GetMesh(&get_ctx, get, &info).ok());
+  EXPECT_EQ(info.num_faces(), 4 * testing::TestTorus(8).NumFaces());
+  v1::ComputeDifferentialsRequest compute;
+  compute.set_mesh_id(level);
+  std::vector<v1::ComputeDifferentialsResponse> chunks;
+  ASSERT_TRUE(testing::Compute(stub, compute, &chunks).ok());
+  EXPECT_EQ(chunks.back().summary().num_vertices(), info.num_vertices());
+}
+
+TEST_F(DurabilityTest, SigtermInterruptsRunningJobs) {
+  std::string id;
+  {
+    ServerProcess server(dir_);
+    auto mesh = testing::UploadMesh(server.stub(), testing::TestTorus(16), "large");
+    ASSERT_TRUE(mesh.ok());
+    absl::StatusOr<v1::Job> job = testing::StartRefineJob(server.stub(), mesh->mesh_id(), 6);  // minutes of work
+    ASSERT_TRUE(job.ok()) << job.status();
+    id = job->job_id();
+    std::vector<v1::JobEvent> events;
+    testing::WatchJob(server.stub(), id, 0, &events, [](const v1::JobEvent& e) { return e.step() == 2; });
+    ASSERT_EQ(events.back().state(), v1::JOB_STATE_RUNNING);
+    const int status = server.Signal(SIGTERM);  // the job is cancelled, not waited for
+    ASSERT_TRUE(WIFEXITED(status)) << "status " << status;
+    EXPECT_EQ(WEXITSTATUS(status), 0);
+  }
+  ServerProcess restarted(dir_);
+  grpc::ClientContext ctx;
+  v1::GetJobRequest get;
+  get.set_job_id(id);
+  v1::Job job;
+  ASSERT_TRUE(restarted.stub().GetJob(&ctx, get, &job).ok());
+  EXPECT_EQ(job.state(), v1::JOB_STATE_FAILED);
+  EXPECT_EQ(job.error(), "interrupted by server shutdown");
+  grpc::ClientContext list_ctx;
+  v1::ListMeshesResponse list;
+  ASSERT_TRUE(restarted.stub().ListMeshes(&list_ctx, v1::ListMeshesRequest(), &list).ok());
+  EXPECT_EQ(list.meshes_size(), 1) << "the interrupted job's levels were not rolled back";
+}
+
 }  // namespace
 }  // namespace geomfit::server

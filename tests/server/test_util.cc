@@ -179,4 +179,37 @@ bool SameMesh(const Mesh& a, const Mesh& b) {
          std::memcmp(a.faces.data(), b.faces.data(), sizeof(int32_t) * a.faces.size()) == 0;
 }
 
+absl::StatusOr<v1::Job> StartRefineJob(v1::GeomFit::Stub& stub, const std::string& mesh_id, int levels,
+                                       int factor) {
+  v1::StartJobRequest request;
+  v1::RefineJob* spec = request.mutable_refine();
+  spec->set_mesh_id(mesh_id);
+  spec->set_levels(levels);
+  spec->set_factor(factor);
+  spec->mutable_options()->mutable_fit()->set_degree(2);
+  grpc::ClientContext ctx;
+  v1::Job job;
+  const grpc::Status s = stub.StartJob(&ctx, request, &job);
+  if (!s.ok()) return absl::Status(static_cast<absl::StatusCode>(s.error_code()), s.error_message());
+  return job;
+}
+
+grpc::Status WatchJob(v1::GeomFit::Stub& stub, const std::string& job_id, int64_t from,
+                      std::vector<v1::JobEvent>* out, const std::function<bool(const v1::JobEvent&)>& stop) {
+  grpc::ClientContext ctx;
+  v1::WatchJobRequest request;
+  request.set_job_id(job_id);
+  request.set_from_event(from);
+  auto reader = stub.WatchJob(&ctx, request);
+  v1::JobEvent e;
+  while (reader->Read(&e)) {
+    out->push_back(e);
+    if (stop && stop(e)) {
+      ctx.TryCancel();
+      break;
+    }
+  }
+  return reader->Finish();
+}
+
 }  // namespace geomfit::server::testing

@@ -1,6 +1,7 @@
 #pragma once
 // Shared helpers of the server tests: meshes, an in-process server on a loopback
 // port, raw stream helpers and a health probe that uses no generated code.
+#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
@@ -54,6 +55,15 @@ grpc::Status Compute(v1::GeomFit::Stub& stub, const v1::ComputeDifferentialsRequ
                      std::vector<v1::ComputeDifferentialsResponse>* chunks, int deadline_ms = 60000);
 /// Downloads a mesh and reassembles it.
 absl::StatusOr<Mesh> Download(v1::GeomFit::Stub& stub, const std::string& mesh_id);
+
+/// StartJob with a refine spec (degree-2 fits); the error as an absl::Status.
+absl::StatusOr<v1::Job> StartRefineJob(v1::GeomFit::Stub& stub, const std::string& mesh_id, int levels,
+                                       int factor = 2);
+/// Reads WatchJob(job_id, from) into *out until the stream ends, or until `stop` returns
+/// true for an event (then the call is cancelled, like a client that goes away).
+grpc::Status WatchJob(v1::GeomFit::Stub& stub, const std::string& job_id, int64_t from,
+                      std::vector<v1::JobEvent>* out,
+                      const std::function<bool(const v1::JobEvent&)>& stop = nullptr);
 
 /// grpc.health.v1 Check for `service` ("" = server), sent as raw bytes so it relies
 /// on nothing but the wire format: "SERVING", "NOT_SERVING", or the error.

@@ -150,6 +150,9 @@ absl::Status RunIntegrate(const std::vector<std::string>& args);  ///< reconstru
 namespace geomfit::cli {
 /// A client of the server at HOST:PORT (remote.cc).
 std::unique_ptr<Client> ConnectTo(const std::string& server);
+/// Parses a service subcommand that takes --server and positionals; false with OK =
+/// --help was printed.
+absl::StatusOr<bool> ParseRemote(ArgParser& p, const std::vector<std::string>& args, const std::string& server);
 /// MESH on the command line is a file (uploaded, idempotently; read into *mesh) or the
 /// id of a stored mesh (*mesh left empty). Returns the mesh id.
 absl::StatusOr<std::string> RemoteMeshId(Client& client, const std::string& mesh_arg, bool verbose, Mesh* mesh);
@@ -158,12 +161,19 @@ absl::Status RunCurvatureRemote(const CurvatureArgs& args);
 /// Service-only commands (remote.cc): upload, update, info, list, delete.
 /// Returns a usage error for a command it does not know.
 absl::Status RunRemoteCommand(const std::string& command, const std::vector<std::string>& args);
+/// `geomfit jobs list|get|watch|cancel` (jobs.cc).
+absl::Status RunJobs(const std::vector<std::string>& args);
+/// One line per job event: "job ID #SEQ STATE step N PHASE done/total counts values results: message".
+std::string FormatJobEvent(const v1::JobEvent& event);
+/// Starts a refine job and watches it (progress lines on stderr) to its end: the level
+/// meshes (coarsest first), or the job's error.
+absl::StatusOr<std::vector<v1::JobResultMesh>> RunRefineJob(Client& client, const v1::RefineJob& spec);
 #endif
 
 /// Names of the service-only commands (for help text and a clear error when the
 /// client is not built in).
 inline const std::vector<std::string>& RemoteCommandNames() {
-  static const std::vector<std::string> names = {"upload", "update", "info", "list", "delete"};
+  static const std::vector<std::string> names = {"upload", "update", "info", "list", "delete", "jobs"};
   return names;
 }
 inline constexpr char kNoClientMessage[] = "this geomfit was built without the service client";

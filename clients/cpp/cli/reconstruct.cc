@@ -166,6 +166,38 @@ absl::Status ParseOrHelp(ArgParser& p, const std::vector<std::string>& argv, boo
   return absl::OkStatus();
 }
 
+/// `geomfit refine --job`: a refine job on the server, watched to its end.
+absl::Status RefineAsJob(const SurfaceArgs& a, int factor, int levels) {
+  if (a.server.empty()) return UsageError("--job needs --server HOST:PORT");
+  if (levels < 1 || levels > 8) return UsageError(absl::StrCat("--levels ", levels, " is out of range [1, 8]"));
+  if (factor != 2 && factor != 3) return UsageError(absl::StrCat("--factor ", factor, ": a job refines by 2 or 3"));
+  if (!a.output.empty()) {
+    if (auto f = FormatFromPath(a.output); !f.ok()) return UsageError(f.status().message());
+  }
+#ifdef GEOMFIT_WITH_CLIENT
+  GF_ASSIGN_OR_RETURN(const v1::ReconstructionOptions o, ToWire(a));
+  GF_ASSIGN_OR_RETURN(RemoteSession r, Connect(a));
+  v1::RefineJob spec;
+  spec.set_mesh_id(r.id);
+  *spec.mutable_options() = o;
+  spec.set_factor(factor);
+  spec.set_levels(levels);
+  GF_ASSIGN_OR_RETURN(const std::vector<v1::JobResultMesh> results, RunRefineJob(*r.client, spec));
+  std::string table = "level\tmesh_id\trevision\tvertices\tfaces\n";
+  for (size_t k = 0; k < results.size(); ++k) {
+    GF_ASSIGN_OR_RETURN(const RemoteMesh m, r.client->GetMesh(results[k].mesh_id()));
+    absl::StrAppendFormat(&table, "%d\t%s\t%d\t%d\t%d\n", k + 1, m.mesh_id, m.revision, m.num_vertices,
+                          m.num_faces);
+  }
+  std::fputs(table.c_str(), stdout);
+  if (a.output.empty() || results.empty()) return absl::OkStatus();
+  GF_ASSIGN_OR_RETURN(const Mesh finest, r.client->Download(results.back().mesh_id()));
+  return WriteMesh(finest, a.output);
+#else
+  return NoClient(a);
+#endif
+}
+
 }  // namespace
 
 absl::Status RunProject(const std::vector<std::string>& argv) {
@@ -231,15 +263,23 @@ absl::Status RunProject(const std::vector<std::string>& argv) {
 
 absl::Status RunRefine(const std::vector<std::string>& argv) {
   SurfaceArgs a;
-  int factor = 2;
-  ArgParser p("geomfit refine", "MESH --output OUT [--factor 2|3] [options]",
+  int factor = 2, levels = 1;
+  bool job = false;
+  ArgParser p("geomfit refine", "MESH --output OUT [--factor 2|3] [options]\n"
+              "       geomfit refine --server HOST:PORT MESH --job [--levels N] [--output OUT] [options]",
               "Uniform refinement (4.2.2): each face into factor^2 faces, new vertices on the\n"
-              "reconstructed surface. OUT: .obj .off .ply .stl or .vtp.");
+              "reconstructed surface. OUT: .obj .off .ply .stl or .vtp.\n"
+              "--job: a server job refining --levels times, each level stored as a mesh (printed as\n"
+              "'level mesh_id revision vertices faces'), progress lines on stderr; OUT gets the finest.");
   AddSurfaceOptions(&p, &a);
-  p.Int("factor", &factor, "2: triangles and quads 1 -> 4; 3: 1 -> 9");
+  p.Int("factor", &factor, "2: triangles and quads 1 -> 4; 3: 1 -> 9")
+      .Int("levels", &levels, "refinement levels (with --job), 1..8")
+      .Flag("job", &job, "run as a job on the server (needs --server): watchable, cancellable");
   bool help;
   GF_RETURN_IF_ERROR(ParseOrHelp(p, argv, &help));
   if (help) return absl::OkStatus();
+  if (job) return RefineAsJob(a, factor, levels);
+  if (levels != 1) return UsageError("--levels needs --job (and --server)");
   if (a.output.empty()) return UsageError("'geomfit refine' needs --output FILE");
   if (auto f = FormatFromPath(a.output); !f.ok()) return UsageError(f.status().message());
   if (factor < 2 || factor > 8) return UsageError(absl::StrCat("--factor ", factor, " is out of range [2, 8]"));

@@ -17,6 +17,16 @@ std::unique_ptr<Client> ConnectTo(const std::string& server) {
   return Client::Connect(o);
 }
 
+absl::StatusOr<bool> ParseRemote(ArgParser& p, const std::vector<std::string>& args, const std::string& server) {
+  GF_RETURN_IF_ERROR(p.Parse(args));
+  if (p.help_requested()) {
+    std::fputs(p.Usage().c_str(), stdout);
+    return false;
+  }
+  if (server.empty()) return UsageError("this command needs --server HOST:PORT");
+  return true;
+}
+
 namespace {
 
 /// One tab-separated line per mesh, under a header line.
@@ -33,17 +43,6 @@ std::string MeshTable(const std::vector<RemoteMesh>& meshes) {
 absl::Status Print(const std::vector<RemoteMesh>& meshes) {
   std::fputs(MeshTable(meshes).c_str(), stdout);
   return absl::OkStatus();
-}
-
-/// Parses a subcommand that takes --server and positionals; false with OK = --help.
-absl::StatusOr<bool> ParseRemote(ArgParser& p, const std::vector<std::string>& args, const std::string& server) {
-  GF_RETURN_IF_ERROR(p.Parse(args));
-  if (p.help_requested()) {
-    std::fputs(p.Usage().c_str(), stdout);
-    return false;
-  }
-  if (server.empty()) return UsageError("this command needs --server HOST:PORT");
-  return true;
 }
 
 absl::StatusOr<std::map<std::string, std::string>> ParseLabels(const std::string& text) {
@@ -155,6 +154,7 @@ absl::Status RunRemoteCommand(const std::string& command, const std::vector<std:
   if (command == "info") return Info(args);
   if (command == "list") return List(args);
   if (command == "delete") return Delete(args);
+  if (command == "jobs") return RunJobs(args);
   return UsageError(absl::StrCat("unknown service command '", command, "'"));
 }
 

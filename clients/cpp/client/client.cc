@@ -461,3 +461,77 @@ absl::StatusOr<Integrals> Client::Integrate(const std::string& mesh_id, const In
 }
 
 }  // namespace geomfit
+
+// ---- Jobs ------------------------------------------------------------------------------
+
+namespace geomfit {
+
+absl::StatusOr<v1::Job> Client::StartJob(v1::StartJobRequest request) {
+  if (request.has_refine()) request.mutable_refine()->set_mesh_id(ResolveId(request.refine().mesh_id()));
+  v1::Job job;
+  GF_RETURN_IF_ERROR(impl_->Call([&](grpc::ClientContext& ctx) { return impl_->stub->StartJob(&ctx, request, &job); }));
+  return job;
+}
+
+absl::Status Client::WatchJob(const std::string& job_id, int64_t from_event,
+                              const std::function<bool(const v1::JobEvent&)>& on_event) {
+  int64_t next = from_event;
+  int failures = 0;
+  auto backoff = impl_->options.initial_backoff;
+  while (true) {
+    grpc::ClientContext ctx;
+    v1::WatchJobRequest request;
+    request.set_job_id(job_id);
+    request.set_from_event(next);
+    auto reader = impl_->stub->WatchJob(&ctx, request);
+    v1::JobEvent event;
+    bool progressed = false;
+    while (reader->Read(&event)) {
+      progressed = true;
+      next = event.seq() + 1;
+      if (!on_event(event)) {
+        ctx.TryCancel();
+        reader->Finish();
+        return absl::OkStatus();
+      }
+    }
+    const grpc::Status s = reader->Finish();
+    if (s.error_code() != grpc::StatusCode::UNAVAILABLE) return ToAbsl(s);
+    failures = progressed ? 1 : failures + 1;
+    if (failures >= std::max(1, impl_->options.max_attempts)) return ToAbsl(s);
+    std::this_thread::sleep_for(backoff);
+    backoff = std::min(impl_->options.max_backoff, backoff * 2);
+  }
+}
+
+absl::StatusOr<v1::Job> Client::CancelJob(const std::string& job_id) {
+  v1::CancelJobRequest request;
+  request.set_job_id(job_id);
+  v1::Job job;
+  GF_RETURN_IF_ERROR(impl_->Call([&](grpc::ClientContext& ctx) { return impl_->stub->CancelJob(&ctx, request, &job); }));
+  return job;
+}
+
+absl::StatusOr<v1::Job> Client::GetJob(const std::string& job_id) {
+  v1::GetJobRequest request;
+  request.set_job_id(job_id);
+  v1::Job job;
+  GF_RETURN_IF_ERROR(impl_->Call([&](grpc::ClientContext& ctx) { return impl_->stub->GetJob(&ctx, request, &job); }));
+  return job;
+}
+
+absl::StatusOr<std::vector<v1::Job>> Client::ListJobs() {
+  std::vector<v1::Job> out;
+  v1::ListJobsRequest request;
+  request.set_page_size(1000);
+  while (true) {
+    v1::ListJobsResponse response;
+    GF_RETURN_IF_ERROR(
+        impl_->Call([&](grpc::ClientContext& ctx) { return impl_->stub->ListJobs(&ctx, request, &response); }));
+    for (const v1::Job& j : response.jobs()) out.push_back(j);
+    if (response.next_page_token().empty()) return out;
+    request.set_page_token(response.next_page_token());
+  }
+}
+
+}  // namespace geomfit

@@ -4,6 +4,7 @@
 // reupload_on_not_found the client keeps a copy of what it uploaded and re-uploads
 // it (with the latest positions it sent) when the server has lost the mesh.
 #include <chrono>
+#include <functional>
 #include <cstdint>
 #include <map>
 #include <memory>
@@ -110,6 +111,20 @@ class Client {
                                         const v1::ReconstructionOptions& options = {}, const std::string& name = "");
   absl::StatusOr<Integrals> Integrate(const std::string& mesh_id, const IntegrationInput& input,
                                       const v1::ReconstructionOptions& options = {});
+
+  // Jobs: work that outlives a call (see the proto's StartJob .. ListJobs).
+  /// Queues a job; returns at once.
+  absl::StatusOr<v1::Job> StartJob(v1::StartJobRequest request);
+  /// Blocks, calling `on_event` for every event with seq >= from_event as it comes, until
+  /// the job's final event (OK); `on_event` returning false stops early (OK). A dropped
+  /// connection (UNAVAILABLE) is resumed from the last event seen, up to max_attempts
+  /// times in a row. No deadline: jobs may run for hours.
+  absl::Status WatchJob(const std::string& job_id, int64_t from_event,
+                        const std::function<bool(const v1::JobEvent&)>& on_event);
+  absl::StatusOr<v1::Job> CancelJob(const std::string& job_id);
+  absl::StatusOr<v1::Job> GetJob(const std::string& job_id);
+  /// Every job (all pages), in creation order.
+  absl::StatusOr<std::vector<v1::Job>> ListJobs();
 
   /// The server-side id currently standing for `mesh_id` (differs after a re-upload).
   std::string ResolveId(const std::string& mesh_id) const;

@@ -2,7 +2,7 @@
 import dataclasses
 import math
 import time
-from typing import Dict, Iterable, List, Optional, Tuple
+from typing import Dict, Iterable, Iterator, List, Optional, Tuple
 
 import grpc
 import grpc.experimental
@@ -419,11 +419,14 @@ class Client:
         return self._call(run)
 
     def list_meshes(self) -> List["pb.MeshInfo"]:
+        return self._all_pages(self._stub.ListMeshes, pb.ListMeshesRequest, "meshes")
+
+    def _all_pages(self, rpc, request_type, field: str) -> list:
+        """Every item of a paged List* call (pages of 1000)."""
         out, token = [], ""
         while True:
-            r = self._call(lambda: self._stub.ListMeshes(
-                pb.ListMeshesRequest(page_size=1000, page_token=token), timeout=self.timeout))
-            out.extend(r.meshes)
+            r = self._call(lambda: rpc(request_type(page_size=1000, page_token=token), timeout=self.timeout))
+            out.extend(getattr(r, field))
             if not r.next_page_token:
                 return out
             token = r.next_page_token
@@ -558,3 +561,61 @@ class Client:
 
     def statistics(self) -> "pb.Statistics":
         return self._call(lambda: self._stub.GetStatistics(pb.GetStatisticsRequest(), timeout=self.timeout))
+
+    # ------------------------------------------------------------------ jobs
+    def start_job(self, request: Optional["pb.StartJobRequest"] = None, **spec) -> "pb.Job":
+        """Starts a job and returns it at once (state PENDING or later): pass a
+        StartJobRequest, or its spec as a keyword, e.g. refine=pb.RefineJob(...)."""
+        if request is None:
+            request = pb.StartJobRequest(**spec)
+        elif spec:
+            raise ValueError("give a StartJobRequest or a spec keyword, not both")
+        return self._call(lambda: self._stub.StartJob(request, timeout=self.timeout))
+
+    def watch_job(self, job_id: str, from_event: int = 0, timeout: Optional[float] = None) -> Iterator["pb.JobEvent"]:
+        """Iterates over the job's events with seq >= from_event as they come; ends after
+        the final one (event.final). A dropped connection (UNAVAILABLE) is resumed from
+        the last event seen, up to max_attempts times in a row; to resume yourself later,
+        pass from_event = last seq + 1. Closing the iterator (break) cancels the call.
+        `timeout`: for the whole watch (None: none; jobs may run for hours)."""
+        next_seq, failures, delay = from_event, 0, self.backoff
+        while True:
+            call = self._stub.WatchJob(pb.WatchJobRequest(job_id=job_id, from_event=next_seq), timeout=timeout)
+            progressed = False
+            try:
+                for event in call:
+                    progressed = True
+                    next_seq = event.seq + 1
+                    yield event
+                return
+            except grpc.RpcError as e:
+                code = e.code()
+                failures = 1 if progressed else failures + 1
+                if code != grpc.StatusCode.UNAVAILABLE or failures >= self.max_attempts:
+                    raise GeomfitError(code, e.details() or "") from None
+            finally:
+                call.cancel()
+            time.sleep(delay)
+            delay = min(2.0, delay * 2)
+
+    def cancel_job(self, job_id: str) -> "pb.Job":
+        """Cancels a job (a running one stops as soon as it notices and stores nothing);
+        a finished job is returned unchanged."""
+        return self._call(lambda: self._stub.CancelJob(pb.CancelJobRequest(job_id=job_id), timeout=self.timeout))
+
+    def get_job(self, job_id: str) -> "pb.Job":
+        return self._call(lambda: self._stub.GetJob(pb.GetJobRequest(job_id=job_id), timeout=self.timeout))
+
+    def list_jobs(self) -> List["pb.Job"]:
+        """Every job, in creation order."""
+        return self._all_pages(self._stub.ListJobs, pb.ListJobsRequest, "jobs")
+
+    def refine_job(self, mesh_id: str, levels: int, factor: int = 2, surface: str = "walf", degree: int = 3,
+                   safeguard: bool = True, feature_angle: float = 0.0, name: str = "",
+                   revision: int = 0) -> "pb.Job":
+        """Starts a `refine` job: `levels` uniform refinements (factor 2 or 3) on the
+        high-order surface, each level stored as a new mesh; the final event's results
+        list them, coarsest first. Watch it with watch_job(job.job_id)."""
+        return self.start_job(refine=pb.RefineJob(
+            mesh_id=mesh_id, revision=revision, levels=levels, factor=factor, name=name,
+            options=self._surface(surface, degree, safeguard, feature_angle)))
