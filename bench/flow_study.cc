@@ -160,6 +160,8 @@ void Steps(const std::vector<int>& sizes, int threads, const std::string& solver
         const bool ilut = solver == "bicgstab-ilut";
         o.solver.kind = ParseSolverKind(ilut ? "bicgstab" : solver).value();
         if (ilut) o.solver.preconditioner = Preconditioner::kIlut;
+        if (const char* f = std::getenv("GF_ILUT_FILL")) o.solver.ilut_fill = std::atoi(f);
+        if (const char* d = std::getenv("GF_ILUT_DROP")) o.solver.ilut_drop = std::atof(d);
         const RunContext ctx = RunContext().WithThreads(threads);
         auto stepper = FlowStepper::Create(mesh, o, ctx);
         if (!stepper.ok()) {

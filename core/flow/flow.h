@@ -44,8 +44,7 @@ struct FlowOptions {
   FlowScheme scheme = FlowScheme::kSemiImplicit;
   double dt = 1e-3;          ///< time step, > 0
   int steps = 0;             ///< steps RunFlow takes; 0: until end_time
-  double end_time = 0;       ///< RunFlow's end time when steps == 0 (last step shortened never:
-                             ///< ceil(end_time / dt) steps)
+  double end_time = 0;       ///< when steps == 0, RunFlow takes ceil(end_time / dt) full steps
   FitOptions fit = DefaultFlowFitOptions();  ///< must be LHF
   SolverOptions solver;
   /// Blow-up check: a face whose normal turns by more than this in one step (degrees,

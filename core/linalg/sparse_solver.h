@@ -42,8 +42,8 @@ struct SolverOptions {
   double tolerance = 1e-12;   ///< BiCGSTAB relative residual
   int max_iterations = 1000;  ///< BiCGSTAB
   Preconditioner preconditioner = Preconditioner::kDiagonal;
-  double ilut_drop = 1e-4;    ///< ILUT drop tolerance
-  int ilut_fill = 20;         ///< ILUT fill factor
+  double ilut_drop = 1e-3;    ///< ILUT drop tolerance
+  int ilut_fill = 5;          ///< ILUT fill factor (5, 1e-3: 1.5x faster SD steps than 20, 1e-4)
 };
 absl::Status ValidateSolverOptions(const SolverOptions& o);
 
