@@ -91,3 +91,17 @@ def test_chapter4_commands_remote_match_local(server, tmp_path):
     assert bad.returncode == 1
     assert "outside triangle face 0" in bad.stderr
     assert run("list", "--server", address).returncode == 0
+
+
+def test_health_reports_serving_and_fails_when_nothing_listens(server):
+    r = run("health", "--server", server.address)
+    assert r.stdout == "SERVING\n"
+    r = run("health", "--server", server.address, "--service", "geomfit.v1.GeomFit")
+    assert r.stdout == "SERVING\n"
+    import socket
+    with socket.socket() as s:  # a port with nothing listening
+        s.bind(("127.0.0.1", 0))
+        closed = "127.0.0.1:%d" % s.getsockname()[1]
+    r = run("health", "--server", closed, "--timeout", "2", check=False)
+    assert r.returncode == 1, r.stderr
+    assert r.stderr.startswith("geomfit: error: ") and "UNAVAILABLE" not in r.stdout

@@ -12,10 +12,9 @@
 #include "core/mesh/io.h"
 #include "core/mesh/mesh.h"
 #include "core/quantities/differentials.h"
+#include "geomfit/version.h"
 
 namespace geomfit::cli {
-
-inline constexpr char kVersion[] = "0.1.0";
 
 /// Exit codes: 0 success, 1 runtime error (I/O, invalid mesh, server), 2 usage error.
 inline constexpr int kExitOk = 0;
@@ -139,7 +138,7 @@ std::unique_ptr<Client> ConnectTo(const std::string& server);
 absl::StatusOr<std::string> RemoteMeshId(Client& client, const std::string& mesh_arg, bool verbose, Mesh* mesh);
 /// Service mode (remote.cc): `curvature --server ...` with parsed arguments.
 absl::Status RunCurvatureRemote(const CurvatureArgs& args);
-/// Service-only commands (remote.cc): upload, update, info, list, delete.
+/// Service-only commands (remote.cc): upload, update, info, list, delete, health.
 /// Returns a usage error for a command it does not know.
 absl::Status RunRemoteCommand(const std::string& command, const std::vector<std::string>& args);
 #endif
@@ -147,7 +146,7 @@ absl::Status RunRemoteCommand(const std::string& command, const std::vector<std:
 /// Names of the service-only commands (for help text and a clear error when the
 /// client is not built in).
 inline const std::vector<std::string>& RemoteCommandNames() {
-  static const std::vector<std::string> names = {"upload", "update", "info", "list", "delete"};
+  static const std::vector<std::string> names = {"upload", "update", "info", "list", "delete", "health"};
   return names;
 }
 inline constexpr char kNoClientMessage[] = "this geomfit was built without the service client";

@@ -4,6 +4,7 @@
 #include <thread>
 
 #include <grpcpp/grpcpp.h>
+#include <grpcpp/impl/codegen/client_unary_call.h>
 
 #include "absl/strings/str_cat.h"
 #include "core/util/status_macros.h"
@@ -458,6 +459,38 @@ absl::StatusOr<Integrals> Client::Integrate(const std::string& mesh_id, const In
     out.quadrature_points = response.quadrature_points();
     return out;
   });
+}
+
+}  // namespace geomfit
+
+// ---- grpc.health.v1 -------------------------------------------------------------------
+
+namespace geomfit {
+
+absl::StatusOr<std::string> Client::CheckHealth(const std::string& service) {
+  // HealthCheckRequest {string service = 1} and HealthCheckResponse {enum status = 1}
+  // are encoded by hand: Debian ships no health.proto to generate them from.
+  if (service.size() > 127) return absl::InvalidArgumentError("health: service name too long");
+  std::string request_bytes;
+  if (!service.empty()) request_bytes = std::string("\x0a", 1) + static_cast<char>(service.size()) + service;
+  const grpc::internal::RpcMethod method("/grpc.health.v1.Health/Check", grpc::internal::RpcMethod::NORMAL_RPC);
+  std::string response_bytes;
+  GF_RETURN_IF_ERROR(impl_->Call([&](grpc::ClientContext& ctx) {
+    grpc::Slice slice(request_bytes);
+    grpc::ByteBuffer request(&slice, 1), response;
+    grpc::Status s = grpc::internal::BlockingUnaryCall<grpc::ByteBuffer, grpc::ByteBuffer>(
+        impl_->channel.get(), method, &ctx, request, &response);
+    std::vector<grpc::Slice> slices;
+    response_bytes.clear();
+    if (s.ok() && response.Dump(&slices).ok()) {
+      for (const grpc::Slice& piece : slices) response_bytes.append(reinterpret_cast<const char*>(piece.begin()), piece.size());
+    }
+    return s;
+  }));
+  int status = 0;  // an empty message is status 0 (UNKNOWN)
+  if (response_bytes.size() >= 2 && response_bytes[0] == '\x08') status = static_cast<unsigned char>(response_bytes[1]);
+  static const char* const kNames[] = {"UNKNOWN", "SERVING", "NOT_SERVING", "SERVICE_UNKNOWN"};
+  return status >= 0 && status < 4 ? std::string(kNames[status]) : absl::StrCat("STATUS_", status);
 }
 
 }  // namespace geomfit
