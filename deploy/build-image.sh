@@ -10,6 +10,7 @@
 # With docker and a registry instead (no base image to make):
 #   docker build -f deploy/Containerfile --build-arg BASE=debian:bookworm \
 #     --build-arg REVISION=$(git rev-parse --short=12 HEAD) -t geomfit:latest .
+# (docker keeps the HEALTHCHECK; the smoke test is podman-only.)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 . deploy/lib.sh
@@ -32,8 +33,10 @@ fi
 
 version=$(sed -n 's/^project(geomfit VERSION \([0-9.]*\).*/\1/p' CMakeLists.txt)
 revision=$(git rev-parse --short=12 HEAD 2>/dev/null || true)
+source=$(git remote get-url origin 2>/dev/null || true)
 echo "== building $GEOMFIT_IMAGE (geomfit $version${revision:+, git $revision})"
-podman build -f deploy/Containerfile --build-arg BASE="$GEOMFIT_BASE_IMAGE" \
-  --build-arg VERSION="$version" --build-arg REVISION="$revision" \
+# --format docker keeps the HEALTHCHECK (the OCI image config has no field for it).
+podman build -f deploy/Containerfile --format docker --build-arg BASE="$GEOMFIT_BASE_IMAGE" \
+  --build-arg VERSION="$version" --build-arg REVISION="$revision" --build-arg SOURCE="$source" \
   --layers -t "$GEOMFIT_IMAGE" -t "${GEOMFIT_IMAGE%:*}:$version" .
 podman image ls --format '{{.Repository}}:{{.Tag}} {{.Size}}' | grep -E "^(${GEOMFIT_IMAGE%:*}|${GEOMFIT_BASE_IMAGE%:*}):" || true

@@ -1,0 +1,17 @@
+#!/usr/bin/env bash
+# Installs what deploy/ and its tests use on a Debian 12 host (idempotent): podman,
+# buildah and runc (images and the smoke test), debootstrap (the base image), nginx
+# (the cache-affine router test) and Node.js + npm with the Kubernetes schema package
+# in deploy/k8s/validate/node_modules (offline manifest validation).
+# scripts/test.sh runs it; GEOMFIT_NO_DEPLOY_DEPS=1 skips it.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+bash scripts/install-deps.sh podman buildah runc debootstrap uidmap slirp4netns fuse-overlayfs \
+  containernetworking-plugins iptables nginx nodejs npm
+# nginx's Debian package starts a default site on port 80 where systemd runs it; the
+# router test runs its own nginx on loopback ports and needs none.
+if [ ! -d deploy/k8s/validate/node_modules/kubernetes-models ] ||
+   [ deploy/k8s/validate/package-lock.json -nt deploy/k8s/validate/node_modules/.package-lock.json ]; then
+  echo "deploy/install-deps: npm ci in deploy/k8s/validate"
+  (cd deploy/k8s/validate && npm ci --no-audit --no-fund --loglevel=error)
+fi
