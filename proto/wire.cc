@@ -2,12 +2,14 @@
 
 #include <algorithm>
 #include <cstring>
+#include <map>
 #include <string>
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
 #include "core/quantities/differentials.h"
 #include "core/util/status_macros.h"
+#include "proto/content_hash.h"
 
 namespace geomfit::wire {
 namespace {
@@ -184,6 +186,23 @@ v1::FaceKind KindOf(const Mesh& mesh) {
 }  // namespace geomfit::wire
 
 namespace geomfit::wire {
+
+std::string MeshContentHash(const Mesh& mesh, const v1::MeshHeader& header) {
+  ContentHash h;
+  const int64_t counts[2] = {mesh.NumVertices(), mesh.NumFaces()};
+  h.Add(counts, sizeof(counts));
+  h.Add(mesh.faces.data(), sizeof(int32_t) * mesh.faces.size());
+  h.Add(mesh.positions.data(), sizeof(double) * mesh.positions.size());
+  h.AddString(header.name());
+  const std::map<std::string, std::string> labels(header.labels().begin(), header.labels().end());
+  for (const auto& [k, v] : labels) {
+    h.AddString(k);
+    h.AddString(v);
+  }
+  return h.Hex();
+}
+
+std::string MeshIdOf(const std::string& content_hash) { return "m-" + content_hash.substr(0, 20); }
 
 std::vector<v1::UploadMeshRequest> UploadChunks(const Mesh& mesh, v1::MeshHeader header, int64_t chunk_rows) {
   chunk_rows = std::max<int64_t>(1, chunk_rows);

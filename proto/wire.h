@@ -69,6 +69,16 @@ void AddQuantities(uint32_t mask, v1::ComputeDifferentialsRequest* request);
 /// Face kind of a mesh from its faces.
 v1::FaceKind KindOf(const Mesh& mesh);
 
+/// The content hash the server gives an upload of `mesh` with `header`'s name and
+/// labels (32 hex digits): over the counts, faces (#F x 4, -1 padded), positions, name
+/// and labels in key order. Clients compute it to know the mesh id before uploading.
+std::string MeshContentHash(const Mesh& mesh, const v1::MeshHeader& header);
+/// The mesh id of content with hash `content_hash`: "m-" + its first 20 digits.
+std::string MeshIdOf(const std::string& content_hash);
+/// gRPC metadata key carrying the mesh id of every mesh-scoped call (and the id an
+/// upload will get), for cache-affine routers (deploy/router).
+inline constexpr char kMeshIdMetadata[] = "x-mesh-id";
+
 /// The UploadMesh stream of `mesh`: `header` (counts and kind filled in), then
 /// positions and faces in chunks of at most `chunk_rows` rows. Pure-triangle meshes
 /// send #F x 3 faces.

@@ -29,18 +29,7 @@ int64_t MeshBytes(const Mesh& m) {
 
 /// Identity of an upload: faces, positions, name and (sorted) labels.
 std::string HashUpload(const Mesh& mesh, const v1::MeshHeader& header) {
-  ContentHash h;
-  const int64_t counts[2] = {mesh.NumVertices(), mesh.NumFaces()};
-  h.Add(counts, sizeof(counts));
-  h.Add(mesh.faces.data(), sizeof(int32_t) * mesh.faces.size());
-  h.Add(mesh.positions.data(), sizeof(double) * mesh.positions.size());
-  h.AddString(header.name());
-  const std::map<std::string, std::string> labels(header.labels().begin(), header.labels().end());
-  for (const auto& [k, v] : labels) {
-    h.AddString(k);
-    h.AddString(v);
-  }
-  return h.Hex();
+  return wire::MeshContentHash(mesh, header);  // the clients compute it too
 }
 
 std::string GeometryKey(const std::string& id, int64_t revision) {
@@ -259,7 +248,7 @@ absl::StatusOr<v1::MeshInfo> Handlers::StoreNewMesh(Mesh mesh, const v1::MeshHea
   }
   v1::MeshInfo info;
   info.set_content_hash(HashUpload(mesh, header));
-  info.set_mesh_id("m-" + info.content_hash().substr(0, 20));
+  info.set_mesh_id(wire::MeshIdOf(info.content_hash()));
   info.set_num_vertices(mesh.NumVertices());
   info.set_num_faces(mesh.NumFaces());
   info.set_face_kind(wire::KindOf(mesh));

@@ -90,13 +90,16 @@ struct Client::Impl {
   std::map<std::string, Kept> kept;
 
   /// Runs one call (a fresh context with the deadline per attempt), retrying
-  /// UNAVAILABLE with exponential backoff.
-  absl::Status Call(const std::function<grpc::Status(grpc::ClientContext&)>& fn) const {
+  /// UNAVAILABLE with exponential backoff. A mesh-scoped call names its mesh in
+  /// `x-mesh-id` metadata, the key of cache-affine routers (deploy/router).
+  absl::Status Call(const std::function<grpc::Status(grpc::ClientContext&)>& fn,
+                    const std::string& mesh_id = "") const {
     auto backoff = options.initial_backoff;
     grpc::Status s;
     for (int attempt = 1; attempt <= std::max(1, options.max_attempts); ++attempt) {
       grpc::ClientContext ctx;
       ctx.set_deadline(std::chrono::system_clock::now() + options.deadline);
+      if (!mesh_id.empty()) ctx.AddMetadata(wire::kMeshIdMetadata, mesh_id);
       s = fn(ctx);
       if (s.error_code() != grpc::StatusCode::UNAVAILABLE || attempt == options.max_attempts) break;
       std::this_thread::sleep_for(backoff);
@@ -111,11 +114,14 @@ struct Client::Impl {
     header.set_name(name);
     header.mutable_labels()->insert(labels.begin(), labels.end());
     const std::vector<v1::UploadMeshRequest> chunks = wire::UploadChunks(mesh, header, options.chunk_rows);
+    // The id the server will give this content: the upload reaches the replica that
+    // every later call on the mesh is routed to.
+    const std::string id = wire::MeshIdOf(wire::MeshContentHash(mesh, header));
     v1::MeshInfo info;
     GF_RETURN_IF_ERROR(Call([&](grpc::ClientContext& ctx) {
       auto writer = stub->UploadMesh(&ctx, &info);
       return SendAll(writer.get(), chunks);
-    }));
+    }, id));
     return info;
   }
 };
@@ -187,7 +193,7 @@ absl::StatusOr<v1::MeshInfo> Client::UpdatePositionsWire(const std::string& mesh
       *request.mutable_header() = header;
       wire::EncodeDoubles(positions.data(), positions.rows(), 3, request.mutable_positions()->mutable_positions());
       const absl::Status s =
-          impl_->Call([&](grpc::ClientContext& ctx) { return impl_->stub->SetPositions(&ctx, request, &info); });
+          impl_->Call([&](grpc::ClientContext& ctx) { return impl_->stub->SetPositions(&ctx, request, &info); }, id);
       if (!absl::IsUnimplemented(s)) {
         GF_RETURN_IF_ERROR(s);
         return info;
@@ -198,7 +204,7 @@ absl::StatusOr<v1::MeshInfo> Client::UpdatePositionsWire(const std::string& mesh
     GF_RETURN_IF_ERROR(impl_->Call([&](grpc::ClientContext& ctx) {
       auto writer = impl_->stub->UpdatePositions(&ctx, &info);
       return SendAll(writer.get(), chunks);
-    }));
+    }, id));
     return info;
   })));
   std::lock_guard<std::mutex> lock(impl_->mu);
@@ -210,7 +216,8 @@ absl::StatusOr<RemoteMesh> Client::GetMesh(const std::string& mesh_id) {
   v1::GetMeshRequest request;
   request.set_mesh_id(ResolveId(mesh_id));
   v1::MeshInfo info;
-  GF_RETURN_IF_ERROR(impl_->Call([&](grpc::ClientContext& ctx) { return impl_->stub->GetMesh(&ctx, request, &info); }));
+  GF_RETURN_IF_ERROR(impl_->Call([&](grpc::ClientContext& ctx) { return impl_->stub->GetMesh(&ctx, request, &info); },
+                                  request.mesh_id()));
   return FromProto(info);
 }
 
@@ -244,7 +251,7 @@ absl::StatusOr<Mesh> Client::Download(const std::string& mesh_id, RemoteMesh* in
       }
     }
     return reader->Finish();
-  }));
+  }, request.mesh_id()));
   GF_RETURN_IF_ERROR(decode);
   if (info_out) *info_out = FromProto(info);
   return mesh;
@@ -270,7 +277,8 @@ absl::Status Client::DeleteMesh(const std::string& mesh_id) {
   request.set_mesh_id(ResolveId(mesh_id));
   v1::DeleteMeshResponse response;
   GF_RETURN_IF_ERROR(
-      impl_->Call([&](grpc::ClientContext& ctx) { return impl_->stub->DeleteMesh(&ctx, request, &response); }));
+      impl_->Call([&](grpc::ClientContext& ctx) { return impl_->stub->DeleteMesh(&ctx, request, &response); },
+                  request.mesh_id()));
   std::lock_guard<std::mutex> lock(impl_->mu);
   impl_->kept.erase(mesh_id);
   return absl::OkStatus();
@@ -302,7 +310,7 @@ absl::StatusOr<RemoteDifferentials> Client::ComputeDifferentials(v1::ComputeDiff
       while (stream->Read(&chunk))
         if (decode.ok()) decode = reader->Add(chunk);
       return stream->Finish();
-    }));
+    }, id));
     GF_RETURN_IF_ERROR(decode);
     RemoteDifferentials out;
     GF_ASSIGN_OR_RETURN(out.values, reader->Finish());
@@ -391,7 +399,7 @@ absl::StatusOr<std::vector<ProjectedPoint>> Client::SendProject(const std::strin
             }
           }
           return stream->Finish();
-        }));
+        }, id));
         GF_RETURN_IF_ERROR(decode);
         return out;
       });
@@ -406,7 +414,7 @@ absl::StatusOr<HighOrderMesh> Client::HighOrderNodes(const std::string& mesh_id,
     *request.mutable_options() = options;
     v1::HighOrderNodesResponse response;
     GF_RETURN_IF_ERROR(impl_->Call(
-        [&](grpc::ClientContext& ctx) { return impl_->stub->HighOrderNodes(&ctx, request, &response); }));
+        [&](grpc::ClientContext& ctx) { return impl_->stub->HighOrderNodes(&ctx, request, &response); }, id));
     HighOrderMesh out;
     out.order = response.order();
     GF_ASSIGN_OR_RETURN(out.nodes, wire::DecodeDoubles(response.nodes(), "nodes", {3}));
@@ -428,7 +436,7 @@ absl::StatusOr<RemoteMesh> Client::RefineMesh(const std::string& mesh_id, int fa
     *request.mutable_options() = options;
     v1::MeshInfo info;
     GF_RETURN_IF_ERROR(
-        impl_->Call([&](grpc::ClientContext& ctx) { return impl_->stub->RefineMesh(&ctx, request, &info); }));
+        impl_->Call([&](grpc::ClientContext& ctx) { return impl_->stub->RefineMesh(&ctx, request, &info); }, id));
     return FromProto(info);
   });
 }
@@ -450,7 +458,7 @@ absl::StatusOr<Integrals> Client::Integrate(const std::string& mesh_id, const In
     }
     v1::IntegrateResponse response;
     GF_RETURN_IF_ERROR(
-        impl_->Call([&](grpc::ClientContext& ctx) { return impl_->stub->Integrate(&ctx, request, &response); }));
+        impl_->Call([&](grpc::ClientContext& ctx) { return impl_->stub->Integrate(&ctx, request, &response); }, id));
     Integrals out;
     out.area = response.area();
     out.volume = response.volume();

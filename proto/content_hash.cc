@@ -1,10 +1,10 @@
-#include "server/content_hash.h"
+#include "proto/content_hash.h"
 
 #include <cstring>
 
 #include "absl/strings/str_format.h"
 
-namespace geomfit::server {
+namespace geomfit {
 namespace {
 
 inline uint64_t Mix(uint64_t x) {  // splitmix64 finalizer
@@ -37,4 +37,4 @@ std::string ContentHash::Hex() const {
   return absl::StrFormat("%016x%016x", Mix(a_ ^ length_), Mix(b_ + length_));
 }
 
-}  // namespace geomfit::server
+}  // namespace geomfit
