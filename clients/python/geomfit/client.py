@@ -201,9 +201,16 @@ class _ContentHash:
 
 def mesh_id_of(positions: np.ndarray, faces: np.ndarray, name: str = "",
                labels: Optional[Dict[str, str]] = None) -> str:
-    """The mesh_id the server gives this upload (content, name and labels)."""
+    """The mesh_id the server gives this upload (content, name and labels). Computed by
+    geomfit._native when built (C++ speed), else in Python (~1 s per 100k vertices)."""
     p = _positions_array(positions)
     f = np.ascontiguousarray(faces, dtype="<i4")
+    if _native is not None and hasattr(_native, "mesh_id_of") and f.ndim == 2:
+        return _native.mesh_id_of(p, f, name, dict(labels or {}))
+    return _mesh_id_python(p, f, name, labels)
+
+
+def _mesh_id_python(p: np.ndarray, f: np.ndarray, name: str, labels: Optional[Dict[str, str]]) -> str:
     if f.ndim == 2 and f.shape[1] == 3:  # the server keeps #F x 4, triangles padded with -1
         f = np.concatenate([f, np.full((f.shape[0], 1), -1, dtype="<i4")], axis=1)
     h = _ContentHash()
