@@ -7,8 +7,13 @@
 # scripts/test.sh runs it; GEOMFIT_NO_DEPLOY_DEPS=1 skips it.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+# Node.js: Debian's nodejs and npm, unless a node with its own npm is installed already
+# (NodeSource's nodejs ships npm and conflicts with Debian's npm package).
+node_pkgs=()
+command -v node >/dev/null || node_pkgs+=(nodejs)
+command -v npm >/dev/null || node_pkgs+=(npm)
 bash scripts/install-deps.sh podman buildah runc debootstrap uidmap slirp4netns fuse-overlayfs \
-  containernetworking-plugins iptables nginx nodejs npm
+  containernetworking-plugins iptables nginx ${node_pkgs[@]+"${node_pkgs[@]}"}
 # nginx's Debian package starts a default site on port 80 where systemd runs it; the
 # router test runs its own nginx on loopback ports and needs none.
 if [ ! -d deploy/k8s/validate/node_modules/kubernetes-models ] ||
