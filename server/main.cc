@@ -54,10 +54,16 @@ int main(int argc, char** argv) {
   int sig = 0;
   sigwait(&signals, &sig);
   spdlog::info("received signal {}", sig);
-  std::thread([&signals] {  // a second signal stops at once
+  const bool json = options->log_format == "json";
+  std::thread([&signals, json] {  // a second signal stops at once
     int again = 0;
     sigwait(&signals, &again);
-    std::fprintf(stderr, "geomfit-server: second signal %d: exiting without draining\n", again);
+    if (json) {
+      std::fprintf(stderr, "{\"level\":\"critical\",\"logger\":\"geomfit-server\",\"message\":\"second signal %d: "
+                           "exiting without draining\"}\n", again);
+    } else {
+      std::fprintf(stderr, "geomfit-server: second signal %d: exiting without draining\n", again);
+    }
     std::_Exit(128 + again);
   }).detach();
   (*server)->Shutdown(options->drain_seconds);
