@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
 # Installs what deploy/ and its tests use on a Debian 12 host (idempotent): podman,
+# podman-compose,
 # buildah and runc (images and the smoke test), debootstrap (the base image), nginx
 # (the cache-affine router test) and Node.js + npm with the Kubernetes and Compose schema
 # packages in deploy/k8s/validate/node_modules (offline manifest validation; npm ci from
@@ -13,7 +14,7 @@ node_pkgs=()
 command -v node >/dev/null || node_pkgs+=(nodejs)
 command -v npm >/dev/null || node_pkgs+=(npm)
 bash scripts/install-deps.sh podman buildah runc debootstrap uidmap slirp4netns fuse-overlayfs \
-  containernetworking-plugins iptables nginx ${node_pkgs[@]+"${node_pkgs[@]}"}
+  containernetworking-plugins iptables podman-compose nginx ${node_pkgs[@]+"${node_pkgs[@]}"}
 # nginx's Debian package starts a default site on port 80 where systemd runs it; the
 # router test runs its own nginx on loopback ports and needs none.
 if [ ! -d deploy/k8s/validate/node_modules/kubernetes-models ] ||
