@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Installs what deploy/ and its tests use on a Debian 12 host (idempotent): podman,
-# podman-compose,
-# buildah and runc (images and the smoke test), debootstrap (the base image), nginx
+# buildah and runc (images and the smoke test), podman-compose (deploy/compose.yaml),
+# debootstrap (the base image), nginx
 # (the cache-affine router test) and Node.js + npm with the Kubernetes and Compose schema
 # packages in deploy/k8s/validate/node_modules (offline manifest validation; npm ci from
 # its package-lock.json, node_modules not committed).
