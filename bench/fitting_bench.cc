@@ -75,20 +75,20 @@ void SetRates(benchmark::State& state, int degree) {
   state.counters["stencil"] = f.avg_stencil[degree];
 }
 
-FitOptions Options(int degree, int threads) {
+FitOptions Options(int degree) {
   FitOptions o;
   o.degree = degree;
-  o.num_threads = threads;
   return o;
 }
 
 void BM_Pipeline(benchmark::State& state) {
   const Fixture& f = F();
-  const FitOptions o = Options(static_cast<int>(state.range(0)), static_cast<int>(state.range(1)));
+  const FitOptions o = Options(static_cast<int>(state.range(0)));
+  const RunContext ctx(nullptr, static_cast<int>(state.range(1)));
   for (auto _ : state) {
-    auto nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(f.topo, f.mesh, RingSpecFor(o), o.num_threads));
-    auto fits = FitSurface(f.mesh, f.topo, o, std::move(nb)).value();
-    Differentials d = ComputeDifferentials(*fits, kAllQuantities, o.num_threads);
+    auto nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(f.topo, f.mesh, RingSpecFor(o), ctx.threads()));
+    auto fits = FitSurface(f.mesh, f.topo, o, std::move(nb), {}, ctx).value();
+    Differentials d = ComputeDifferentials(*fits, kAllQuantities, ctx.threads());
     benchmark::DoNotOptimize(d.mean.data());
     benchmark::ClobberMemory();
   }
@@ -97,10 +97,11 @@ void BM_Pipeline(benchmark::State& state) {
 
 void BM_FitQuantities(benchmark::State& state) {
   const Fixture& f = F();
-  const FitOptions o = Options(static_cast<int>(state.range(0)), static_cast<int>(state.range(1)));
+  const FitOptions o = Options(static_cast<int>(state.range(0)));
+  const RunContext ctx(nullptr, static_cast<int>(state.range(1)));
   for (auto _ : state) {
-    auto fits = FitSurface(f.mesh, f.topo, o, f.nb[o.degree]).value();
-    Differentials d = ComputeDifferentials(*fits, kAllQuantities, o.num_threads);
+    auto fits = FitSurface(f.mesh, f.topo, o, f.nb[o.degree], {}, ctx).value();
+    Differentials d = ComputeDifferentials(*fits, kAllQuantities, ctx.threads());
     benchmark::DoNotOptimize(d.mean.data());
     benchmark::ClobberMemory();
   }
@@ -109,9 +110,10 @@ void BM_FitQuantities(benchmark::State& state) {
 
 void BM_Neighborhoods(benchmark::State& state) {
   const Fixture& f = F();
-  const FitOptions o = Options(static_cast<int>(state.range(0)), static_cast<int>(state.range(1)));
+  const FitOptions o = Options(static_cast<int>(state.range(0)));
+  const RunContext ctx(nullptr, static_cast<int>(state.range(1)));
   for (auto _ : state) {
-    Neighborhoods nb = BuildNeighborhoods(f.topo, f.mesh, RingSpecFor(o), o.num_threads);
+    Neighborhoods nb = BuildNeighborhoods(f.topo, f.mesh, RingSpecFor(o), ctx.threads());
     benchmark::DoNotOptimize(nb.indices.data());
     benchmark::ClobberMemory();
   }

@@ -28,8 +28,7 @@ const Torus& GetTorus(int degree) {
   if (!t.fits[degree]) {  // cached fits, as the server keeps them
     FitOptions o;
     o.degree = degree;
-    o.num_threads = 1;
-    t.fits[degree] = FitSurface(t.mesh, t.topo, o, nullptr, FitRequest{.stencils = true}).value();
+    t.fits[degree] = FitSurface(t.mesh, t.topo, o, nullptr, FitRequest{.stencils = true}, RunContext(nullptr, 1)).value();
   }
   return t;
 }
@@ -41,7 +40,7 @@ void Evaluate(benchmark::State& state, ReconstructionMethod method) {
   const std::vector<FacePoint> points = RandomFacePoints(t.mesh, per_face, 1);
   std::vector<SurfacePoint> out;
   for (auto _ : state) {
-    benchmark::DoNotOptimize(EvaluatePoints(*surface, points, &out, 1));
+    benchmark::DoNotOptimize(EvaluatePoints(*surface, points, &out, RunContext(nullptr, 1)));
     benchmark::ClobberMemory();
   }
   state.SetItemsProcessed(state.iterations() * static_cast<int64_t>(points.size()));
@@ -64,7 +63,7 @@ void BM_Integrate(benchmark::State& state) {
   IntegrationInput in;
   in.scalars = t.mesh.positions.col(0).array().sin().matrix();
   in.vectors = t.mesh.positions;
-  for (auto _ : state) benchmark::DoNotOptimize(Integrate(walf, in, 1));
+  for (auto _ : state) benchmark::DoNotOptimize(Integrate(walf, in, RunContext(nullptr, 1)));
   state.counters["triangles/s"] = benchmark::Counter(t.mesh.NumFaces(), benchmark::Counter::kIsIterationInvariantRate);
 }
 BENCHMARK(BM_Integrate)->Arg(2)->Arg(4)->Arg(6)->Unit(benchmark::kMillisecond);

@@ -2,14 +2,12 @@
 
 #include <algorithm>
 #include <cstring>
-#include <map>
 #include <string>
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
 #include "core/quantities/differentials.h"
 #include "core/util/status_macros.h"
-#include "proto/content_hash.h"
 
 namespace geomfit::wire {
 namespace {
@@ -85,8 +83,9 @@ absl::StatusOr<RowsXi> DecodeInts(const v1::Int32Array& a, absl::string_view fie
   return Decode<RowsXi>(a, field, allowed_cols);
 }
 
-absl::StatusOr<FitOptions> FromProto(const v1::FitOptions& p) {
-  FitOptions o;
+absl::StatusOr<FitOptions> FromProto(const v1::FitOptions& p) { return FromProto(p, FitOptions()); }
+
+absl::StatusOr<FitOptions> FromProto(const v1::FitOptions& p, FitOptions o) {
   if (p.degree() != 0) o.degree = p.degree();
   if (p.rings() != 0) o.rings = p.rings();
   if (p.has_adaptive()) o.adaptive = p.adaptive();
@@ -122,6 +121,41 @@ absl::StatusOr<FitOptions> FromProto(const v1::FitOptions& p) {
   }
   GF_RETURN_IF_ERROR(ValidateFitOptions(o));
   return o;
+}
+
+absl::StatusOr<ReconstructionOptions> FromProto(const v1::ReconstructionOptions& p) {
+  ReconstructionOptions o;
+  absl::StatusOr<FitOptions> fit = FromProto(p.fit(), o.fit);
+  if (!fit.ok()) return absl::InvalidArgumentError(absl::StrCat("fit: ", fit.status().message()));
+  o.fit = *fit;
+  switch (p.method()) {
+    case v1::RECONSTRUCTION_UNSPECIFIED:
+    case v1::RECONSTRUCTION_WALF: o.method = ReconstructionMethod::kWalf; break;
+    case v1::RECONSTRUCTION_CMF: o.method = ReconstructionMethod::kCmf; break;
+    case v1::RECONSTRUCTION_LINEAR: o.method = ReconstructionMethod::kLinear; break;
+    default: return absl::InvalidArgumentError(absl::StrCat("method: unknown reconstruction ", p.method()));
+  }
+  o.feature_angle_deg = p.feature_angle_deg();
+  if (p.feature_edges().shape_size() > 0) {
+    GF_ASSIGN_OR_RETURN(const RowsXi e, DecodeInts(p.feature_edges(), "feature_edges", {2}));
+    for (Eigen::Index i = 0; i < e.rows(); ++i) o.feature_edges.emplace_back(e(i, 0), e(i, 1));
+  }
+  GF_RETURN_IF_ERROR(o.Validate());
+  return o;
+}
+
+v1::ReconstructionOptions ToProto(const ReconstructionOptions& o) {
+  v1::ReconstructionOptions p;
+  *p.mutable_fit() = ToProto(o.fit);
+  switch (o.method) {
+    case ReconstructionMethod::kWalf: p.set_method(v1::RECONSTRUCTION_WALF); break;
+    case ReconstructionMethod::kCmf: p.set_method(v1::RECONSTRUCTION_CMF); break;
+    case ReconstructionMethod::kLinear: p.set_method(v1::RECONSTRUCTION_LINEAR); break;
+  }
+  p.set_feature_angle_deg(o.feature_angle_deg);
+  if (!o.feature_edges.empty())
+    EncodeInts(&o.feature_edges[0].first, static_cast<int64_t>(o.feature_edges.size()), 2, p.mutable_feature_edges());
+  return p;
 }
 
 v1::FitOptions ToProto(const FitOptions& o) {
@@ -186,23 +220,6 @@ v1::FaceKind KindOf(const Mesh& mesh) {
 }  // namespace geomfit::wire
 
 namespace geomfit::wire {
-
-std::string MeshContentHash(const Mesh& mesh, const v1::MeshHeader& header) {
-  ContentHash h;
-  const int64_t counts[2] = {mesh.NumVertices(), mesh.NumFaces()};
-  h.Add(counts, sizeof(counts));
-  h.Add(mesh.faces.data(), sizeof(int32_t) * mesh.faces.size());
-  h.Add(mesh.positions.data(), sizeof(double) * mesh.positions.size());
-  h.AddString(header.name());
-  const std::map<std::string, std::string> labels(header.labels().begin(), header.labels().end());
-  for (const auto& [k, v] : labels) {
-    h.AddString(k);
-    h.AddString(v);
-  }
-  return h.Hex();
-}
-
-std::string MeshIdOf(const std::string& content_hash) { return "m-" + content_hash.substr(0, 20); }
 
 std::vector<v1::UploadMeshRequest> UploadChunks(const Mesh& mesh, v1::MeshHeader header, int64_t chunk_rows) {
   chunk_rows = std::max<int64_t>(1, chunk_rows);

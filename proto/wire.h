@@ -12,6 +12,7 @@
 #include "absl/status/statusor.h"
 #include "core/fitting/fit.h"
 #include "core/fitting/options.h"
+#include "core/reconstruction/options.h"
 #include "core/mesh/mesh.h"
 #include "core/quantities/differentials.h"
 #include "geomfit/v1/geomfit.pb.h"
@@ -59,7 +60,13 @@ absl::StatusOr<RowsXi> DecodeInts(const v1::Int32Array& a, absl::string_view fie
                                   std::initializer_list<int64_t> allowed_cols);
 
 /// Proto options (unset = default) -> core options; validated by ValidateFitOptions.
+/// Unset fields take `base`'s values (the core defaults unless given).
 absl::StatusOr<FitOptions> FromProto(const v1::FitOptions& p);
+absl::StatusOr<FitOptions> FromProto(const v1::FitOptions& p, FitOptions base);
+/// Unset fields take ReconstructionOptions' defaults; errors name the field
+/// ("fit: ...", "method: ...", "feature_angle_deg ...").
+absl::StatusOr<ReconstructionOptions> FromProto(const v1::ReconstructionOptions& p);
+v1::ReconstructionOptions ToProto(const ReconstructionOptions& o);
 v1::FitOptions ToProto(const FitOptions& o);
 
 /// Quantity list -> core Quantity bit mask; empty = normals, H, K, k1/k2.
@@ -69,14 +76,9 @@ void AddQuantities(uint32_t mask, v1::ComputeDifferentialsRequest* request);
 /// Face kind of a mesh from its faces.
 v1::FaceKind KindOf(const Mesh& mesh);
 
-/// The content hash the server gives an upload of `mesh` with `header`'s name and
-/// labels (32 hex digits): over the counts, faces (#F x 4, -1 padded), positions, name
-/// and labels in key order. Clients compute it to know the mesh id before uploading.
-std::string MeshContentHash(const Mesh& mesh, const v1::MeshHeader& header);
-/// The mesh id of content with hash `content_hash`: "m-" + its first 20 digits.
-std::string MeshIdOf(const std::string& content_hash);
 /// gRPC metadata key carrying the mesh id of every mesh-scoped call (and the id an
-/// upload will get), for cache-affine routers (deploy/router).
+/// upload will get: MeshIdOf(MeshContentHash(...)), core/mesh/content_hash.h), for
+/// cache-affine routers (deploy/router).
 inline constexpr char kMeshIdMetadata[] = "x-mesh-id";
 
 /// The UploadMesh stream of `mesh`: `header` (counts and kind filled in), then

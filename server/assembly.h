@@ -60,6 +60,8 @@ class PositionsAssembler {
   absl::Status AddPositions(const v1::PositionsChunk& chunk);
   /// The positions; INVALID_ARGUMENT if the header is missing or rows != num_vertices.
   absl::StatusOr<Positions> Finish(int64_t num_vertices) const;
+  /// Every row received (the engine checks the count against its mesh).
+  absl::StatusOr<Positions> Finish() const { return Finish(positions_.rows()); }
   const v1::UpdateHeader& header() const { return header_; }
   bool has_header() const { return has_header_; }
   int64_t bytes() const { return bytes_; }

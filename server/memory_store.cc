@@ -28,11 +28,17 @@ absl::Status CheckVertexCount(const std::string& id, int64_t rows, int64_t num_v
       absl::StrCat("positions: ", rows, " rows, mesh '", id, "' has ", num_vertices, " vertices"));
 }
 
-void AmendForPositions(const Positions& positions, int64_t revision, v1::MeshInfo* info) {
-  info->set_revision(revision);
-  info->set_updated_unix_ms(NowUnixMs());
-  v1::BoundingBox* box = info->mutable_bounding_box();
-  box->Clear();
+FaceKind FaceKindOf(const Mesh& mesh) {
+  int quads = 0;
+  for (int f = 0; f < mesh.NumFaces(); ++f) quads += mesh.FaceSize(f) == 4;
+  if (quads == 0) return FaceKind::kTriangle;
+  return quads == mesh.NumFaces() ? FaceKind::kQuad : FaceKind::kMixed;
+}
+
+void AmendForPositions(const Positions& positions, int64_t revision, MeshRecord* info) {
+  info->revision = revision;
+  info->updated_unix_ms = NowUnixMs();
+  info->has_bounds = positions.rows() > 0;
   if (positions.rows() == 0) return;
   double lo[3], hi[3];
   const double* p = positions.data();
@@ -44,8 +50,8 @@ void AmendForPositions(const Positions& positions, int64_t revision, v1::MeshInf
     }
   }
   for (int i = 0; i < 3; ++i) {
-    box->add_min(lo[i]);
-    box->add_max(hi[i]);
+    info->min[i] = lo[i];
+    info->max[i] = hi[i];
   }
 }
 
@@ -59,27 +65,27 @@ class MemoryStore final : public MeshStore {
  public:
   std::string Kind() const override { return "memory"; }
 
-  absl::StatusOr<v1::MeshInfo> Insert(const v1::MeshInfo& info, const Mesh& mesh) override {
+  absl::StatusOr<MeshRecord> Insert(const MeshRecord& info, const Mesh& mesh) override {
     std::lock_guard<std::mutex> lock(mu_);
-    auto [it, inserted] = meshes_.try_emplace(info.mesh_id());
+    auto [it, inserted] = meshes_.try_emplace(info.mesh_id);
     if (inserted) it->second = {info, std::make_shared<const Mesh>(mesh)};
     return it->second.info;
   }
 
-  absl::StatusOr<v1::MeshInfo> UpdatePositions(const std::string& id, std::optional<int64_t> expected,
+  absl::StatusOr<MeshRecord> UpdatePositions(const std::string& id, std::optional<int64_t> expected,
                                                std::shared_ptr<const Mesh> moved) override {
     std::lock_guard<std::mutex> lock(mu_);
     auto it = meshes_.find(id);
     if (it == meshes_.end()) return MeshNotFound(id);
     StoredMesh& s = it->second;
-    if (expected && *expected != s.info.revision()) return StaleRevision(id, *expected, s.info.revision());
-    if (absl::Status c = CheckVertexCount(id, moved->positions.rows(), s.info.num_vertices()); !c.ok()) return c;
-    AmendForPositions(moved->positions, s.info.revision() + 1, &s.info);
+    if (expected && *expected != s.info.revision) return StaleRevision(id, *expected, s.info.revision);
+    if (absl::Status c = CheckVertexCount(id, moved->positions.rows(), s.info.num_vertices); !c.ok()) return c;
+    AmendForPositions(moved->positions, s.info.revision + 1, &s.info);
     s.mesh = std::move(moved);
     return s.info;
   }
 
-  absl::StatusOr<v1::MeshInfo> GetInfo(const std::string& id) override {
+  absl::StatusOr<MeshRecord> GetInfo(const std::string& id) override {
     std::lock_guard<std::mutex> lock(mu_);
     auto it = meshes_.find(id);
     if (it == meshes_.end()) return MeshNotFound(id);
@@ -93,9 +99,9 @@ class MemoryStore final : public MeshStore {
     return it->second;
   }
 
-  absl::StatusOr<std::vector<v1::MeshInfo>> List(const std::string& after_id, int limit) override {
+  absl::StatusOr<std::vector<MeshRecord>> List(const std::string& after_id, int limit) override {
     std::lock_guard<std::mutex> lock(mu_);
-    std::vector<v1::MeshInfo> out;
+    std::vector<MeshRecord> out;
     for (auto it = meshes_.upper_bound(after_id); it != meshes_.end() && static_cast<int>(out.size()) < limit; ++it)
       out.push_back(it->second.info);
     return out;

@@ -6,14 +6,35 @@
 #include <vector>
 
 #include "absl/status/statusor.h"
+#include <array>
+#include <map>
+
 #include "core/mesh/mesh.h"
-#include "geomfit/v1/geomfit.pb.h"
 
 namespace geomfit::server {
 
+/// Kinds of faces of a mesh (numbered as v1::FaceKind).
+enum class FaceKind { kUnspecified = 0, kTriangle = 1, kQuad = 2, kMixed = 3 };
+FaceKind FaceKindOf(const Mesh& mesh);
+
+/// A mesh's metadata at its latest revision.
+struct MeshRecord {
+  std::string mesh_id;
+  int64_t revision = 0;  ///< 1 after upload, +1 per position update
+  int64_t num_vertices = 0, num_faces = 0;
+  FaceKind face_kind = FaceKind::kUnspecified;
+  std::string name;
+  std::map<std::string, std::string> labels;
+  bool has_bounds = false;  ///< false for a mesh of no vertices
+  std::array<double, 3> min{}, max{};
+  std::string content_hash;  ///< of the uploaded faces, positions, name and labels (hex)
+  int64_t created_unix_ms = 0, updated_unix_ms = 0;
+  int64_t num_boundary_edges = 0, num_isolated_vertices = 0;
+};
+
 /// A stored mesh: its metadata (at the latest revision) and arrays.
 struct StoredMesh {
-  v1::MeshInfo info;
+  MeshRecord info;
   std::shared_ptr<const Mesh> mesh;
 };
 
@@ -31,17 +52,17 @@ class MeshStore {
   virtual std::string Kind() const = 0;
   /// Stores a new mesh (info.mesh_id set, revision 1). If the id exists already,
   /// nothing is written and the existing info is returned (idempotent upload).
-  virtual absl::StatusOr<v1::MeshInfo> Insert(const v1::MeshInfo& info, const Mesh& mesh) = 0;
+  virtual absl::StatusOr<MeshRecord> Insert(const MeshRecord& info, const Mesh& mesh) = 0;
   /// Makes `moved` (the stored faces, new positions) revision + 1. NOT_FOUND for an
   /// unknown id; ABORTED when expected_revision is set and differs from the stored
   /// revision. The memory store keeps `moved` itself, so an update copies nothing.
-  virtual absl::StatusOr<v1::MeshInfo> UpdatePositions(const std::string& id,
+  virtual absl::StatusOr<MeshRecord> UpdatePositions(const std::string& id,
                                                        std::optional<int64_t> expected_revision,
                                                        std::shared_ptr<const Mesh> moved) = 0;
-  virtual absl::StatusOr<v1::MeshInfo> GetInfo(const std::string& id) = 0;
+  virtual absl::StatusOr<MeshRecord> GetInfo(const std::string& id) = 0;
   virtual absl::StatusOr<StoredMesh> Get(const std::string& id) = 0;
   /// Up to `limit` meshes with id > after_id, in id order.
-  virtual absl::StatusOr<std::vector<v1::MeshInfo>> List(const std::string& after_id, int limit) = 0;
+  virtual absl::StatusOr<std::vector<MeshRecord>> List(const std::string& after_id, int limit) = 0;
   /// NOT_FOUND for an unknown id.
   virtual absl::Status Delete(const std::string& id) = 0;
   virtual StoreStats Stats() = 0;
@@ -53,7 +74,7 @@ std::unique_ptr<MeshStore> NewMemoryStore();
 absl::StatusOr<std::unique_ptr<MeshStore>> OpenSqliteStore(const std::string& data_dir);
 
 /// The info fields that change with positions (bounding box, revision, time).
-void AmendForPositions(const Positions& positions, int64_t revision, v1::MeshInfo* info);
+void AmendForPositions(const Positions& positions, int64_t revision, MeshRecord* info);
 int64_t NowUnixMs();
 /// NOT_FOUND naming the mesh.
 absl::Status MeshNotFound(const std::string& id);

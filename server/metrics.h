@@ -4,7 +4,7 @@
 #include <prometheus/collectable.h>
 #include <prometheus/metric_family.h>
 
-#include "server/cache.h"
+#include "server/workspace/cache.h"
 #include "server/mesh_store.h"
 #include "server/request_stats.h"
 

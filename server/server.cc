@@ -9,13 +9,14 @@
 
 #include "absl/strings/str_cat.h"
 #include "core/util/status_macros.h"
-#include "server/cache.h"
-#include "server/handlers.h"
+#include "server/handlers/handlers.h"
 #include "server/mesh_store.h"
 #include "server/metrics.h"
 #include "server/request_stats.h"
-#include "server/service.h"
+#include "server/rpc/service.h"
 #include "server/thread_pool.h"
+#include "server/workspace/cache.h"
+#include "server/workspace/workspace.h"
 
 namespace geomfit::server {
 namespace {
@@ -32,15 +33,18 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   }
   s->cache_ = std::make_unique<Cache>(options.cache_bytes);
   s->stats_ = std::make_unique<RequestStats>();
+  WorkspaceOptions w;
+  w.max_vertices = options.max_vertices;
+  w.threads = options.threads;
+  w.prefetch = options.prefetch != 0;
+  s->workspace_ = std::make_unique<Workspace>(s->store_.get(), s->cache_.get(), w);
   HandlerOptions h;
   h.max_vertices = options.max_vertices;
   h.max_message_bytes = options.max_message_bytes;
   h.chunk_rows = options.chunk_rows;
   h.chunk_bytes = options.chunk_bytes;
-  h.prefetch = options.prefetch != 0;
-  h.threads = options.threads;
   h.workers = options.workers;
-  s->handlers_ = std::make_unique<Handlers>(s->store_.get(), s->cache_.get(), s->stats_.get(), h);
+  s->handlers_ = std::make_unique<Handlers>(s->workspace_.get(), s->stats_.get(), h);
   s->compute_ = std::make_unique<ThreadPool>(options.workers, options.queue, std::chrono::microseconds(options.spin_us));
   s->io_ = std::make_unique<ThreadPool>(2, options.queue);
   s->service_ = std::make_unique<Service>(s->handlers_.get(), s->compute_.get(), s->io_.get(), s->stats_.get());

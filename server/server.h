@@ -14,6 +14,7 @@ namespace geomfit::server {
 
 class Cache;
 class Handlers;
+class Workspace;
 class MeshStore;
 class MetricsCollectable;
 class RequestStats;
@@ -40,6 +41,7 @@ class Server {
   std::unique_ptr<MeshStore> store_;
   std::unique_ptr<Cache> cache_;
   std::unique_ptr<RequestStats> stats_;
+  std::unique_ptr<Workspace> workspace_;
   std::unique_ptr<Handlers> handlers_;
   std::unique_ptr<ThreadPool> compute_, io_;
   std::unique_ptr<Service> service_;

@@ -9,6 +9,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "core/util/status_macros.h"
+#include "server/mesh_record.h"
 #include "server/mesh_store.h"
 
 namespace geomfit::server {
@@ -75,21 +76,21 @@ class SqliteStore final : public MeshStore {
 
   std::string Kind() const override { return "sqlite"; }
 
-  absl::StatusOr<v1::MeshInfo> Insert(const v1::MeshInfo& info, const Mesh& mesh) override {
+  absl::StatusOr<MeshRecord> Insert(const MeshRecord& info, const Mesh& mesh) override {
     std::lock_guard<std::mutex> lock(mu_);
     GF_RETURN_IF_ERROR(Exec("BEGIN IMMEDIATE"));
-    absl::StatusOr<v1::MeshInfo> result = InsertLocked(info, mesh);
+    absl::StatusOr<MeshRecord> result = InsertLocked(info, mesh);
     return Commit(std::move(result));
   }
 
-  absl::StatusOr<v1::MeshInfo> UpdatePositions(const std::string& id, std::optional<int64_t> expected,
+  absl::StatusOr<MeshRecord> UpdatePositions(const std::string& id, std::optional<int64_t> expected,
                                                std::shared_ptr<const Mesh> moved) override {
     std::lock_guard<std::mutex> lock(mu_);
     GF_RETURN_IF_ERROR(Exec("BEGIN IMMEDIATE"));
     return Commit(UpdateLocked(id, expected, moved->positions));
   }
 
-  absl::StatusOr<v1::MeshInfo> GetInfo(const std::string& id) override {
+  absl::StatusOr<MeshRecord> GetInfo(const std::string& id) override {
     std::lock_guard<std::mutex> lock(mu_);
     return InfoLocked(id);
   }
@@ -105,7 +106,7 @@ class SqliteStore final : public MeshStore {
     GF_ASSIGN_OR_RETURN(out.info, ParseInfo(st.Blob(0), id));
     auto mesh = std::make_shared<Mesh>();
     const std::string faces = st.Blob(1), positions = st.Blob(2);
-    const int64_t nv = out.info.num_vertices(), nf = out.info.num_faces();
+    const int64_t nv = out.info.num_vertices, nf = out.info.num_faces;
     if (faces.size() != sizeof(int32_t) * 4 * nf || positions.size() != sizeof(double) * 3 * nv) {
       return absl::DataLossError(absl::StrCat("mesh '", id, "': stored arrays do not match its counts"));
     }
@@ -117,17 +118,17 @@ class SqliteStore final : public MeshStore {
     return out;
   }
 
-  absl::StatusOr<std::vector<v1::MeshInfo>> List(const std::string& after_id, int limit) override {
+  absl::StatusOr<std::vector<MeshRecord>> List(const std::string& after_id, int limit) override {
     std::lock_guard<std::mutex> lock(mu_);
     Statement st(db_, "SELECT id, info FROM meshes WHERE id > ? ORDER BY id LIMIT ?");
     GF_RETURN_IF_ERROR(st.status());
     st.Bind(1, after_id);
     st.Bind(2, int64_t{limit});
-    std::vector<v1::MeshInfo> out;
+    std::vector<MeshRecord> out;
     while (true) {
       GF_ASSIGN_OR_RETURN(bool row, st.Step());
       if (!row) break;
-      GF_ASSIGN_OR_RETURN(v1::MeshInfo info, ParseInfo(st.Blob(1), st.Blob(0)));
+      GF_ASSIGN_OR_RETURN(MeshRecord info, ParseInfo(st.Blob(1), st.Blob(0)));
       out.push_back(std::move(info));
     }
     return out;
@@ -168,7 +169,7 @@ class SqliteStore final : public MeshStore {
   }
 
   /// Commits on success, rolls back on failure; the acknowledgement follows the fsync.
-  absl::StatusOr<v1::MeshInfo> Commit(absl::StatusOr<v1::MeshInfo> result) {
+  absl::StatusOr<MeshRecord> Commit(absl::StatusOr<MeshRecord> result) {
     if (!result.ok()) {
       Exec("ROLLBACK").IgnoreError();
       return result;
@@ -181,13 +182,13 @@ class SqliteStore final : public MeshStore {
     return result;
   }
 
-  static absl::StatusOr<v1::MeshInfo> ParseInfo(const std::string& blob, const std::string& id) {
+  static absl::StatusOr<MeshRecord> ParseInfo(const std::string& blob, const std::string& id) {
     v1::MeshInfo info;
     if (!info.ParseFromString(blob)) return absl::DataLossError("mesh '" + id + "': corrupt info record");
-    return info;
+    return FromProto(info);
   }
 
-  absl::StatusOr<v1::MeshInfo> InfoLocked(const std::string& id) {
+  absl::StatusOr<MeshRecord> InfoLocked(const std::string& id) {
     Statement st(db_, "SELECT info FROM meshes WHERE id = ?");
     GF_RETURN_IF_ERROR(st.status());
     st.Bind(1, id);
@@ -196,14 +197,14 @@ class SqliteStore final : public MeshStore {
     return ParseInfo(st.Blob(0), id);
   }
 
-  absl::StatusOr<v1::MeshInfo> InsertLocked(const v1::MeshInfo& info, const Mesh& mesh) {
-    absl::StatusOr<v1::MeshInfo> existing = InfoLocked(info.mesh_id());
+  absl::StatusOr<MeshRecord> InsertLocked(const MeshRecord& info, const Mesh& mesh) {
+    absl::StatusOr<MeshRecord> existing = InfoLocked(info.mesh_id);
     if (existing.ok() || !absl::IsNotFound(existing.status())) return existing;
     Statement st(db_, "INSERT INTO meshes (id, revision, info, faces, positions) VALUES (?, ?, ?, ?, ?)");
     GF_RETURN_IF_ERROR(st.status());
-    const std::string blob = info.SerializeAsString();
-    st.Bind(1, info.mesh_id());
-    st.Bind(2, info.revision());
+    const std::string blob = ToProto(info).SerializeAsString();
+    st.Bind(1, info.mesh_id);
+    st.Bind(2, info.revision);
     st.BindBlob(3, blob.data(), blob.size());
     st.BindBlob(4, mesh.faces.data(), sizeof(int32_t) * mesh.faces.size());
     st.BindBlob(5, mesh.positions.data(), sizeof(double) * mesh.positions.size());
@@ -211,16 +212,16 @@ class SqliteStore final : public MeshStore {
     return info;
   }
 
-  absl::StatusOr<v1::MeshInfo> UpdateLocked(const std::string& id, std::optional<int64_t> expected,
+  absl::StatusOr<MeshRecord> UpdateLocked(const std::string& id, std::optional<int64_t> expected,
                                             const Positions& positions) {
-    GF_ASSIGN_OR_RETURN(v1::MeshInfo info, InfoLocked(id));
-    if (expected && *expected != info.revision()) return StaleRevision(id, *expected, info.revision());
-    GF_RETURN_IF_ERROR(CheckVertexCount(id, positions.rows(), info.num_vertices()));
-    AmendForPositions(positions, info.revision() + 1, &info);
+    GF_ASSIGN_OR_RETURN(MeshRecord info, InfoLocked(id));
+    if (expected && *expected != info.revision) return StaleRevision(id, *expected, info.revision);
+    GF_RETURN_IF_ERROR(CheckVertexCount(id, positions.rows(), info.num_vertices));
+    AmendForPositions(positions, info.revision + 1, &info);
     Statement st(db_, "UPDATE meshes SET revision = ?, info = ?, positions = ? WHERE id = ?");
     GF_RETURN_IF_ERROR(st.status());
-    const std::string blob = info.SerializeAsString();
-    st.Bind(1, info.revision());
+    const std::string blob = ToProto(info).SerializeAsString();
+    st.Bind(1, info.revision);
     st.BindBlob(2, blob.data(), blob.size());
     st.BindBlob(3, positions.data(), sizeof(double) * positions.size());
     st.Bind(4, id);

@@ -22,7 +22,7 @@
 #include "core/surfaces/analytic.h"
 #include "core/util/timer.h"
 #include "proto/wire.h"
-#include "server/handlers.h"
+#include "server/handlers/handlers.h"
 #include "server/server.h"
 
 namespace geomfit {
@@ -97,16 +97,12 @@ double Median(std::vector<double> v) {
   return v[v.size() / 2];
 }
 
-FitOptions Options() {
-  FitOptions o;
-  o.num_threads = Threads();
-  return o;
-}
+FitOptions Options() { return FitOptions(); }
 
 void BM_InProcessEvaluateCachedFits(benchmark::State& state) {
   const Mesh& mesh = TorusWith(static_cast<int>(state.range(0)));
   const Topology topo = ValidateMesh(mesh).value();
-  const auto fits = FitSurface(mesh, topo, Options()).value();
+  const auto fits = FitSurface(mesh, topo, Options(), nullptr, {}, RunContext(nullptr, Threads())).value();
   for (auto _ : state) benchmark::DoNotOptimize(ComputeDifferentials(*fits, kQuantities, Threads()));
   state.counters["vertices"] = mesh.NumVertices();
 }
@@ -132,7 +128,7 @@ void BM_InProcessFitAndEvaluate(benchmark::State& state) {
   const Mesh& mesh = TorusWith(static_cast<int>(state.range(0)));
   const Topology topo = ValidateMesh(mesh).value();
   for (auto _ : state) {
-    const auto fits = FitSurface(mesh, topo, Options()).value();
+    const auto fits = FitSurface(mesh, topo, Options(), nullptr, {}, RunContext(nullptr, Threads())).value();
     benchmark::DoNotOptimize(ComputeDifferentials(*fits, kQuantities, Threads()));
   }
   state.counters["vertices"] = mesh.NumVertices();
@@ -146,7 +142,7 @@ void BM_InProcessFsiCompute(benchmark::State& state) {
   const FitOptions options = Options();
   auto nbhd = std::make_shared<const Neighborhoods>(BuildNeighborhoods(topo, mesh, RingSpecFor(options), Threads()));
   for (auto _ : state) {
-    const auto fits = FitSurface(mesh, topo, options, nbhd).value();
+    const auto fits = FitSurface(mesh, topo, options, nbhd, {}, RunContext(nullptr, Threads())).value();
     benchmark::DoNotOptimize(ComputeDifferentials(*fits, kQuantities, Threads()));
   }
   state.counters["vertices"] = mesh.NumVertices();
@@ -165,7 +161,7 @@ void BM_InProcessFsiComputeFreshCopy(benchmark::State& state) {
     auto moved = std::make_shared<Mesh>(mesh);
     moved->positions.col(0).array() += 1e-4 * (++step % 2);
     state.ResumeTiming();
-    const auto fits = FitSurface(*moved, topo, options, nbhd).value();
+    const auto fits = FitSurface(*moved, topo, options, nbhd, {}, RunContext(nullptr, Threads())).value();
     benchmark::DoNotOptimize(ComputeDifferentials(*fits, kQuantities, Threads()));
   }
   state.counters["vertices"] = mesh.NumVertices();
@@ -239,9 +235,8 @@ void BM_HandlerUpdatePositions(benchmark::State& state) {
   auto store = server::NewMemoryStore();
   server::Cache cache(int64_t{1} << 30);
   server::RequestStats stats;
-  server::HandlerOptions ho;
-  ho.threads = Threads();
-  server::Handlers handlers(store.get(), &cache, &stats, ho);
+  server::Workspace ws(store.get(), &cache, server::WorkspaceOptions{.threads = Threads()});
+  server::Handlers handlers(&ws, &stats, server::HandlerOptions());
   server::UploadAssembler upload(int64_t{1} << 30);
   for (const auto& r : wire::UploadChunks(mesh, v1::MeshHeader(), ClientOptions().chunk_rows)) (void)upload.Add(r);
   const std::string id = handlers.UploadMesh(upload).value().mesh_id();

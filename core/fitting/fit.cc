@@ -157,21 +157,22 @@ class SurfaceFitter {
  public:
   static absl::StatusOr<std::shared_ptr<const SurfaceFits>> Fit(
       const Mesh& mesh, const Topology& topo, const FitOptions& o,
-      std::shared_ptr<const Neighborhoods> nb, const FitRequest& req) {
+      std::shared_ptr<const Neighborhoods> nb, const FitRequest& req, const RunContext& ctx,
+      const FittedBlockFn& on_fitted) {
     if (absl::Status s = ValidateFitOptions(o); !s.ok()) return s;
     if (topo.num_vertices != mesh.NumVertices() || topo.num_faces != mesh.NumFaces())
       return absl::InvalidArgumentError(absl::StrFormat(
           "topology (%d vertices, %d faces) does not match the mesh (%d vertices, %d faces)",
           topo.num_vertices, topo.num_faces, mesh.NumVertices(), mesh.NumFaces()));
-    if (!nb) nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, mesh, RingSpecFor(o), o.num_threads));
+    if (!nb) nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, mesh, RingSpecFor(o), ctx.threads()));
     if (static_cast<int>(nb->offsets.size()) != mesh.NumVertices() + 1)
       return absl::InvalidArgumentError("neighborhoods do not match the mesh");
 
-    Positions normals = ApproximateVertexNormals(mesh, topo, o.frame_normals, o.num_threads);
+    Positions normals = ApproximateVertexNormals(mesh, topo, o.frame_normals, ctx.threads());
     auto fits = std::make_shared<SurfaceFits>();
     for (int pass = 0; pass < (o.two_pass ? 2 : 1); ++pass) {
       if (pass == 1) {  // frames and safeguard weights from the first pass's fitted normals
-        ParallelFor(mesh.NumVertices(), o.num_threads, [&](int64_t v) {
+        ParallelFor(mesh.NumVertices(), ctx.threads(), [&](int64_t v) {
           if (fits->diagnostics_[v].degree_used < 1) return;
           const SurfaceJet jet = fits->Jet(static_cast<int>(v));
           Eigen::Vector3d n = jet.J.col(0).cross(jet.J.col(1));
@@ -181,7 +182,7 @@ class SurfaceFitter {
       }
       fits = std::make_shared<SurfaceFits>();
       const bool last = pass == (o.two_pass ? 1 : 0);
-      if (absl::Status s = FitAll(mesh, topo, o, nb, normals, req, last, *fits); !s.ok()) return s;
+      if (absl::Status s = FitAll(mesh, topo, o, nb, normals, req, ctx, last ? &on_fitted : nullptr, *fits); !s.ok()) return s;
     }
     return std::shared_ptr<const SurfaceFits>(std::move(fits));
   }
@@ -189,7 +190,8 @@ class SurfaceFitter {
  private:
   static absl::Status FitAll(const Mesh& mesh, const Topology& topo, const FitOptions& o,
                              const std::shared_ptr<const Neighborhoods>& nb, const Positions& normals,
-                             const FitRequest& req, bool last_pass, SurfaceFits& f) {
+                             const FitRequest& req, const RunContext& ctx, const FittedBlockFn* on_fitted,
+                             SurfaceFits& f) {
     const int nv = mesh.NumVertices();
     f.options_ = o;
     f.neighborhoods_ = nb;
@@ -204,14 +206,8 @@ class SurfaceFitter {
       f.stencils_.assign(f.stencil_offsets_[nv], 0.0);
     }
     const FitInput in{mesh, *nb, normals, o};
-    std::atomic<bool> stop{false};
     constexpr int64_t kGrain = 512;
-    ParallelFor((nv + kGrain - 1) / kGrain, o.num_threads, [&](int64_t chunk) {
-      if (stop.load(std::memory_order_relaxed)) return;
-      if (req.cancel && req.cancel->IsCancelled()) {
-        stop = true;
-        return;
-      }
+    return ParallelFor((nv + kGrain - 1) / kGrain, ctx, [&](int64_t chunk) {
       const int64_t end = std::min<int64_t>(nv, (chunk + 1) * kGrain);
       for (int64_t v = chunk * kGrain; v < end; ++v) {
         if (topo.is_boundary[v]) f.diagnostics_[v].flags |= kFlagBoundary;
@@ -219,17 +215,16 @@ class SurfaceFitter {
                       &f.diagnostics_[v], req.stencils ? f.stencils_.data() + f.stencil_offsets_[v] : nullptr};
         FitVertex(static_cast<int>(v), in, out);
       }
-      if (last_pass && req.on_fitted) req.on_fitted(f, chunk * kGrain, end);
-    }, 1);
-    if (stop) return req.cancel->Check().ok() ? absl::CancelledError("computation cancelled") : req.cancel->Check();
-    return absl::OkStatus();
+      if (on_fitted && *on_fitted) (*on_fitted)(f, chunk * kGrain, end);
+    }, 1, "fit");
   }
 };
 
 absl::StatusOr<std::shared_ptr<const SurfaceFits>> FitSurface(
     const Mesh& mesh, const Topology& topo, const FitOptions& options,
-    std::shared_ptr<const Neighborhoods> neighborhoods, const FitRequest& request) {
-  return SurfaceFitter::Fit(mesh, topo, options, std::move(neighborhoods), request);
+    std::shared_ptr<const Neighborhoods> neighborhoods, const FitRequest& request, const RunContext& ctx,
+    const FittedBlockFn& on_fitted) {
+  return SurfaceFitter::Fit(mesh, topo, options, std::move(neighborhoods), request, ctx, on_fitted);
 }
 
 }  // namespace geomfit

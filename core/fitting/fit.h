@@ -10,7 +10,7 @@
 #include "core/fitting/frames.h"
 #include "core/fitting/neighborhood.h"
 #include "core/fitting/options.h"
-#include "core/util/cancel.h"
+#include "core/util/run_context.h"
 
 namespace geomfit {
 
@@ -90,22 +90,25 @@ class SurfaceFits {
   std::vector<double> stencils_;
 };
 
+/// What to build besides the fits.
 struct FitRequest {
-  bool stencils = false;                  ///< also build the stencil operators
-  const CancellationToken* cancel = nullptr;  ///< polled between blocks of vertices
-  /// Called once vertices [begin, end) of the final pass are fitted, from the fitting
-  /// thread(s): blocks arrive in any order, possibly concurrently. `fits` is still
-  /// being built; only the vertices of blocks already reported may be read. Lets a
-  /// caller evaluate and send results while the rest of the mesh is being fitted.
-  std::function<void(const SurfaceFits& fits, int64_t begin, int64_t end)> on_fitted;
+  bool stencils = false;  ///< also build the stencil operators
 };
+
+/// Called once vertices [begin, end) of the final pass are fitted, from the fitting
+/// thread(s): blocks arrive in any order, possibly concurrently. `fits` is still being
+/// built; only the vertices of blocks already reported may be read. Lets a caller
+/// evaluate and send results while the rest of the mesh is being fitted.
+using FittedBlockFn = std::function<void(const SurfaceFits& fits, int64_t begin, int64_t end)>;
 
 /// Fits every vertex. `neighborhoods` may be shared with other fits of the same
 /// topology (pass the one built for RingSpecFor(options)); null builds it.
+/// `ctx` gives the threads and is polled between blocks of vertices; progress phase "fit".
 /// Errors: INVALID_ARGUMENT for bad options or a mesh/topology mismatch,
-/// CANCELLED / DEADLINE_EXCEEDED from the token.
+/// CANCELLED / DEADLINE_EXCEEDED from the context.
 absl::StatusOr<std::shared_ptr<const SurfaceFits>> FitSurface(
     const Mesh& mesh, const Topology& topo, const FitOptions& options,
-    std::shared_ptr<const Neighborhoods> neighborhoods = nullptr, const FitRequest& request = {});
+    std::shared_ptr<const Neighborhoods> neighborhoods = nullptr, const FitRequest& request = {},
+    const RunContext& ctx = {}, const FittedBlockFn& on_fitted = nullptr);
 
 }  // namespace geomfit

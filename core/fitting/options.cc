@@ -1,6 +1,7 @@
 #include "core/fitting/options.h"
 
 #include <cmath>
+#include <cstring>
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
@@ -34,8 +35,34 @@ absl::Status ValidateFitOptions(const FitOptions& o) {
   for (int d = 1; d <= kMaxDegree; ++d)
     if (!(o.cond_threshold[d] >= 1))
       return bad("fit option cond_threshold[", d, "] = ", o.cond_threshold[d], " must be >= 1");
-  if (o.num_threads < 0) return bad("fit option num_threads = ", o.num_threads, " must be >= 0");
   return absl::OkStatus();
+}
+
+namespace {
+uint64_t Bits(double x) {
+  uint64_t b;
+  std::memcpy(&b, &x, sizeof b);
+  return b;
+}
+}  // namespace
+
+FitOptionsBits FitOptionsIdentity(const FitOptions& o) {
+  FitOptionsBits b{static_cast<uint64_t>(o.degree),
+                   Bits(o.StartRings()),
+                   o.adaptive,
+                   Bits(o.MinPointsFactor()),
+                   Bits(o.boundary_points_factor),
+                   Bits(o.max_rings),
+                   static_cast<uint64_t>(o.max_points),
+                   static_cast<uint64_t>(o.method),
+                   Bits(o.safeguard_angle_deg),
+                   o.interpolate,
+                   o.two_pass,
+                   static_cast<uint64_t>(o.frame_normals),
+                   Bits(o.weight_epsilon),
+                   o.oscillation_safeguard};
+  for (int d = 1; d <= kMaxDegree; ++d) b[13 + d] = Bits(o.cond_threshold[d]);
+  return b;
 }
 
 std::string FitOptionsKey(const FitOptions& o) {

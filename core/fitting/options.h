@@ -1,4 +1,6 @@
 #pragma once
+#include <array>
+#include <cstdint>
 #include <string>
 
 #include "absl/status/status.h"
@@ -45,7 +47,6 @@ struct FitOptions {
   /// Condition-number cut-off of the column-scaled QR (2.4) per degree 1..6; a fit whose
   /// R exceeds it drops its highest degree, repeatedly. Index 0 unused.
   double cond_threshold[kMaxDegree + 1] = {0, 1e3, 1e3, 3.3e3, 1e4, 1e5, 1e6};
-  int num_threads = 0;         ///< 0 = all cores; results are identical for any count
 
   /// The ring size actually used as the starting ring.
   double StartRings() const { return rings > 0 ? rings : (degree + 1) / 2.0; }
@@ -56,9 +57,16 @@ struct FitOptions {
 /// OK, or INVALID_ARGUMENT naming the field and its valid range.
 absl::Status ValidateFitOptions(const FitOptions& options);
 
-/// A stable string of every option that changes results (cache keys). Excludes
-/// num_threads, which does not.
+/// A readable summary of every option that changes results (logs, summaries); never a
+/// cache key (formatted doubles alias: see FitOptionsBits).
 std::string FitOptionsKey(const FitOptions& options);
+
+/// Every option that changes results, resolved (automatic values made explicit) and held
+/// as exact bit patterns: two option sets give identical fits iff their bits are equal.
+/// Cache keys are built from these, never from formatted text (`%g` aliases 1.5 and
+/// 1.5000001).
+using FitOptionsBits = std::array<uint64_t, 14 + kMaxDegree>;
+FitOptionsBits FitOptionsIdentity(const FitOptions& options);
 
 const char* FitMethodName(FitMethod m);
 

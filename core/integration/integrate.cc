@@ -7,6 +7,7 @@
 #include "core/fitting/wls.h"
 #include "core/integration/quadrature.h"
 #include "core/util/parallel.h"
+#include "core/util/status_macros.h"
 
 namespace geomfit {
 namespace {
@@ -27,7 +28,7 @@ absl::Status CheckField(const Eigen::MatrixXd& a, int rows, int cols, const char
 }  // namespace
 
 absl::StatusOr<Integrals> Integrate(const ReconstructedSurface& surface, const IntegrationInput& in,
-                                    int num_threads) {
+                                    const RunContext& ctx) {
   const Mesh& mesh = surface.mesh();
   const int nv = mesh.NumVertices(), nf = mesh.NumFaces();
   const auto* walf = dynamic_cast<const WalfSurface*>(&surface);
@@ -57,7 +58,7 @@ absl::StatusOr<Integrals> Integrate(const ReconstructedSurface& surface, const I
     if (!fits.has_stencils())
       return absl::FailedPreconditionError("field integration needs fits built with stencil operators");
     coef.assign(static_cast<size_t>(nv) * nfield * ncoef, 0.0);
-    ParallelFor(nv, num_threads, [&](int64_t v) {
+    GF_RETURN_IF_ERROR(ParallelFor(nv, ctx, [&](int64_t v) {
       const int n = fits.neighborhoods().Size(static_cast<int>(v));
       const int32_t* pts = fits.neighborhoods().Points(static_cast<int>(v));
       const double* S = fits.stencil(static_cast<int>(v));
@@ -67,14 +68,14 @@ absl::StatusOr<Integrals> Integrate(const ReconstructedSurface& surface, const I
           for (int k = 0; k < n; ++k) sum += S[c * n + k] * values(pts[k], f);
           coef[(static_cast<size_t>(v) * nfield + f) * ncoef + c] = sum;
         }
-    });
+    }, 256, "integrate: fields"));
   }
 
   const QuadratureRule tri = TriangleRule(qdeg), quad = QuadRule(qdeg);
   // Per-face sums, added in face order afterwards: identical for any thread count.
   const int ncol = 3 + nfield;
   Eigen::MatrixXd per_face = Eigen::MatrixXd::Zero(nf, ncol);
-  ParallelFor(nf, num_threads, [&](int64_t f) {
+  GF_RETURN_IF_ERROR(ParallelFor(nf, ctx, [&](int64_t f) {
     const QuadratureRule& rule = mesh.FaceSize(static_cast<int>(f)) == 3 ? tri : quad;
     double N[4], dNa[4], dNb[4], phi[32];
     for (int q = 0; q < rule.size(); ++q) {
@@ -106,7 +107,7 @@ absl::StatusOr<Integrals> Integrate(const ReconstructedSurface& surface, const I
       for (int k = 0; k < ns; ++k) per_face(f, 3 + k) += w * phi[k] * n.norm();
       if (in.vectors.size()) per_face(f, 2) += w * Eigen::Vector3d(phi[ns], phi[ns + 1], phi[ns + 2]).dot(n);
     }
-  }, 64);
+  }, 64, "integrate"));
   Integrals out;
   out.quadrature_points = tri.size();
   out.scalars.assign(ns, 0.0);

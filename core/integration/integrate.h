@@ -5,6 +5,7 @@
 
 #include "absl/status/statusor.h"
 #include "core/reconstruction/surface.h"
+#include "core/util/run_context.h"
 
 namespace geomfit {
 
@@ -32,7 +33,8 @@ struct Integrals {
 /// WALF surfaces blend vertex fits of the fields, which needs fits built with
 /// FitRequest::stencils (FAILED_PRECONDITION otherwise); CMF surfaces are not
 /// supported for fields (their Jacobian is approximate). Errors name the bad field.
+/// `ctx` is polled between blocks of faces (progress phase "integrate").
 absl::StatusOr<Integrals> Integrate(const ReconstructedSurface& surface, const IntegrationInput& input,
-                                    int num_threads = 0);
+                                    const RunContext& ctx = {});
 
 }  // namespace geomfit

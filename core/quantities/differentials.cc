@@ -99,12 +99,19 @@ Differentials ComputeDifferentials(const SurfaceFits& fits, uint32_t q, int num_
   return d;
 }
 
+absl::StatusOr<Differentials> ComputeDifferentials(const SurfaceFits& fits, uint32_t q, const RunContext& ctx) {
+  Differentials d = AllocateDifferentials(fits.num_vertices(), q);
+  GF_RETURN_IF_ERROR(ParallelFor(fits.num_vertices(), ctx, [&](int64_t v) { EvaluateVertex(fits, q, v, d); }, 1024,
+                                 "evaluate"));
+  return d;
+}
+
 absl::StatusOr<Differentials> ComputeDifferentials(const Mesh& mesh, const FitOptions& options,
-                                                   uint32_t quantities) {
+                                                   uint32_t quantities, const RunContext& ctx) {
   GF_RETURN_IF_ERROR(ValidateFitOptions(options));
   GF_ASSIGN_OR_RETURN(Topology topo, ValidateMesh(mesh));
-  GF_ASSIGN_OR_RETURN(auto fits, FitSurface(mesh, topo, options));
-  return ComputeDifferentials(*fits, quantities, options.num_threads);
+  GF_ASSIGN_OR_RETURN(auto fits, FitSurface(mesh, topo, options, nullptr, {}, ctx));
+  return ComputeDifferentials(*fits, quantities, ctx);
 }
 
 }  // namespace geomfit

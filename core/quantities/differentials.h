@@ -54,8 +54,12 @@ void EvaluateDifferentials(const SurfaceFits& fits, uint32_t quantities, int64_t
 Differentials ComputeDifferentials(const SurfaceFits& fits, uint32_t quantities = kAllQuantities,
                                    int num_threads = 0);
 
+/// The same, polling `ctx` (progress phase "evaluate").
+absl::StatusOr<Differentials> ComputeDifferentials(const SurfaceFits& fits, uint32_t quantities,
+                                                   const RunContext& ctx);
+
 /// One-shot convenience: validate, fit and evaluate.
 absl::StatusOr<Differentials> ComputeDifferentials(const Mesh& mesh, const FitOptions& options,
-                                                   uint32_t quantities = kAllQuantities);
+                                                   uint32_t quantities = kAllQuantities, const RunContext& ctx = {});
 
 }  // namespace geomfit

@@ -74,10 +74,11 @@ FaceLattices BuildFaceLattices(const Mesh& mesh, const Topology& topo, int k) {
 
 namespace {
 
-absl::StatusOr<Positions> EvaluateLattice(const ReconstructedSurface& surface, const FaceLattices& L, int threads) {
+absl::StatusOr<Positions> EvaluateLattice(const ReconstructedSurface& surface, const FaceLattices& L,
+                                          const RunContext& ctx) {
   const Mesh& mesh = surface.mesh();
   std::vector<SurfacePoint> pts;
-  if (absl::Status s = EvaluatePoints(surface, L.new_nodes, &pts, threads); !s.ok()) return s;
+  if (absl::Status s = EvaluatePoints(surface, L.new_nodes, &pts, ctx); !s.ok()) return s;
   Positions x(mesh.NumVertices() + pts.size(), 3);
   x.topRows(mesh.NumVertices()) = mesh.positions;
   for (size_t n = 0; n < pts.size(); ++n) x.row(mesh.NumVertices() + n) = pts[n].position.transpose();
@@ -87,14 +88,14 @@ absl::StatusOr<Positions> EvaluateLattice(const ReconstructedSurface& surface, c
 }  // namespace
 
 absl::StatusOr<HighOrderMesh> MakeHighOrderMesh(const ReconstructedSurface& surface, const Topology& topo,
-                                                int order, int num_threads) {
+                                                int order, const RunContext& ctx) {
   if (order != 2 && order != 3)
     return absl::InvalidArgumentError(absl::StrFormat("element order %d is not supported (2 or 3)", order));
   const Mesh& mesh = surface.mesh();
   const FaceLattices L = BuildFaceLattices(mesh, topo, order);
   HighOrderMesh out;
   out.order = order;
-  auto x = EvaluateLattice(surface, L, num_threads);
+  auto x = EvaluateLattice(surface, L, ctx);
   if (!x.ok()) return x.status();
   out.nodes = *std::move(x);
   out.offsets.push_back(0);
@@ -116,13 +117,13 @@ absl::StatusOr<HighOrderMesh> MakeHighOrderMesh(const ReconstructedSurface& surf
 }
 
 absl::StatusOr<Mesh> RefineMesh(const ReconstructedSurface& surface, const Topology& topo, int factor,
-                                int num_threads) {
+                                const RunContext& ctx) {
   if (factor < 2 || factor > 8)
     return absl::InvalidArgumentError(absl::StrFormat("refinement factor %d is out of range [2, 8]", factor));
   const Mesh& mesh = surface.mesh();
   const FaceLattices L = BuildFaceLattices(mesh, topo, factor);
   Mesh out;
-  auto x = EvaluateLattice(surface, L, num_threads);
+  auto x = EvaluateLattice(surface, L, ctx);
   if (!x.ok()) return x.status();
   out.positions = *std::move(x);
   std::vector<Eigen::Matrix<int32_t, 1, 4>> faces;

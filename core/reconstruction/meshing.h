@@ -30,11 +30,11 @@ struct HighOrderMesh {
   std::vector<int32_t> offsets, elements;  ///< element f: elements[offsets[f] .. offsets[f+1])
 };
 absl::StatusOr<HighOrderMesh> MakeHighOrderMesh(const ReconstructedSurface& surface, const Topology& topo,
-                                                int order, int num_threads = 0);
+                                                int order, const RunContext& ctx = {});
 
 /// Uniform refinement (4.2.2): every face split into factor^2 faces (factor 2: triangle
 /// and quad 1 -> 4; 3: 1 -> 9), new vertices on the reconstructed surface.
 absl::StatusOr<Mesh> RefineMesh(const ReconstructedSurface& surface, const Topology& topo, int factor,
-                                int num_threads = 0);
+                                const RunContext& ctx = {});
 
 }  // namespace geomfit

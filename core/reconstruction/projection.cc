@@ -144,20 +144,22 @@ FacePoint PointLocator::Closest(const Vector3d& x) const {
 }
 
 absl::Status ProjectPoints(const ReconstructedSurface& surface, const Topology& topo, const Positions& points,
-                           std::vector<ProjectedPoint>* out, int num_threads) {
+                           std::vector<ProjectedPoint>* out, const RunContext& ctx) {
   for (Eigen::Index i = 0; i < points.rows(); ++i)
     if (!points.row(i).allFinite())
       return absl::InvalidArgumentError(absl::StrFormat("point %d has a non-finite coordinate", i));
   const PointLocator locator(surface.mesh(), topo);
   out->resize(points.rows());
-  ParallelFor(points.rows(), num_threads, [&](int64_t i) {
-    const Vector3d x = points.row(i).transpose();
-    ProjectedPoint& p = (*out)[i];
-    p.where = Refine(surface, x, locator.Closest(x), 6);
-    p.point = surface.Evaluate(p.where);
-    p.distance = (p.point.position - x).norm();
-  });
-  return absl::OkStatus();
+  return ParallelFor(
+      points.rows(), ctx,
+      [&](int64_t i) {
+        const Vector3d x = points.row(i).transpose();
+        ProjectedPoint& p = (*out)[i];
+        p.where = Refine(surface, x, locator.Closest(x), 6);
+        p.point = surface.Evaluate(p.where);
+        p.distance = (p.point.position - x).norm();
+      },
+      64, "project");
 }
 
 }  // namespace geomfit

@@ -33,8 +33,8 @@ struct ProjectedPoint {
 /// Projects arbitrary points near the surface onto the reconstructed surface (4.2.3):
 /// the closest point of the linear mesh, then Gauss-Newton on the face's natural
 /// coordinates towards the closest point of the reconstructed surface (kept in the
-/// face). INVALID_ARGUMENT names a non-finite input point.
+/// face). INVALID_ARGUMENT names a non-finite input point. Polls `ctx` (phase "project").
 absl::Status ProjectPoints(const ReconstructedSurface& surface, const Topology& topo, const Positions& points,
-                           std::vector<ProjectedPoint>* out, int num_threads = 0);
+                           std::vector<ProjectedPoint>* out, const RunContext& ctx = {});
 
 }  // namespace geomfit

@@ -99,9 +99,9 @@ SurfacePoint WalfSurface::Evaluate(const FacePoint& p) const {
   return s;
 }
 
-CmfSurface::CmfSurface(const Mesh& mesh, std::shared_ptr<const SurfaceFits> fits)
+CmfSurface::CmfSurface(const Mesh& mesh, std::shared_ptr<const SurfaceFits> fits, int threads)
     : mesh_(mesh), fits_(std::move(fits)), normals_(mesh.NumVertices(), 3) {
-  ParallelFor(mesh.NumVertices(), fits_->options().num_threads, [&](int64_t v) {
+  ParallelFor(mesh.NumVertices(), threads, [&](int64_t v) {
     const int iv = static_cast<int>(v);
     const Vector3d n = fits_->diagnostics(iv).degree_used >= 1 ? DifferentialsFromJet(fits_->Jet(iv)).normal
                                                                : fits_->frame(iv).normal;
@@ -189,20 +189,11 @@ SurfacePoint CmfSurface::Evaluate(const FacePoint& p) const {
   return s;
 }
 
-const char* ReconstructionMethodName(ReconstructionMethod m) {
-  switch (m) {
-    case ReconstructionMethod::kLinear: return "linear";
-    case ReconstructionMethod::kWalf: return "walf";
-    case ReconstructionMethod::kCmf: return "cmf";
-  }
-  return "?";
-}
-
 std::unique_ptr<ReconstructedSurface> MakeSurface(ReconstructionMethod method, const Mesh& mesh,
-                                                  std::shared_ptr<const SurfaceFits> fits) {
+                                                  std::shared_ptr<const SurfaceFits> fits, int threads) {
   switch (method) {
     case ReconstructionMethod::kWalf: return std::make_unique<WalfSurface>(mesh, std::move(fits));
-    case ReconstructionMethod::kCmf: return std::make_unique<CmfSurface>(mesh, std::move(fits));
+    case ReconstructionMethod::kCmf: return std::make_unique<CmfSurface>(mesh, std::move(fits), threads);
     case ReconstructionMethod::kLinear: break;
   }
   return std::make_unique<LinearSurface>(mesh);
@@ -223,15 +214,15 @@ std::vector<FacePoint> RandomFacePoints(const Mesh& mesh, int per_face, uint64_t
 }
 
 absl::Status EvaluatePoints(const ReconstructedSurface& surface, const std::vector<FacePoint>& points,
-                            std::vector<SurfacePoint>* out, int num_threads) {
+                            std::vector<SurfacePoint>* out, const RunContext& ctx) {
   for (size_t i = 0; i < points.size(); ++i) {
     absl::Status s = ValidateFacePoint(surface.mesh(), points[i], static_cast<int64_t>(i));
     if (!s.ok()) return s;
   }
   out->resize(points.size());
-  ParallelFor(static_cast<int64_t>(points.size()), num_threads,
-              [&](int64_t i) { (*out)[i] = surface.Evaluate(points[i]); });
-  return absl::OkStatus();
+  return ParallelFor(
+      static_cast<int64_t>(points.size()), ctx, [&](int64_t i) { (*out)[i] = surface.Evaluate(points[i]); }, 256,
+      "evaluate points");
 }
 
 }  // namespace geomfit

@@ -9,6 +9,7 @@
 #include "absl/status/status.h"
 #include "core/fitting/fit.h"
 #include "core/mesh/topology.h"
+#include "core/reconstruction/options.h"
 
 namespace geomfit {
 
@@ -75,7 +76,7 @@ class WalfSurface final : public ReconstructedSurface {
 /// stencils with weights (4.1.8)-(4.1.9). Vertex normals come from the vertex fits.
 class CmfSurface final : public ReconstructedSurface {
  public:
-  CmfSurface(const Mesh& mesh, std::shared_ptr<const SurfaceFits> fits);
+  CmfSurface(const Mesh& mesh, std::shared_ptr<const SurfaceFits> fits, int threads = 0);
   SurfacePoint Evaluate(const FacePoint& p) const override;
   const Mesh& mesh() const override { return mesh_; }
 
@@ -85,18 +86,18 @@ class CmfSurface final : public ReconstructedSurface {
   Positions normals_;  // fitted vertex normals
 };
 
-enum class ReconstructionMethod { kLinear, kWalf, kCmf };
-const char* ReconstructionMethodName(ReconstructionMethod m);
 
 /// Builds the surface of `method` over fits of the mesh (ignored for kLinear).
+/// `threads`: for the CMF surface's vertex normals.
 std::unique_ptr<ReconstructedSurface> MakeSurface(ReconstructionMethod method, const Mesh& mesh,
-                                                  std::shared_ptr<const SurfaceFits> fits);
+                                                  std::shared_ptr<const SurfaceFits> fits, int threads = 0);
 
 /// `per_face` uniformly random points in every face, reproducible from `seed`.
 std::vector<FacePoint> RandomFacePoints(const Mesh& mesh, int per_face, uint64_t seed);
 
-/// Evaluates many points in parallel (after validating every one).
+/// Evaluates many points in parallel (after validating every one), polling `ctx`
+/// (progress phase "evaluate points").
 absl::Status EvaluatePoints(const ReconstructedSurface& surface, const std::vector<FacePoint>& points,
-                            std::vector<SurfacePoint>* out, int num_threads = 0);
+                            std::vector<SurfacePoint>* out, const RunContext& ctx = {});
 
 }  // namespace geomfit

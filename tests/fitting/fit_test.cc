@@ -182,12 +182,22 @@ TEST(FitTest, RejectsBadOptionsNamingTheField) {
   o.cond_threshold[3] = 0;
   EXPECT_THAT(ValidateFitOptions(o).message(), HasSubstr("cond_threshold[3]"));
   EXPECT_EQ(ValidateFitOptions(o).code(), absl::StatusCode::kInvalidArgument);
-  // Options that change results change the cache key; the thread count does not.
+  // Options that change results change the identity; automatic values equal explicit ones.
   FitOptions a, b;
-  b.num_threads = 3;
-  EXPECT_EQ(FitOptionsKey(a), FitOptionsKey(b));
+  b.rings = a.StartRings();
+  b.min_points_factor = a.MinPointsFactor();
+  EXPECT_EQ(FitOptionsIdentity(a), FitOptionsIdentity(b));
   b.interpolate = false;
-  EXPECT_NE(FitOptionsKey(a), FitOptionsKey(b));
+  EXPECT_NE(FitOptionsIdentity(a), FitOptionsIdentity(b));
+  // Exact bits, not formatted text: %g makes these one string, they are two identities.
+  FitOptions c, d;
+  c.min_points_factor = 1.5;
+  d.min_points_factor = 1.5000001;
+  EXPECT_EQ(FitOptionsKey(c), FitOptionsKey(d));
+  EXPECT_NE(FitOptionsIdentity(c), FitOptionsIdentity(d));
+  d = c;
+  d.weight_epsilon = 0.01 * (1 + 1e-12);
+  EXPECT_NE(FitOptionsIdentity(c), FitOptionsIdentity(d));
 }
 
 TEST(FitTest, CancellationStopsTheFit) {
@@ -195,13 +205,11 @@ TEST(FitTest, CancellationStopsTheFit) {
   const Topology t = BuildTopology(m).value();
   CancellationToken token;
   token.Cancel();
-  FitRequest req;
-  req.cancel = &token;
-  auto fits = FitSurface(m, t, FitOptions(), nullptr, req);
+  auto fits = FitSurface(m, t, FitOptions(), nullptr, {}, RunContext(&token));
   EXPECT_EQ(fits.status().code(), absl::StatusCode::kCancelled);
   CancellationToken expired(CancellationToken::Clock::now() - std::chrono::seconds(1));
-  req.cancel = &expired;
-  EXPECT_EQ(FitSurface(m, t, FitOptions(), nullptr, req).status().code(), absl::StatusCode::kDeadlineExceeded);
+  EXPECT_EQ(FitSurface(m, t, FitOptions(), nullptr, {}, RunContext(&expired)).status().code(),
+            absl::StatusCode::kDeadlineExceeded);
 }
 
 TEST(FitTest, TwoPassRefitsInFittedFrames) {

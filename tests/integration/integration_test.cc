@@ -216,7 +216,8 @@ TEST(IntegrationTest, SameResultForAnyThreadCount) {
   const Mesh mesh = GenerateTorusMesh(g);
   auto fits = FitSurface(mesh, BuildTopology(mesh).value(), FitOptions()).value();
   WalfSurface walf(mesh, fits);
-  const Integrals a = Integrate(walf, IntegrationInput(), 1).value(), b = Integrate(walf, IntegrationInput(), 2).value();
+  const Integrals a = Integrate(walf, IntegrationInput(), RunContext(nullptr, 1)).value(),
+                  b = Integrate(walf, IntegrationInput(), RunContext(nullptr, 2)).value();
   EXPECT_EQ(a.area, b.area);
   EXPECT_EQ(a.volume, b.volume);
 }

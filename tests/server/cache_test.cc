@@ -1,6 +1,8 @@
-#include "server/cache.h"
+#include "server/workspace/cache.h"
 
 #include <atomic>
+#include <cctype>
+#include <string>
 #include <thread>
 
 #include <gtest/gtest.h>
@@ -16,8 +18,24 @@ Cache::ComputeFn Value(int v, int64_t bytes, std::atomic<int>* calls = nullptr, 
   };
 }
 
+/// A key of tier `t` named like "<mesh>/r<N>/<rest>" (test shorthand; the engine builds
+/// keys with keys.h and never parses them).
+CacheKey K(Tier t, const std::string& name) {
+  CacheKey k;
+  const size_t slash = name.find('/');
+  k.mesh_id = name.substr(0, slash);
+  std::string rest = slash == std::string::npos ? "" : name.substr(slash + 1);
+  if (rest.size() > 1 && rest[0] == 'r' && isdigit(rest[1])) {
+    k.revision = std::stoll(rest.substr(1));
+    rest = rest.substr(rest.find('/') == std::string::npos ? rest.size() : rest.find('/'));
+  }
+  k.kind = t == Tier::kTopology ? EntryKind::kTopology : t == Tier::kGeometry ? EntryKind::kGeometry : EntryKind::kFits;
+  k.params.push_back(std::hash<std::string>()(rest));
+  return k;
+}
+
 int Get(Cache& c, Tier t, const std::string& key, int v, int64_t bytes, bool* hit = nullptr) {
-  auto r = c.GetOrCompute(t, key, Value(v, bytes), nullptr, hit);
+  auto r = c.GetOrCompute(K(t, key), Value(v, bytes), nullptr, hit);
   return r.ok() ? *std::static_pointer_cast<const int>(*r) : -1;
 }
 
@@ -28,7 +46,7 @@ TEST(CacheTest, ConcurrentRequestsComputeOnce) {
   std::atomic<int> sum{0};
   for (int i = 0; i < 8; ++i) {
     threads.emplace_back([&] {
-      auto r = cache.GetOrCompute(Tier::kFitting, "m/r1/fit/x", Value(7, 10, &calls, 100));
+      auto r = cache.GetOrCompute(K(Tier::kFitting, "m/r1/fit/x"), Value(7, 10, &calls, 100));
       if (r.ok()) sum += *std::static_pointer_cast<const int>(*r);
     });
   }
@@ -87,9 +105,9 @@ TEST(CacheTest, ErrorsAreNotCachedAndCancelledLeaderDoesNotFailWaiters) {
     std::this_thread::sleep_for(std::chrono::milliseconds(100));
     return absl::CancelledError("leader cancelled");
   };
-  std::thread leader([&] { EXPECT_FALSE(cache.GetOrCompute(Tier::kFitting, "k", cancelled).ok()); });
+  std::thread leader([&] { EXPECT_FALSE(cache.GetOrCompute(K(Tier::kFitting, "k"), cancelled).ok()); });
   std::this_thread::sleep_for(std::chrono::milliseconds(20));
-  auto r = cache.GetOrCompute(Tier::kFitting, "k", Value(5, 1, &calls));
+  auto r = cache.GetOrCompute(K(Tier::kFitting, "k"), Value(5, 1, &calls));
   leader.join();
   ASSERT_TRUE(r.ok()) << r.status();
   EXPECT_EQ(*std::static_pointer_cast<const int>(*r), 5);
@@ -98,10 +116,10 @@ TEST(CacheTest, ErrorsAreNotCachedAndCancelledLeaderDoesNotFailWaiters) {
 
 TEST(CacheTest, WaiterGivesUpWithItsOwnToken) {
   Cache cache(1 << 20);
-  std::thread leader([&] { (void)cache.GetOrCompute(Tier::kFitting, "slow", Value(1, 1, nullptr, 300)); });
+  std::thread leader([&] { (void)cache.GetOrCompute(K(Tier::kFitting, "slow"), Value(1, 1, nullptr, 300)); });
   std::this_thread::sleep_for(std::chrono::milliseconds(20));
   CancellationToken token(CancellationToken::Clock::now() + std::chrono::milliseconds(30));
-  auto r = cache.GetOrCompute(Tier::kFitting, "slow", Value(2, 1), &token);
+  auto r = cache.GetOrCompute(K(Tier::kFitting, "slow"), Value(2, 1), &token);
   EXPECT_EQ(r.status().code(), absl::StatusCode::kDeadlineExceeded);
   leader.join();
 }
@@ -109,7 +127,7 @@ TEST(CacheTest, WaiterGivesUpWithItsOwnToken) {
 TEST(CacheTest, RetiredRevisionsAreDroppedAndKeptOut) {
   Cache cache(1 << 20);
   for (const char* key : {"m/r1/fit/a", "m/r2/fit/a", "m/r2/fit/a/q3", "m/r3/fit/a", "m/topo", "n/r1/fit/a"})
-    cache.Put(Tier::kFitting, key, std::make_shared<const int>(1), 10);
+    cache.Put(K(Tier::kFitting, key), std::make_shared<const int>(1), 10);
   cache.RetireRevisionsBelow("m", 3);
   bool hit = false;
   EXPECT_EQ(Get(cache, Tier::kFitting, "m/r3/fit/a", 2, 10, &hit), 1);
@@ -128,21 +146,42 @@ TEST(CacheTest, RetiredRevisionsAreDroppedAndKeptOut) {
   // A deleted mesh may come back at revision 1.
   cache.EraseMesh("m");
   EXPECT_EQ(cache.Stats(Tier::kFitting).entries, 1);
-  cache.Put(Tier::kFitting, "m/r1/fit/a", std::make_shared<const int>(7), 10);
+  cache.Put(K(Tier::kFitting, "m/r1/fit/a"), std::make_shared<const int>(7), 10);
   EXPECT_EQ(Get(cache, Tier::kFitting, "m/r1/fit/a", 2, 10, &hit), 7);
   EXPECT_TRUE(hit);
 }
 
-TEST(CacheTest, ErasePrefixDropsOneMesh) {
+TEST(CacheTest, EraseMeshDropsOneMesh) {
   Cache cache(1000);
   Get(cache, Tier::kTopology, "a/topo", 1, 10);
   Get(cache, Tier::kGeometry, "a/r1/geom", 1, 10);
   Get(cache, Tier::kGeometry, "ab/r1/geom", 1, 10);
-  cache.ErasePrefix("a/");
+  cache.EraseMesh("a");
   EXPECT_EQ(cache.bytes(), 10);
   bool hit = false;
   Get(cache, Tier::kGeometry, "ab/r1/geom", 1, 10, &hit);
   EXPECT_TRUE(hit);
+}
+
+TEST(CacheKeyTest, TypedKeysDoNotAlias) {
+  // The case: min_points_factor 1.5000001 must not share the default 1.5's fits.
+  FitOptions a, b;
+  a.min_points_factor = 1.5;
+  b.min_points_factor = 1.5000001;
+  EXPECT_NE(FitKey("m", 1, a, false), FitKey("m", 1, b, false));
+  b = a;
+  b.weight_epsilon = 0.01 * (1 + 1e-15);
+  EXPECT_NE(FitKey("m", 1, a, false), FitKey("m", 1, b, false));
+  EXPECT_NE(FitKey("m", 1, a, false), FitKey("m", 1, a, true));
+  EXPECT_NE(FitKey("m", 1, a, false), FitKey("m", 2, a, false));
+  // Automatic values resolve: rings 0 at degree 2 is rings 1.5.
+  FitOptions c = a;
+  c.rings = a.StartRings();
+  EXPECT_EQ(FitKey("m", 1, a, false), FitKey("m", 1, c, false));
+  EXPECT_NE(DifferentialsKey(FitKey("m", 1, a, false), 1), DifferentialsKey(FitKey("m", 1, a, false), 3));
+  EXPECT_EQ(FitKey("m", 1, a, false).tier(), Tier::kFitting);
+  EXPECT_EQ(NeighborhoodsKey("m", RingSpec()).tier(), Tier::kTopology);
+  EXPECT_EQ(GeometryKey("m", 4).tier(), Tier::kGeometry);
 }
 
 }  // namespace

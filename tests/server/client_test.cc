@@ -10,7 +10,7 @@
 #include <gtest/gtest.h>
 
 #include "geomfit/v1/geomfit.pb.h"
-#include "proto/wire.h"
+#include "core/mesh/content_hash.h"
 #include "tests/server/test_util.h"
 
 namespace geomfit {
@@ -87,10 +87,7 @@ TEST(ClientTest, PredictsTheMeshIdOfAnUpload) {
   };
   for (const Case& c : {Case{server::testing::TestTorus(10), "torus", {{"b", "2"}, {"a", "1"}}},
                         Case{server::testing::TestSphere(), "", {}}, Case{cube, "cube", {{"k", ""}}}}) {
-    v1::MeshHeader header;
-    header.set_name(c.name);
-    header.mutable_labels()->insert(c.labels.begin(), c.labels.end());
-    const std::string predicted = wire::MeshIdOf(wire::MeshContentHash(c.mesh, header));
+    const std::string predicted = MeshIdOf(MeshContentHash(c.mesh, c.name, c.labels));
     auto info = client->Upload(c.mesh, c.name, c.labels);
     ASSERT_TRUE(info.ok()) << info.status();
     EXPECT_EQ(info->mesh_id, predicted) << c.name;

@@ -1,5 +1,5 @@
 // Handlers without a network: proto in, StatusOr<proto> out.
-#include "server/handlers.h"
+#include "server/handlers/handlers.h"
 
 #include <algorithm>
 #include <atomic>
@@ -27,11 +27,12 @@ v1::ComputeDifferentialsRequest StreamedRequest(const std::string& id);
 
 class HandlersTest : public ::testing::Test {
  protected:
-  HandlersTest() : store_(NewMemoryStore()), cache_(64 << 20), handlers_(store_.get(), &cache_, &stats_, Options()) {}
+  HandlersTest()
+      : store_(NewMemoryStore()), cache_(64 << 20), ws_(store_.get(), &cache_, WorkspaceOptions{.threads = 1}),
+        handlers_(&ws_, &stats_, Options()) {}
 
   static HandlerOptions Options() {
     HandlerOptions o;
-    o.threads = 1;
     o.chunk_rows = 100;
     return o;
   }
@@ -92,6 +93,7 @@ class HandlersTest : public ::testing::Test {
   std::unique_ptr<MeshStore> store_;
   Cache cache_;
   RequestStats stats_;
+  Workspace ws_;
   Handlers handlers_;
 };
 
@@ -123,8 +125,7 @@ TEST_F(HandlersTest, CurvatureMatchesInProcessBitForBit) {
   auto remote = Compute(info->mesh_id(), &summary);
   ASSERT_TRUE(remote.ok()) << remote.status();
   FitOptions options;
-  options.num_threads = 1;
-  auto local = ComputeDifferentials(mesh, options, kAllQuantities);
+  auto local = ComputeDifferentials(mesh, options, kAllQuantities, RunContext(nullptr, 1));
   ASSERT_TRUE(local.ok()) << local.status();
   EXPECT_EQ(remote->mean, local->mean);
   EXPECT_EQ(remote->gaussian, local->gaussian);
@@ -181,8 +182,7 @@ TEST_F(HandlersTest, PrefetchComputesTheNextStepOfATimeSteppingClient) {
   moved.positions = 2.0 * mesh.positions;
   FitOptions options;
   options.degree = 3;
-  options.num_threads = 1;
-  auto local = ComputeDifferentials(moved, options, kAllQuantities);
+  auto local = ComputeDifferentials(moved, options, kAllQuantities, RunContext(nullptr, 1));
   ASSERT_TRUE(local.ok());
   EXPECT_EQ(prefetched->mean, local->mean) << "the prefetched values are revision 3's";
   EXPECT_EQ(prefetched->normals, local->normals);
@@ -231,8 +231,7 @@ v1::ComputeDifferentialsRequest StreamedRequest(const std::string& id) {
 void ExpectSameAsInProcess(const Differentials& d, const Mesh& mesh) {
   FitOptions options;
   options.degree = 3;
-  options.num_threads = 1;
-  auto local = ComputeDifferentials(mesh, options, kAllQuantities);
+  auto local = ComputeDifferentials(mesh, options, kAllQuantities, RunContext(nullptr, 1));
   ASSERT_TRUE(local.ok());
   EXPECT_EQ(d.normals, local->normals);
   EXPECT_EQ(d.mean, local->mean);
@@ -291,9 +290,8 @@ TEST(HandlersStreamTest, FittingThreadsStreamEveryChunkOnceInOrder) {
   auto store = NewMemoryStore();
   Cache cache(64 << 20);
   RequestStats stats;
-  HandlerOptions options;
-  options.threads = 2;  // blocks reported concurrently and out of order
-  Handlers handlers(store.get(), &cache, &stats, options);
+  Workspace ws(store.get(), &cache, WorkspaceOptions{.threads = 2});  // blocks reported concurrently and out of order
+  Handlers handlers(&ws, &stats, HandlerOptions());
   const Mesh mesh = TestTorus(40);
   UploadAssembler a(1 << 20);
   for (const auto& r : wire::UploadChunks(mesh, v1::MeshHeader(), 1000)) ASSERT_TRUE(a.Add(r).ok());
@@ -622,7 +620,8 @@ TEST(HandlersBudgetTest, FittingThatCanNeverFitIsResourceExhausted) {
   auto store = NewMemoryStore();
   Cache cache(600 << 10);  // room for the mesh, not for a degree-6 LOP fitting
   RequestStats stats;
-  Handlers handlers(store.get(), &cache, &stats, HandlerOptions());
+  Workspace ws(store.get(), &cache, WorkspaceOptions());
+  Handlers handlers(&ws, &stats, HandlerOptions());
   UploadAssembler a(1 << 20);
   for (const auto& r : wire::UploadChunks(TestTorus(20), v1::MeshHeader(), 1000)) ASSERT_TRUE(a.Add(r).ok());
   auto info = handlers.UploadMesh(a);
@@ -708,7 +707,7 @@ TEST_F(HandlersTest, IntegrateMatchesCoreAndTheSphere) {
   IntegrationInput in;
   in.scalars = x2;
   in.vectors = mesh.positions;
-  const Integrals core = geomfit::Integrate(WalfSurface(mesh, fits), in, 1).value();
+  const Integrals core = geomfit::Integrate(WalfSurface(mesh, fits), in, RunContext(nullptr, 1)).value();
   EXPECT_DOUBLE_EQ(r->area(), core.area);
   EXPECT_DOUBLE_EQ(r->flux(), core.flux);
   // The flat baseline is far less accurate.

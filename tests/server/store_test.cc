@@ -15,12 +15,12 @@ std::string TempDir(const std::string& name) {
   return dir.string();
 }
 
-v1::MeshInfo InfoFor(const std::string& id, const Mesh& m) {
-  v1::MeshInfo info;
-  info.set_mesh_id(id);
-  info.set_num_vertices(m.NumVertices());
-  info.set_num_faces(m.NumFaces());
-  (*info.mutable_labels())["case"] = "store";
+MeshRecord InfoFor(const std::string& id, const Mesh& m) {
+  MeshRecord info;
+  info.mesh_id = id;
+  info.num_vertices = m.NumVertices();
+  info.num_faces = m.NumFaces();
+  info.labels["case"] = "store";
   AmendForPositions(m.positions, 1, &info);
   return info;
 }
@@ -58,17 +58,17 @@ TEST_P(StoreTest, InsertGetUpdateListDelete) {
   ASSERT_TRUE(inserted.ok()) << inserted.status();
   auto again = store_->Insert(InfoFor("m-1", testing::TestSphere()), testing::TestSphere());
   ASSERT_TRUE(again.ok());
-  EXPECT_EQ(again->num_vertices(), mesh.NumVertices()) << "existing id: nothing is overwritten";
+  EXPECT_EQ(again->num_vertices, mesh.NumVertices()) << "existing id: nothing is overwritten";
 
   auto got = store_->Get("m-1");
   ASSERT_TRUE(got.ok()) << got.status();
   EXPECT_TRUE(testing::SameMesh(*got->mesh, mesh));
-  EXPECT_EQ(got->info.labels().at("case"), "store");
+  EXPECT_EQ(got->info.labels.at("case"), "store");
 
   const Positions moved = mesh.positions * 3.0;
   auto updated = store_->UpdatePositions("m-1", 1, Moved(mesh, moved));
   ASSERT_TRUE(updated.ok()) << updated.status();
-  EXPECT_EQ(updated->revision(), 2);
+  EXPECT_EQ(updated->revision, 2);
   EXPECT_EQ(store_->UpdatePositions("m-1", 1, Moved(mesh, moved)).status().code(), absl::StatusCode::kAborted);
   EXPECT_EQ(store_->UpdatePositions("nope", std::nullopt, Moved(mesh, moved)).status().code(), absl::StatusCode::kNotFound);
   got = store_->Get("m-1");
@@ -81,7 +81,7 @@ TEST_P(StoreTest, InsertGetUpdateListDelete) {
   auto page = store_->List("m-0", 10);
   ASSERT_TRUE(page.ok());
   ASSERT_EQ(page->size(), 2u);
-  EXPECT_EQ((*page)[0].mesh_id(), "m-1");
+  EXPECT_EQ((*page)[0].mesh_id, "m-1");
   EXPECT_EQ(store_->Stats().meshes, 3);
 
   EXPECT_TRUE(store_->Delete("m-1").ok());
@@ -104,7 +104,7 @@ TEST(SqliteStoreTest, SurvivesReopen) {
   ASSERT_TRUE(s.ok());
   auto got = (*s)->Get("m-x");
   ASSERT_TRUE(got.ok());
-  EXPECT_EQ(got->info.revision(), 2);
+  EXPECT_EQ(got->info.revision, 2);
   EXPECT_EQ(got->mesh->positions, Positions(mesh.positions * 2.0));
   std::filesystem::remove_all(dir);
 }

@@ -184,7 +184,7 @@ void AddCurvatureOptions(ArgParser* p, CurvatureArgs* a) {
       .Flag("approximate", &a->approximate,
             "the fit need not pass through the vertex (least squares only)")
       .Double("angle", &f.safeguard_angle_deg, "normal-angle safeguard in degrees")
-      .Int("threads", &f.num_threads, "worker threads; 0 = all cores")
+      .Int("threads", &a->threads, "worker threads; 0 = all cores")
       .String("output", &a->output, ".vtp, .npy, .tsv or .txt (default: TSV on stdout)", "FILE")
       .Flag("verbose", &a->verbose, "print timings to stderr");
 }

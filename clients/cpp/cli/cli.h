@@ -88,6 +88,7 @@ struct CurvatureArgs {
   bool approximate = false;  ///< --approximate: fit need not pass through the vertex
   std::string output;        ///< .vtp, .npy, .tsv / .txt; empty = TSV on stdout
   bool verbose = false;
+  int threads = 0;           ///< --threads; 0 = all cores
 };
 
 /// Registers the curvature options on `parser`, writing into `args`.

@@ -50,7 +50,7 @@ absl::Status RunCurvature(const std::vector<std::string>& argv) {
                                      mesh.NumVertices(), mesh.NumFaces(), read_timer.Seconds()));
 
   Stopwatch fit_timer;
-  GF_ASSIGN_OR_RETURN(const Differentials d, ComputeDifferentials(mesh, a.fit));
+  GF_ASSIGN_OR_RETURN(const Differentials d, ComputeDifferentials(mesh, a.fit, kAllQuantities, RunContext(nullptr, a.threads)));
   Verbose(a.verbose, absl::StrFormat("fit + quantities (degree %d, %s): %.3f s", a.fit.degree,
                                      FitMethodName(a.fit.method), fit_timer.Seconds()));
 

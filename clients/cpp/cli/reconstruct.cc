@@ -22,7 +22,7 @@ namespace {
 // Options every reconstruction command shares.
 struct SurfaceArgs {
   std::string mesh, method = "walf", output, feature_edges, server;
-  int degree = 3, threads = 0;
+  int degree = DefaultReconstructionFit().degree, threads = 0;
   double feature_angle = 0;
   bool no_safeguard = false, verbose = false;
 };
@@ -118,7 +118,6 @@ absl::Status Load(const SurfaceArgs& a, bool stencils, Loaded* out) {
   FitOptions o;
   o.degree = a.degree;
   o.oscillation_safeguard = !a.no_safeguard;
-  o.num_threads = a.threads;
   if (absl::Status s = ValidateFitOptions(o); !s.ok()) return UsageError(s.message());
   Stopwatch t;
   GF_ASSIGN_OR_RETURN(out->mesh, ReadMesh(a.mesh));
@@ -136,14 +135,14 @@ absl::Status Load(const SurfaceArgs& a, bool stencils, Loaded* out) {
     GF_ASSIGN_OR_RETURN(Features f, DetectFeatures(out->mesh, out->topo, fo));
     auto features = std::make_shared<const Features>(std::move(f));
     GF_ASSIGN_OR_RETURN(out->split_topo, BuildTopology(features->split));
-    GF_ASSIGN_OR_RETURN(out->fits, FitSurface(features->split, out->split_topo, o, nullptr, FitRequest{.stencils = stencils}));
+    GF_ASSIGN_OR_RETURN(out->fits, FitSurface(features->split, out->split_topo, o, nullptr, FitRequest{.stencils = stencils}, RunContext(nullptr, a.threads)));
     out->features = features;
-    out->surface = std::make_unique<FeatureSurface>(out->mesh, features, MakeSurface(method, features->split, out->fits), a.degree);
+    out->surface = std::make_unique<FeatureSurface>(out->mesh, features, MakeSurface(method, features->split, out->fits, a.threads), a.degree);
     if (a.verbose)
       std::fprintf(stderr, "geomfit: %zu feature edges in %zu ridge curves\n", features->edges.size(), features->curves.size());
   } else {
-    GF_ASSIGN_OR_RETURN(out->fits, FitSurface(out->mesh, out->topo, o, nullptr, FitRequest{.stencils = stencils}));
-    out->surface = MakeSurface(method, out->mesh, out->fits);
+    GF_ASSIGN_OR_RETURN(out->fits, FitSurface(out->mesh, out->topo, o, nullptr, FitRequest{.stencils = stencils}, RunContext(nullptr, a.threads)));
+    out->surface = MakeSurface(method, out->mesh, out->fits, a.threads);
   }
   if (a.verbose)
     std::fprintf(stderr, "geomfit: read and fitted %s (%d vertices, degree %d) in %.3f s\n", a.mesh.c_str(),
@@ -203,7 +202,7 @@ absl::Status RunProject(const std::vector<std::string>& argv) {
     Loaded l;
     GF_RETURN_IF_ERROR(Load(a, false, &l));
     GF_ASSIGN_OR_RETURN(const RowMajorMatrixXd xyz, ReadTable(points, 3));
-    GF_RETURN_IF_ERROR(ProjectPoints(*l.surface, l.topo, Positions(xyz), &out, a.threads));
+    GF_RETURN_IF_ERROR(ProjectPoints(*l.surface, l.topo, Positions(xyz), &out, RunContext(nullptr, a.threads)));
   } else {
     Loaded l;
     GF_RETURN_IF_ERROR(Load(a, false, &l));
@@ -215,7 +214,7 @@ absl::Status RunProject(const std::vector<std::string>& argv) {
       fp[i] = {static_cast<int32_t>(fxe(i, 0)), fxe(i, 1), fxe(i, 2)};
     }
     std::vector<SurfacePoint> sp;
-    GF_RETURN_IF_ERROR(EvaluatePoints(*l.surface, fp, &sp, a.threads));
+    GF_RETURN_IF_ERROR(EvaluatePoints(*l.surface, fp, &sp, RunContext(nullptr, a.threads)));
     out.resize(sp.size());
     for (size_t i = 0; i < sp.size(); ++i) out[i] = {fp[i], sp[i], 0.0};
   }
@@ -258,7 +257,7 @@ absl::Status RunRefine(const std::vector<std::string>& argv) {
   }
   Loaded l;
   GF_RETURN_IF_ERROR(Load(a, false, &l));
-  GF_ASSIGN_OR_RETURN(const Mesh refined, RefineMesh(*l.surface, l.topo, factor, a.threads));
+  GF_ASSIGN_OR_RETURN(const Mesh refined, RefineMesh(*l.surface, l.topo, factor, RunContext(nullptr, a.threads)));
   return WriteMesh(refined, a.output);
 }
 
@@ -289,9 +288,9 @@ absl::Status RunNodes(const std::vector<std::string>& argv) {
   } else {
     Loaded l;
     GF_RETURN_IF_ERROR(Load(a, false, &l));
-    GF_ASSIGN_OR_RETURN(ho, MakeHighOrderMesh(*l.surface, l.topo, order, a.threads));
+    GF_ASSIGN_OR_RETURN(ho, MakeHighOrderMesh(*l.surface, l.topo, order, RunContext(nullptr, a.threads)));
     // For viewing: each element split along its nodes (the same lattice) as PREFIX.vtp.
-    GF_ASSIGN_OR_RETURN(const Mesh split, RefineMesh(*l.surface, l.topo, order, a.threads));
+    GF_ASSIGN_OR_RETURN(const Mesh split, RefineMesh(*l.surface, l.topo, order, RunContext(nullptr, a.threads)));
     GF_RETURN_IF_ERROR(WriteVtp(a.output + ".vtp", split, {}));
   }
   std::string nodes = "x\ty\tz\n", elements;
@@ -345,7 +344,7 @@ absl::Status RunIntegrate(const std::vector<std::string>& argv) {
   } else {
     Loaded l;
     GF_RETURN_IF_ERROR(Load(a, !scalar.empty() || !vector.empty(), &l));
-    GF_ASSIGN_OR_RETURN(r, Integrate(*l.surface, in, a.threads));
+    GF_ASSIGN_OR_RETURN(r, Integrate(*l.surface, in, RunContext(nullptr, a.threads)));
   }
   std::string text = absl::StrFormat("area\t%.17g\nvolume\t%.17g\n", r.area, r.volume);
   if (!scalar.empty()) absl::StrAppendFormat(&text, "scalar\t%.17g\n", r.scalars[0]);

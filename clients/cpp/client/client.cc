@@ -7,6 +7,7 @@
 #include <grpcpp/impl/codegen/client_unary_call.h>
 
 #include "absl/strings/str_cat.h"
+#include "core/mesh/content_hash.h"
 #include "core/util/status_macros.h"
 #include "geomfit/v1/geomfit.grpc.pb.h"
 #include "proto/wire.h"
@@ -116,7 +117,7 @@ struct Client::Impl {
     const std::vector<v1::UploadMeshRequest> chunks = wire::UploadChunks(mesh, header, options.chunk_rows);
     // The id the server will give this content: the upload reaches the replica that
     // every later call on the mesh is routed to.
-    const std::string id = wire::MeshIdOf(wire::MeshContentHash(mesh, header));
+    const std::string id = MeshIdOf(MeshContentHash(mesh, name, labels));
     v1::MeshInfo info;
     GF_RETURN_IF_ERROR(Call([&](grpc::ClientContext& ctx) {
       auto writer = stub->UploadMesh(&ctx, &info);

@@ -158,8 +158,8 @@ def _positions_array(positions) -> np.ndarray:
 
 
 # ---------------------------------------------------------------- mesh ids
-# The server names an upload by a hash of its content (proto/content_hash.cc,
-# wire::MeshContentHash); the client computes the same id before uploading, so the
+# The server names an upload by a hash of its content (core/mesh/content_hash.cc,
+# MeshContentHash); the client computes the same id before uploading, so the
 # upload carries the `x-mesh-id` routing key that every later call on the mesh carries.
 _M64 = (1 << 64) - 1
 MESH_ID_METADATA = "x-mesh-id"
@@ -174,7 +174,7 @@ def _mix(x: int) -> int:  # splitmix64 finalizer
 
 
 class _ContentHash:
-    """proto/content_hash.cc in Python (bit-exact)."""
+    """core/mesh/content_hash.cc in Python (bit-exact)."""
 
     def __init__(self):
         self.a, self.b, self.length = 0x9E3779B97F4A7C15, 0xC2B2AE3D27D4EB4F, 0
@@ -568,16 +568,19 @@ class Client:
 
     # ------------------------------------------------------------------ chapter 4
     @staticmethod
-    def _surface(surface: str, degree: int, safeguard: bool, feature_angle: float) -> "pb.ReconstructionOptions":
+    def _surface(surface: str, degree: int, safeguard: Optional[bool], feature_angle: float) -> "pb.ReconstructionOptions":
+        """Reconstruction options; degree 0 and safeguard None take the server's defaults
+        (the core ReconstructionOptions: degree 3, oscillation safeguard on)."""
         if surface.lower() not in _SURFACES:
             raise ValueError("surface must be one of %s, got %r" % (sorted(_SURFACES), surface))
-        return pb.ReconstructionOptions(
-            fit=pb.FitOptions(degree=degree, oscillation_safeguard=safeguard),
-            method=_SURFACES[surface.lower()], feature_angle_deg=feature_angle)
+        fit = pb.FitOptions(degree=degree)
+        if safeguard is not None:
+            fit.oscillation_safeguard = safeguard
+        return pb.ReconstructionOptions(fit=fit, method=_SURFACES[surface.lower()], feature_angle_deg=feature_angle)
 
     def project(self, mesh_id: str, points: Optional[np.ndarray] = None, faces: Optional[np.ndarray] = None,
-                natural: Optional[np.ndarray] = None, surface: str = "walf", degree: int = 3,
-                safeguard: bool = True, feature_angle: float = 0.0) -> dict:
+                natural: Optional[np.ndarray] = None, surface: str = "walf", degree: int = 0,
+                safeguard: Optional[bool] = None, feature_angle: float = 0.0) -> dict:
         """Points on the high-order surface: projections of xyz `points` (P x 3), or face
         points given by `faces` (P) and natural coordinates `natural` (P x 2). Returns a
         dict of arrays: positions, normals (P x 3), faces (P), natural (P x 2), distances (P)."""
@@ -597,8 +600,8 @@ class Client:
             return out
         return self._call(run)
 
-    def high_order_nodes(self, mesh_id: str, order: int = 2, surface: str = "walf", degree: int = 3,
-                         safeguard: bool = True, feature_angle: float = 0.0) -> Tuple[np.ndarray, List[np.ndarray]]:
+    def high_order_nodes(self, mesh_id: str, order: int = 2, surface: str = "walf", degree: int = 0,
+                         safeguard: Optional[bool] = None, feature_angle: float = 0.0) -> Tuple[np.ndarray, List[np.ndarray]]:
         """Quadratic or cubic element nodes on the surface: (nodes N x 3, a list with each
         face's node ids in VTK / gmsh Lagrange order)."""
         r = self._call(lambda: self._stub.HighOrderNodes(pb.HighOrderNodesRequest(
@@ -607,8 +610,8 @@ class Client:
         offsets, elements = _decode(r.offsets, "<i4"), _decode(r.elements, "<i4")
         return _decode(r.nodes, "<f8"), [elements[a:b] for a, b in zip(offsets[:-1], offsets[1:])]
 
-    def refine(self, mesh_id: str, factor: int = 2, surface: str = "walf", degree: int = 3,
-               safeguard: bool = True, feature_angle: float = 0.0, name: str = "") -> "pb.MeshInfo":
+    def refine(self, mesh_id: str, factor: int = 2, surface: str = "walf", degree: int = 0,
+               safeguard: Optional[bool] = None, feature_angle: float = 0.0, name: str = "") -> "pb.MeshInfo":
         """Uniform refinement onto the surface, stored by the server as a new mesh."""
         return self._call(lambda: self._stub.RefineMesh(pb.RefineMeshRequest(
             mesh_id=mesh_id, factor=factor, name=name,
@@ -616,8 +619,8 @@ class Client:
             metadata=_route(mesh_id)))
 
     def integrate(self, mesh_id: str, scalars: Optional[np.ndarray] = None, vectors: Optional[np.ndarray] = None,
-                  surface: str = "walf", degree: int = 3, quadrature_degree: int = 0,
-                  safeguard: bool = True) -> "pb.IntegrateResponse":
+                  surface: str = "walf", degree: int = 0, quadrature_degree: int = 0,
+                  safeguard: Optional[bool] = None) -> "pb.IntegrateResponse":
         """Area, enclosed volume, integrals of nodal scalar fields (V or V x s) and the flux
         of a nodal vector field (V x 3) over the reconstructed surface."""
         request = pb.IntegrateRequest(mesh_id=mesh_id, quadrature_degree=quadrature_degree,

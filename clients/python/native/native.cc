@@ -16,7 +16,7 @@
 #include <pybind11/stl.h>
 
 #include "clients/cpp/client/client.h"
-#include "proto/wire.h"
+#include "core/mesh/content_hash.h"
 
 namespace py = pybind11;
 using namespace pybind11::literals;
@@ -131,8 +131,8 @@ class NativeClient {
   std::unique_ptr<Client> client_;
 };
 
-/// The mesh id the server gives an upload (wire::MeshContentHash): the routing key.
-std::string MeshIdOf(const py::array_t<double, py::array::c_style | py::array::forcecast>& positions,
+/// The mesh id the server gives an upload (MeshContentHash): the routing key.
+std::string UploadMeshId(const py::array_t<double, py::array::c_style | py::array::forcecast>& positions,
                      const py::array_t<int32_t, py::array::c_style | py::array::forcecast>& faces,
                      const std::string& name, const std::map<std::string, std::string>& labels) {
   if (positions.ndim() != 2 || positions.shape(1) != 3) throw py::value_error("positions must be #V x 3");
@@ -144,10 +144,7 @@ std::string MeshIdOf(const py::array_t<double, py::array::c_style | py::array::f
   const auto in = faces.unchecked<2>();
   for (py::ssize_t f = 0; f < in.shape(0); ++f)
     for (py::ssize_t c = 0; c < in.shape(1); ++c) mesh.faces(f, c) = in(f, c);
-  v1::MeshHeader header;
-  header.set_name(name);
-  header.mutable_labels()->insert(labels.begin(), labels.end());
-  return wire::MeshIdOf(wire::MeshContentHash(mesh, header));
+  return MeshIdOf(MeshContentHash(mesh, name, labels));
 }
 
 }  // namespace
@@ -173,6 +170,6 @@ PYBIND11_MODULE(_native, m) {
       .def("compute", &NativeClient::Compute, "request"_a,
            "ComputeDifferentials of a serialized ComputeDifferentialsRequest: (serialized "
            "FitSummary, dict of the requested arrays, dict of diagnostics or None).");
-  m.def("mesh_id_of", &geomfit::MeshIdOf, "positions"_a, "faces"_a, "name"_a, "labels"_a,
+  m.def("mesh_id_of", &geomfit::UploadMeshId, "positions"_a, "faces"_a, "name"_a, "labels"_a,
         "The mesh_id the server gives this upload (content, name, labels).");
 }

@@ -11,22 +11,17 @@
 
 #include "absl/status/statusor.h"
 #include "core/util/cancel.h"
+#include "server/workspace/keys.h"
 
 namespace geomfit::server {
-
-/// Cache tiers of DESIGN.md, in eviction order from last to first: fittings are
-/// evicted before geometry, geometry before topology.
-enum class Tier { kTopology = 0, kGeometry = 1, kFitting = 2 };
-inline constexpr int kNumTiers = 3;
-const char* TierName(Tier tier);
 
 struct TierStats {
   int64_t entries = 0, bytes = 0, hits = 0, misses = 0, evictions = 0;
 };
 
 /// A byte-bounded LRU cache of immutable values with single-flight computation:
-/// concurrent requests for a missing key wait for one computation. Keys are
-/// "<mesh_id>/..." so one mesh's entries can be dropped together. Thread-safe.
+/// concurrent requests for a missing key wait for one computation. Keys are typed
+/// (keys.h); a key's tier follows from its kind. Thread-safe.
 class Cache {
  public:
   using Value = std::shared_ptr<const void>;
@@ -43,16 +38,16 @@ class Cache {
   /// fail its waiters (one of them computes instead). `hit` (optional) reports
   /// whether the value was already cached. A value larger than the whole budget is
   /// returned but not kept.
-  absl::StatusOr<Value> GetOrCompute(Tier tier, const std::string& key, const ComputeFn& compute,
+  absl::StatusOr<Value> GetOrCompute(const CacheKey& key, const ComputeFn& compute,
                                      const CancellationToken* cancel = nullptr, bool* hit = nullptr);
 
   template <typename T>
   absl::StatusOr<std::shared_ptr<const T>> Get(
-      Tier tier, const std::string& key,
+      const CacheKey& key,
       const std::function<absl::StatusOr<std::pair<std::shared_ptr<const T>, int64_t>>()>& compute,
       const CancellationToken* cancel = nullptr, bool* hit = nullptr) {
     auto r = GetOrCompute(
-        tier, key,
+        key,
         [&]() -> absl::StatusOr<Computed> {
           auto v = compute();
           if (!v.ok()) return v.status();
@@ -64,10 +59,8 @@ class Cache {
   }
 
   /// Inserts (or replaces) a value computed elsewhere.
-  void Put(Tier tier, const std::string& key, Value value, int64_t bytes);
-  /// Drops every entry whose key starts with `prefix`.
-  void ErasePrefix(const std::string& prefix);
-  /// Drops the entries of mesh `id`'s revisions below `revision` ("<id>/r<N>/...") and
+  void Put(const CacheKey& key, Value value, int64_t bytes);
+  /// Drops the entries of mesh `id`'s revisions below `revision` and
   /// keeps them out from now on: a computation that finishes after its revision was
   /// replaced returns its value to its callers but does not cache it.
   void RetireRevisionsBelow(const std::string& id, int64_t revision);
@@ -82,26 +75,28 @@ class Cache {
   struct Entry {
     Value value;
     int64_t bytes = 0;
-    Tier tier = Tier::kFitting;
-    std::list<std::string>::iterator lru;  ///< position in lru_[tier] (front = newest)
+    std::list<CacheKey>::iterator lru;  ///< position in lru_[tier] (front = newest)
   };
   struct Flight {
     bool done = false;
     absl::StatusOr<Value> result;
   };
 
-  void InsertLocked(Tier tier, const std::string& key, Value value, int64_t bytes);
+  using Entries = std::map<CacheKey, Entry>;
+  void InsertLocked(const CacheKey& key, Value value, int64_t bytes);
   /// Whether `key` names a revision below its mesh's retirement floor.
-  bool RetiredLocked(const std::string& key) const;
-  void EraseLocked(std::map<std::string, Entry>::iterator it);
-  void EvictLocked(const std::string& keep);
+  bool RetiredLocked(const CacheKey& key) const;
+  void EraseLocked(Entries::iterator it);
+  void EvictLocked(const CacheKey& keep);
+  /// The first entry of mesh `id`.
+  Entries::iterator FirstOfLocked(const std::string& id);
 
   const int64_t budget_;
   mutable std::mutex mu_;
   std::condition_variable flight_done_;
-  std::map<std::string, Entry> entries_;
-  std::map<std::string, std::shared_ptr<Flight>> flights_;
-  std::list<std::string> lru_[kNumTiers];
+  Entries entries_;
+  std::map<CacheKey, std::shared_ptr<Flight>> flights_;
+  std::list<CacheKey> lru_[kNumTiers];
   std::map<std::string, int64_t> floors_;  ///< mesh id -> lowest live revision
   TierStats stats_[kNumTiers];
   int64_t bytes_ = 0;

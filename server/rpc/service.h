@@ -8,7 +8,7 @@
 
 #include "absl/status/status.h"
 #include "geomfit/v1/geomfit.grpc.pb.h"
-#include "server/handlers.h"
+#include "server/handlers/handlers.h"
 #include "server/request_stats.h"
 #include "server/thread_pool.h"
 
@@ -82,11 +82,11 @@ class Service final : public v1::GeomFit::CallbackService {
                                   Response* response, std::function<absl::StatusOr<Response>()> work,
                                   std::function<void(const Response&)> after = nullptr);
   /// After an update is stored, before it is acknowledged: registers the next step's
-  /// prefetch (Handlers::PlanPrefetch) in `next`.
+  /// prefetch (Workspace::PlanPrefetch) in `next`.
   absl::StatusOr<v1::MeshInfo> Updated(absl::StatusOr<v1::MeshInfo> info,
-                                       std::unique_ptr<Handlers::PendingPrefetch>* next);
+                                       std::unique_ptr<Workspace::PendingPrefetch>* next);
   /// Once the update is acknowledged: runs the prefetch `next` holds, if any.
-  void RunPrefetch(std::unique_ptr<Handlers::PendingPrefetch>* next);
+  void RunPrefetch(std::unique_ptr<Workspace::PendingPrefetch>* next);
 
   Handlers* handlers_;
   ThreadPool* compute_;

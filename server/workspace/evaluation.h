@@ -16,6 +16,7 @@
 #include "core/fitting/fit.h"
 #include "core/quantities/differentials.h"
 #include "core/util/cancel.h"
+#include "server/workspace/keys.h"
 
 namespace geomfit::server {
 
@@ -23,7 +24,7 @@ namespace geomfit::server {
 struct Fitted {
   std::shared_ptr<const SurfaceFits> fits;
   int64_t revision = 0;  ///< resolved (never 0)
-  std::string key;       ///< fitting-tier key: derived entries extend it
+  CacheKey key;          ///< fitting-tier key: derived entries extend it
   bool hit = false;
   double ms = 0;
 };
@@ -40,9 +41,9 @@ class Evaluation {
  public:
   /// `key`: the differentials' cache key; `mesh`: the revision evaluated (held, so an
   /// update cannot take it away meanwhile).
-  Evaluation(std::string key, std::shared_ptr<const Mesh> mesh, uint32_t mask);
+  Evaluation(CacheKey key, std::shared_ptr<const Mesh> mesh, uint32_t mask);
 
-  const std::string& key() const { return key_; }
+  const CacheKey& key() const { return key_; }
   const std::shared_ptr<const Mesh>& mesh() const { return mesh_; }
   int64_t num_vertices() const { return num_vertices_; }
   uint32_t mask() const { return mask_; }
@@ -80,7 +81,7 @@ class Evaluation {
   const Differentials* values() const;
 
  private:
-  const std::string key_;
+  const CacheKey key_;
   const std::shared_ptr<const Mesh> mesh_;
   const int64_t num_vertices_;
   const uint32_t mask_;

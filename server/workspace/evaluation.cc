@@ -1,4 +1,4 @@
-#include "server/evaluation.h"
+#include "server/workspace/evaluation.h"
 
 #include <algorithm>
 #include <chrono>
@@ -6,7 +6,7 @@
 
 namespace geomfit::server {
 
-Evaluation::Evaluation(std::string key, std::shared_ptr<const Mesh> mesh, uint32_t mask)
+Evaluation::Evaluation(CacheKey key, std::shared_ptr<const Mesh> mesh, uint32_t mask)
     : key_(std::move(key)), mesh_(std::move(mesh)), num_vertices_(mesh_->NumVertices()), mask_(mask) {}
 
 const std::shared_ptr<Differentials>& Evaluation::filling() {

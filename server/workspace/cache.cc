@@ -1,23 +1,14 @@
-#include "server/cache.h"
+#include "server/workspace/cache.h"
 
 #include <algorithm>
 #include <chrono>
+#include <limits>
 
 namespace geomfit::server {
 
-const char* TierName(Tier tier) {
-  switch (tier) {
-    case Tier::kTopology: return "topology";
-    case Tier::kGeometry: return "geometry";
-    case Tier::kFitting: return "fitting";
-  }
-  return "?";
-}
-
-absl::StatusOr<Cache::Value> Cache::GetOrCompute(Tier tier, const std::string& key,
-                                                 const ComputeFn& compute,
+absl::StatusOr<Cache::Value> Cache::GetOrCompute(const CacheKey& key, const ComputeFn& compute,
                                                  const CancellationToken* cancel, bool* hit) {
-  const int t = static_cast<int>(tier);
+  const int t = static_cast<int>(key.tier());
   std::unique_lock<std::mutex> lock(mu_);
   while (true) {
     if (auto it = entries_.find(key); it != entries_.end()) {
@@ -54,7 +45,7 @@ absl::StatusOr<Cache::Value> Cache::GetOrCompute(Tier tier, const std::string& k
   flight->done = true;
   if (computed.ok()) {
     flight->result = computed->value;
-    if (computed->bytes <= budget_) InsertLocked(tier, key, computed->value, computed->bytes);
+    if (computed->bytes <= budget_) InsertLocked(key, computed->value, computed->bytes);
   } else {
     flight->result = computed.status();
   }
@@ -62,20 +53,10 @@ absl::StatusOr<Cache::Value> Cache::GetOrCompute(Tier tier, const std::string& k
   return flight->result;
 }
 
-void Cache::Put(Tier tier, const std::string& key, Value value, int64_t bytes) {
+void Cache::Put(const CacheKey& key, Value value, int64_t bytes) {
   std::lock_guard<std::mutex> lock(mu_);
   if (auto it = entries_.find(key); it != entries_.end()) EraseLocked(it);
-  if (bytes <= budget_) InsertLocked(tier, key, std::move(value), bytes);
-}
-
-void Cache::ErasePrefix(const std::string& prefix) {
-  std::lock_guard<std::mutex> lock(mu_);
-  auto it = entries_.lower_bound(prefix);
-  while (it != entries_.end() && it->first.compare(0, prefix.size(), prefix) == 0) {
-    auto next = std::next(it);
-    EraseLocked(it);
-    it = next;
-  }
+  if (bytes <= budget_) InsertLocked(key, std::move(value), bytes);
 }
 
 TierStats Cache::Stats(Tier tier) const {
@@ -88,34 +69,24 @@ int64_t Cache::bytes() const {
   return bytes_;
 }
 
-namespace {
-
-/// "<id>/r<N>/..." -> (id, N); N = -1 for keys of no revision ("<id>/topo", ...).
-std::pair<std::string, int64_t> MeshRevision(const std::string& key) {
-  const size_t slash = key.find('/');
-  if (slash == std::string::npos || slash + 2 >= key.size() || key[slash + 1] != 'r') return {key, -1};
-  int64_t n = 0;
-  size_t i = slash + 2;
-  for (; i < key.size() && key[i] >= '0' && key[i] <= '9'; ++i) n = 10 * n + (key[i] - '0');
-  if (i == slash + 2 || i == key.size() || key[i] != '/') return {key, -1};
-  return {key.substr(0, slash), n};
+Cache::Entries::iterator Cache::FirstOfLocked(const std::string& id) {
+  CacheKey first;
+  first.mesh_id = id;
+  first.revision = std::numeric_limits<int64_t>::min();
+  return entries_.lower_bound(first);
 }
 
-}  // namespace
-
-bool Cache::RetiredLocked(const std::string& key) const {
-  const auto [id, revision] = MeshRevision(key);
-  if (revision < 0) return false;
-  const auto it = floors_.find(id);
-  return it != floors_.end() && revision < it->second;
+bool Cache::RetiredLocked(const CacheKey& key) const {
+  if (key.revision <= 0) return false;  // every revision's entries
+  const auto it = floors_.find(key.mesh_id);
+  return it != floors_.end() && key.revision < it->second;
 }
 
 void Cache::RetireRevisionsBelow(const std::string& id, int64_t revision) {
   std::lock_guard<std::mutex> lock(mu_);
   int64_t& floor = floors_[id];
   floor = std::max(floor, revision);
-  const std::string prefix = id + "/r";
-  for (auto it = entries_.lower_bound(prefix); it != entries_.end() && it->first.compare(0, prefix.size(), prefix) == 0;) {
+  for (auto it = FirstOfLocked(id); it != entries_.end() && it->first.mesh_id == id;) {
     auto next = std::next(it);
     if (RetiredLocked(it->first)) EraseLocked(it);
     it = next;
@@ -123,24 +94,24 @@ void Cache::RetireRevisionsBelow(const std::string& id, int64_t revision) {
 }
 
 void Cache::EraseMesh(const std::string& id) {
-  ErasePrefix(id + "/");
   std::lock_guard<std::mutex> lock(mu_);
+  for (auto it = FirstOfLocked(id); it != entries_.end() && it->first.mesh_id == id;) EraseLocked(it++);
   floors_.erase(id);
 }
 
-void Cache::InsertLocked(Tier tier, const std::string& key, Value value, int64_t bytes) {
+void Cache::InsertLocked(const CacheKey& key, Value value, int64_t bytes) {
   if (RetiredLocked(key)) return;
-  const int t = static_cast<int>(tier);
+  const int t = static_cast<int>(key.tier());
   lru_[t].push_front(key);
-  entries_[key] = Entry{std::move(value), bytes, tier, lru_[t].begin()};
+  entries_[key] = Entry{std::move(value), bytes, lru_[t].begin()};
   bytes_ += bytes;
   stats_[t].bytes += bytes;
   ++stats_[t].entries;
   EvictLocked(key);
 }
 
-void Cache::EraseLocked(std::map<std::string, Entry>::iterator it) {
-  const int t = static_cast<int>(it->second.tier);
+void Cache::EraseLocked(Entries::iterator it) {
+  const int t = static_cast<int>(it->first.tier());
   lru_[t].erase(it->second.lru);
   bytes_ -= it->second.bytes;
   stats_[t].bytes -= it->second.bytes;
@@ -148,7 +119,7 @@ void Cache::EraseLocked(std::map<std::string, Entry>::iterator it) {
   entries_.erase(it);
 }
 
-void Cache::EvictLocked(const std::string& keep) {
+void Cache::EvictLocked(const CacheKey& keep) {
   for (int t = kNumTiers - 1; t >= 0 && bytes_ > budget_; --t) {
     auto victim = lru_[t].end();
     while (bytes_ > budget_ && victim != lru_[t].begin()) {

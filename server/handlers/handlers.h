@@ -1,0 +1,114 @@
+#pragma once
+// Proto <-> engine translation: proto in -> absl::StatusOr<proto> out, one file per API
+// area (meshes.cc, differentials.cc, reconstruction.cc, integration.cc, info.cc). The
+// engine is the Workspace; no gRPC types here, so every handler is testable without a
+// network; rpc/service.cc adapts them to the callback API.
+#include <chrono>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <vector>
+
+#include "absl/status/statusor.h"
+#include "core/util/cancel.h"
+#include "geomfit/v1/geomfit.pb.h"
+#include "server/assembly.h"
+#include "server/request_stats.h"
+#include "server/workspace/workspace.h"
+
+namespace geomfit::server {
+
+struct HandlerOptions {
+  int64_t max_vertices = 20'000'000;
+  int64_t max_message_bytes = int64_t{64} << 20;
+  int64_t chunk_rows = 0;            ///< default rows per streamed chunk; 0 = by chunk_bytes
+  int64_t chunk_bytes = 128 << 10;   ///< target chunk size when no row count is set
+  int workers = 2;             ///< reported by GetServerInfo
+};
+
+/// Receives a server-streaming handler's chunks as soon as each is ready (from any
+/// thread; calls are serialized).
+template <typename Response>
+class ChunkSink {
+ public:
+  virtual ~ChunkSink() = default;
+  /// `last`: no chunk follows; the handler then returns OK.
+  virtual void Push(Response chunk, bool last) = 0;
+};
+
+template <typename Response>
+struct ChunkCollector final : ChunkSink<Response> {
+  std::vector<Response> chunks;
+  void Push(Response chunk, bool) override { chunks.push_back(std::move(chunk)); }
+};
+
+/// INVALID_ARGUMENT for an empty mesh id.
+absl::Status RequireId(const std::string& id);
+
+class Handlers {
+ public:
+  Handlers(Workspace* workspace, const RequestStats* stats, HandlerOptions options);
+
+  // Meshes (meshes.cc).
+  absl::StatusOr<v1::MeshInfo> UploadMesh(const UploadAssembler& upload);
+  absl::StatusOr<v1::MeshInfo> UpdatePositions(const PositionsAssembler& update);
+  /// UpdatePositions in one message, decoded straight into the positions.
+  absl::StatusOr<v1::MeshInfo> SetPositions(const v1::SetPositionsRequest& request);
+  absl::StatusOr<v1::MeshInfo> GetMesh(const v1::GetMeshRequest& request);
+  absl::StatusOr<std::vector<v1::DownloadMeshResponse>> DownloadMesh(const v1::DownloadMeshRequest& request);
+  absl::StatusOr<v1::ListMeshesResponse> ListMeshes(const v1::ListMeshesRequest& request);
+  absl::StatusOr<v1::DeleteMeshResponse> DeleteMesh(const v1::DeleteMeshRequest& request);
+
+  // Differentials (differentials.cc).
+  /// Fits (or reuses cached fits) and evaluates, polling `cancel`. Chunks go to `sink`
+  /// as soon as their rows are evaluated: a fresh fit streams while it runs, and a
+  /// request that finds the same computation running (another request's, or a
+  /// prefetch) streams from it. The first chunk's summary names the mesh, revision and
+  /// vertex count; the last chunk's is complete. After an error some chunks may be out.
+  absl::Status ComputeDifferentials(const v1::ComputeDifferentialsRequest& request, const CancellationToken& cancel,
+                                    ChunkSink<v1::ComputeDifferentialsResponse>* sink);
+  /// The same, collected.
+  absl::StatusOr<std::vector<v1::ComputeDifferentialsResponse>> ComputeDifferentials(
+      const v1::ComputeDifferentialsRequest& request, const CancellationToken& cancel);
+  /// Workspace::PlanPrefetch (time stepping; see there).
+  std::unique_ptr<Workspace::PendingPrefetch> PlanPrefetch(const std::string& id, int64_t revision) {
+    return ws_->PlanPrefetch(id, revision);
+  }
+  /// PlanPrefetch, run at once.
+  void Prefetch(const std::string& id, int64_t revision, const CancellationToken& cancel);
+
+  // Chapter 4 (reconstruction.cc, integration.cc).
+  absl::StatusOr<std::vector<v1::ProjectPointsResponse>> ProjectPoints(const v1::ProjectPointsRequest& request,
+                                                                       const CancellationToken& cancel);
+  absl::StatusOr<v1::HighOrderNodesResponse> HighOrderNodes(const v1::HighOrderNodesRequest& request,
+                                                            const CancellationToken& cancel);
+  absl::StatusOr<v1::MeshInfo> RefineMesh(const v1::RefineMeshRequest& request, const CancellationToken& cancel);
+  absl::StatusOr<v1::IntegrateResponse> Integrate(const v1::IntegrateRequest& request,
+                                                  const CancellationToken& cancel);
+
+  // Server (info.cc).
+  v1::ServerInfo GetServerInfo() const;
+  v1::Statistics GetStatistics() const;
+
+  const HandlerOptions& options() const { return options_; }
+  Workspace& workspace() { return *ws_; }
+
+ private:
+  /// The snapshot a request names (revision 0 = latest; negative revisions rejected).
+  absl::StatusOr<Snapshot> Acquire(const std::string& id, int64_t revision);
+  /// A reconstruction request's snapshot and surface.
+  absl::StatusOr<std::unique_ptr<Reconstructed>> Reconstruct(const std::string& id, int64_t revision,
+                                                             const v1::ReconstructionOptions& options,
+                                                             bool stencils, const CancellationToken& cancel);
+  /// Rows per streamed chunk: the request's, else the server's, else as many as fill
+  /// chunk_bytes; never more than half the message limit.
+  int64_t ChunkRows(int64_t requested, int64_t bytes_per_row) const;
+
+  Workspace* ws_;
+  const RequestStats* stats_;
+  const HandlerOptions options_;
+  const std::chrono::steady_clock::time_point started_ = std::chrono::steady_clock::now();
+};
+
+}  // namespace geomfit::server

@@ -1,0 +1,115 @@
+// Mesh RPCs: upload, position updates, metadata, download, list, delete.
+#include <algorithm>
+
+#include "absl/strings/str_cat.h"
+#include "core/util/status_macros.h"
+#include "proto/wire.h"
+#include "server/handlers/handlers.h"
+#include "server/mesh_record.h"
+
+namespace geomfit::server {
+namespace {
+
+MeshMeta MetaOf(const v1::MeshHeader& header) {
+  MeshMeta meta;
+  meta.name = header.name();
+  meta.labels.insert(header.labels().begin(), header.labels().end());
+  return meta;
+}
+
+std::optional<int64_t> ExpectedRevision(const v1::UpdateHeader& header) {
+  if (!header.has_expected_revision()) return std::nullopt;
+  return header.expected_revision();
+}
+
+absl::StatusOr<v1::MeshInfo> Wire(absl::StatusOr<MeshRecord> record) {
+  if (!record.ok()) return record.status();
+  return ToProto(*record);
+}
+
+}  // namespace
+
+absl::Status RequireId(const std::string& id) {
+  if (id.empty()) return absl::InvalidArgumentError("mesh_id: empty");
+  return absl::OkStatus();
+}
+
+Handlers::Handlers(Workspace* workspace, const RequestStats* stats, HandlerOptions options)
+    : ws_(workspace), stats_(stats), options_(options) {}
+
+absl::StatusOr<v1::MeshInfo> Handlers::UploadMesh(const UploadAssembler& upload) {
+  GF_ASSIGN_OR_RETURN(Mesh mesh, upload.Finish());
+  return Wire(ws_->AddMesh(std::move(mesh), MetaOf(upload.header())));
+}
+
+absl::StatusOr<v1::MeshInfo> Handlers::UpdatePositions(const PositionsAssembler& update) {
+  if (!update.has_header()) return absl::InvalidArgumentError("update stream ended without a header");
+  GF_ASSIGN_OR_RETURN(Positions positions, update.Finish());
+  return Wire(ws_->UpdatePositions(update.header().mesh_id(), ExpectedRevision(update.header()), std::move(positions)));
+}
+
+absl::StatusOr<v1::MeshInfo> Handlers::SetPositions(const v1::SetPositionsRequest& request) {
+  const v1::UpdateHeader& header = request.header();
+  if (header.mesh_id().empty()) return absl::InvalidArgumentError("header.mesh_id: empty");
+  if (request.positions().vertex_offset() != 0)
+    return absl::InvalidArgumentError(absl::StrCat("positions.vertex_offset is ", request.positions().vertex_offset(),
+                                                   ", expected 0 (SetPositions carries every vertex)"));
+  GF_ASSIGN_OR_RETURN(const auto view, wire::ViewDoubles(request.positions().positions(), "positions", {3}));
+  if (view.rows > options_.max_vertices)
+    return absl::InvalidArgumentError(absl::StrCat("positions: ", view.rows, " rows exceed --max-vertices (",
+                                                   options_.max_vertices, ")"));
+  Positions positions(view.rows, 3);
+  view.CopyTo(positions.data());  // straight from the message into the new revision
+  return Wire(ws_->UpdatePositions(header.mesh_id(), ExpectedRevision(header), std::move(positions)));
+}
+
+absl::StatusOr<v1::MeshInfo> Handlers::GetMesh(const v1::GetMeshRequest& request) {
+  GF_RETURN_IF_ERROR(RequireId(request.mesh_id()));
+  return Wire(ws_->Info(request.mesh_id()));
+}
+
+absl::StatusOr<std::vector<v1::DownloadMeshResponse>> Handlers::DownloadMesh(
+    const v1::DownloadMeshRequest& request) {
+  GF_RETURN_IF_ERROR(RequireId(request.mesh_id()));
+  if (request.revision() < 0 || request.chunk_rows() < 0) {
+    return absl::InvalidArgumentError("revision and chunk_rows must not be negative");
+  }
+  GF_ASSIGN_OR_RETURN(StoredMesh stored, ws_->Stored(request.mesh_id(), request.revision()));
+  const Mesh& mesh = *stored.mesh;
+  std::vector<v1::DownloadMeshResponse> out(1);
+  *out[0].mutable_info() = ToProto(stored.info);
+  const int64_t rows = ChunkRows(request.chunk_rows(), 24);
+  for (int64_t b = 0; b < mesh.NumVertices(); b += rows) {
+    const int64_t n = std::min<int64_t>(rows, mesh.NumVertices() - b);
+    v1::PositionsChunk* c = out.emplace_back().mutable_positions();
+    c->set_vertex_offset(b);
+    wire::EncodeDoubles(mesh.positions.data() + 3 * b, n, 3, c->mutable_positions());
+  }
+  for (int64_t b = 0; b < mesh.NumFaces(); b += rows) {
+    const int64_t n = std::min<int64_t>(rows, mesh.NumFaces() - b);
+    v1::FacesChunk* c = out.emplace_back().mutable_faces();
+    c->set_face_offset(b);
+    wire::EncodeInts(mesh.faces.data() + 4 * b, n, 4, c->mutable_faces());
+  }
+  return out;
+}
+
+absl::StatusOr<v1::ListMeshesResponse> Handlers::ListMeshes(const v1::ListMeshesRequest& request) {
+  if (request.page_size() < 0 || request.page_size() > 1000) {
+    return absl::InvalidArgumentError(absl::StrCat("page_size: ", request.page_size(), ", expected 0..1000"));
+  }
+  const int page = request.page_size() == 0 ? 100 : request.page_size();
+  GF_ASSIGN_OR_RETURN(std::vector<MeshRecord> meshes, ws_->List(request.page_token(), page + 1));
+  v1::ListMeshesResponse response;
+  for (int i = 0; i < static_cast<int>(meshes.size()) && i < page; ++i) *response.add_meshes() = ToProto(meshes[i]);
+  if (static_cast<int>(meshes.size()) > page) response.set_next_page_token(response.meshes(page - 1).mesh_id());
+  return response;
+}
+
+absl::StatusOr<v1::DeleteMeshResponse> Handlers::DeleteMesh(const v1::DeleteMeshRequest& request) {
+  GF_RETURN_IF_ERROR(RequireId(request.mesh_id()));
+  GF_RETURN_IF_ERROR(ws_->Delete(request.mesh_id()));
+  return v1::DeleteMeshResponse();
+}
+
+}  // namespace geomfit::server
