@@ -22,6 +22,6 @@ if not _os.path.isdir(_os.path.join(_GEN, "v1")):
 __path__.append(_GEN)  # noqa: F821 (package __path__)
 
 from geomfit.client import (  # noqa: E402
-    Client, Differentials, GeomfitError, QUANTITIES, read_mesh_file)
+    Client, Differentials, GeomfitError, MESH_ID_METADATA, QUANTITIES, mesh_id_of, read_mesh_file)
 
-__all__ = ["Client", "Differentials", "GeomfitError", "QUANTITIES", "read_mesh_file"]
+__all__ = ["Client", "Differentials", "GeomfitError", "MESH_ID_METADATA", "QUANTITIES", "mesh_id_of", "read_mesh_file"]
