@@ -19,7 +19,6 @@
 #include <algorithm>
 #include <cstdio>
 #include <cstring>
-#include <random>
 #include <string>
 #include <vector>
 
@@ -30,29 +29,13 @@
 #include "core/mesh/io.h"
 #include "core/mesh/topology.h"
 #include "core/surfaces/analytic.h"
+#include "tests/mesh/make_mesh.h"
 
 namespace {
 
 using namespace geomfit;
 
 constexpr int kTorusN = 168;
-
-// Relabels the vertices by a fixed random permutation (faces keep their order and
-// corners, so the surface and its orientation are the same).
-Mesh Shuffled(const Mesh& m) {
-  const int nv = m.NumVertices();
-  std::vector<int32_t> perm(nv);  // old -> new
-  for (int v = 0; v < nv; ++v) perm[v] = v;
-  std::mt19937_64 rng(12345);
-  std::shuffle(perm.begin(), perm.end(), rng);
-  Mesh s;
-  s.positions.resize(nv, 3);
-  for (int v = 0; v < nv; ++v) s.positions.row(perm[v]) = m.positions.row(v);
-  s.faces = m.faces;
-  for (int f = 0; f < m.NumFaces(); ++f)
-    for (int c = 0; c < m.FaceSize(f); ++c) s.faces(f, c) = perm[m.faces(f, c)];
-  return s;
-}
 
 std::string AsciiPly(const Mesh& m) {
   std::string out = absl::StrFormat(
@@ -83,7 +66,7 @@ struct Fixture {
     GeneratorOptions g;
     g.n = kTorusN;
     v[0].mesh = GenerateTorusMesh(g);
-    v[1].mesh = Shuffled(v[0].mesh);
+    v[1].mesh = testing_util::ShuffleVertices(v[0].mesh, 12345);
     for (int s = 0; s < 2; ++s) {
       Variant& x = v[s];
       x.topo = BuildTopology(x.mesh).value();
