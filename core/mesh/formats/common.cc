@@ -1,11 +1,13 @@
 #include "core/mesh/formats/common.h"
 
+#include <charconv>
+#include <cmath>
 #include <cstring>
+#include <system_error>
 
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
-#include "absl/strings/str_split.h"
 
 namespace geomfit::mesh_io {
 
@@ -100,13 +102,28 @@ bool LineReader::Next(absl::string_view* line) {
   return true;
 }
 
+namespace {
+// The token separators (a line holds no '\n').
+inline bool IsSeparator(char c) {
+  return c == ' ' || c == '\t' || c == '\r' || c == '\f' || c == '\v';
+}
+}  // namespace
+
 bool LineReader::NextTokens(std::vector<absl::string_view>* tokens) {
+  tokens->clear();  // reused: no allocation once it holds the longest line's tokens
   absl::string_view line;
   while (Next(&line)) {
-    *tokens = absl::StrSplit(line, absl::ByAnyChar(" \t\r\f\v"), absl::SkipEmpty());
+    const char* p = line.data();
+    const char* const end = p + line.size();
+    for (;;) {
+      while (p < end && IsSeparator(*p)) ++p;
+      if (p == end) break;
+      const char* const start = p;
+      while (p < end && !IsSeparator(*p)) ++p;
+      tokens->emplace_back(start, static_cast<size_t>(p - start));
+    }
     if (!tokens->empty()) return true;
   }
-  tokens->clear();
   return false;
 }
 
@@ -119,12 +136,34 @@ absl::Status ParseCoordinates(const LineReader& lines, const std::vector<absl::s
   if (tok.size() < first + 3)
     return lines.Error(absl::StrCat("vertex needs 3 coordinates, found ", tok.size() - first));
   for (int c = 0; c < 3; ++c)
-    if (!absl::SimpleAtod(tok[first + c], &p[c]))
+    if (!ParseDouble(tok[first + c], &p[c]))
       return lines.Error(absl::StrCat("'", tok[first + c], "' is not a number"));
   return absl::OkStatus();
 }
 
+// Both parsers below take std::from_chars's answer when it reads the whole token to a
+// finite value (then it is the correctly rounded value Abseil's parser gives too) and
+// leave everything else (a '+' sign, overflow, inf, nan, malformed text) to Abseil,
+// whose rules define what is accepted.
+bool ParseDouble(absl::string_view token, double* value) {
+  const char* const end = token.data() + token.size();
+  double v;
+  const std::from_chars_result r = std::from_chars(token.data(), end, v);
+  if (r.ec == std::errc() && r.ptr == end && std::isfinite(v)) {
+    *value = v;
+    return true;
+  }
+  return absl::SimpleAtod(token, value);
+}
+
 bool ParseInteger(absl::string_view token, int64_t* value) {
+  const char* const end = token.data() + token.size();
+  int64_t v;
+  const std::from_chars_result r = std::from_chars(token.data(), end, v);
+  if (r.ec == std::errc() && r.ptr == end) {
+    *value = v;
+    return true;
+  }
   return absl::SimpleAtoi(token, value);
 }
 

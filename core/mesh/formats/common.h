@@ -105,6 +105,9 @@ class LineReader {
 absl::Status ParseCoordinates(const LineReader& lines, const std::vector<absl::string_view>& tok,
                               size_t first, double p[3]);
 
+/// A number token (absl::SimpleAtod's syntax and values, faster); false if it is not one.
+bool ParseDouble(absl::string_view token, double* value);
+
 /// A decimal integer token; false if it is not one (or overflows int64).
 bool ParseInteger(absl::string_view token, int64_t* value);
 
