@@ -102,26 +102,33 @@ bool LineReader::Next(absl::string_view* line) {
   return true;
 }
 
-namespace {
-// The token separators (a line holds no '\n').
-inline bool IsSeparator(char c) {
-  return c == ' ' || c == '\t' || c == '\r' || c == '\f' || c == '\v';
+LineReader::LineReader(absl::string_view text, absl::string_view source, char comment)
+    : text_(text), source_(source), comment_(comment) {
+  for (const char c : {' ', '\t', '\r', '\f', '\v'}) class_[static_cast<uint8_t>(c)] = kSeparator;
+  class_[static_cast<uint8_t>('\n')] = kLineEnd;
+  if (comment != 0) class_[static_cast<uint8_t>(comment)] = kLineEnd;
 }
-}  // namespace
 
+// Next() and the split of its line, in one pass over the bytes.
 bool LineReader::NextTokens(std::vector<absl::string_view>* tokens) {
   tokens->clear();  // reused: no allocation once it holds the longest line's tokens
-  absl::string_view line;
-  while (Next(&line)) {
-    const char* p = line.data();
-    const char* const end = p + line.size();
+  const char* const begin = text_.data();
+  const char* const end = begin + text_.size();
+  while (pos_ < text_.size()) {
+    ++line_number_;
+    const char* p = begin + pos_;
     for (;;) {
-      while (p < end && IsSeparator(*p)) ++p;
-      if (p == end) break;
+      while (p < end && class_[static_cast<uint8_t>(*p)] == kSeparator) ++p;
+      if (p == end || class_[static_cast<uint8_t>(*p)] == kLineEnd) break;
       const char* const start = p;
-      while (p < end && !IsSeparator(*p)) ++p;
+      while (p < end && class_[static_cast<uint8_t>(*p)] == kToken) ++p;
       tokens->emplace_back(start, static_cast<size_t>(p - start));
     }
+    if (p < end && *p != '\n') {  // a comment: skip to the end of the line
+      p = static_cast<const char*>(std::memchr(p, '\n', end - p));
+      if (p == nullptr) p = end;
+    }
+    pos_ = static_cast<size_t>(p - begin) + 1;
     if (!tokens->empty()) return true;
   }
   return false;

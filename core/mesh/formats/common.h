@@ -79,8 +79,7 @@ float GetFloat(const char* p);
 /// Splits text into lines (LF or CRLF), strips `comment` to end of line, counts lines.
 class LineReader {
  public:
-  LineReader(absl::string_view text, absl::string_view source, char comment)
-      : text_(text), source_(source), comment_(comment) {}
+  LineReader(absl::string_view text, absl::string_view source, char comment);
 
   /// The next line; false at the end of the text.
   bool Next(absl::string_view* line);
@@ -97,6 +96,8 @@ class LineReader {
  private:
   absl::string_view text_, source_;
   char comment_;
+  enum : uint8_t { kToken, kSeparator, kLineEnd };  // byte classes for NextTokens
+  std::array<uint8_t, 256> class_{};
   size_t pos_ = 0;
   int64_t line_number_ = 0;
 };
