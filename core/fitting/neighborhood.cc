@@ -60,52 +60,25 @@ class Spans {
   std::vector<int32_t> data_;
 };
 
-// The points of the stencil being grown, with the half step at which each joined: an
-// open-addressing table stamped per stencil (no clearing between vertices, no
-// allocation once grown), small enough to stay in L1 however the vertices are numbered.
+// The points of the stencil being grown, with the half step at which each joined,
+// stamped per stencil (no clearing between vertices).
 class MarkTable {
  public:
-  MarkTable() { Resize(8); }
-  void Start(uint32_t stamp) {
-    stamp_ = stamp;
-    count_ = 0;
-  }
-  // The level of x, or -1 if x is not in the stencil.
-  int Level(int32_t x) const {
-    const Slot& s = slots_[Find(x)];
-    return s.stamp == stamp_ ? s.level : -1;
-  }
-  // Adds x at `level` unless it is in the stencil already; true if added.
+  explicit MarkTable(int num_vertices) : slots_(num_vertices) {}
+  void Start(uint32_t stamp) { stamp_ = stamp; }
+  int Level(int32_t x) const { return slots_[x].stamp == stamp_ ? slots_[x].level : -1; }
   bool Insert(int32_t x, int level) {
-    Slot& s = slots_[Find(x)];
-    if (s.stamp == stamp_) return false;
-    s = {x, level, stamp_};
-    if (++count_ * 2 > slots_.size()) Resize(bits_ + 1);
+    if (slots_[x].stamp == stamp_) return false;
+    slots_[x] = {stamp_, level};
     return true;
   }
 
  private:
   struct Slot {
-    int32_t key = 0, level = 0;
     uint32_t stamp = 0;
+    int32_t level = 0;
   };
-  size_t Find(int32_t x) const {
-    size_t h = (static_cast<uint32_t>(x) * 2654435761u) >> (32 - bits_);
-    while (slots_[h].stamp == stamp_ && slots_[h].key != x) h = (h + 1) & mask_;
-    return h;
-  }
-  void Resize(int bits) {
-    std::vector<Slot> old;
-    old.swap(slots_);
-    bits_ = bits;
-    mask_ = (size_t{1} << bits) - 1;
-    slots_.assign(size_t{1} << bits, Slot{});
-    for (const Slot& s : old)
-      if (s.stamp == stamp_ && stamp_ != 0) slots_[Find(s.key)] = s;
-  }
   std::vector<Slot> slots_;
-  int bits_ = 0;
-  size_t mask_ = 0, count_ = 0;
   uint32_t stamp_ = 0;
 };
 
@@ -113,7 +86,7 @@ class MarkTable {
 // vertex of its block.
 class RingGrower {
  public:
-  RingGrower(const Topology& t, const Spans& spans) : t_(t), spans_(spans) {}
+  RingGrower(const Topology& t, const Spans& spans) : t_(t), spans_(spans), marks_(t.num_vertices) {}
 
   // Fills `out` with v's stencil; returns the ring reached.
   float Grow(int v, const RingSpec& spec, std::vector<int32_t>& out) {
