@@ -13,7 +13,8 @@
 //
 // `cold_path_bench --dump=FILE` writes every output (topologies, neighbourhoods at
 // degrees 1-6, parsed meshes) to FILE instead of timing: `cmp` of two builds' dumps
-// shows a rewrite changed nothing.
+// shows a rewrite changed nothing. `--write=DIR` writes DIR/torus.obj and
+// DIR/torus_shuffled.obj (for whole runs of `geomfit curvature --local`).
 #include <unistd.h>
 
 #include <algorithm>
@@ -189,6 +190,11 @@ int main(int argc, char** argv) {
     if (std::strncmp(argv[i], "--dump=", 7) == 0) {
       Dump(argv[i] + 7);
       return 0;
+    } else if (std::strncmp(argv[i], "--write=", 8) == 0) {
+      const std::string dir = argv[i] + 8;
+      const bool ok = WriteMesh(F().v[0].mesh, dir + "/torus.obj").ok() &&
+                      WriteMesh(F().v[1].mesh, dir + "/torus_shuffled.obj").ok();
+      return ok ? 0 : 1;
     }
   benchmark::Initialize(&argc, argv);
   if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
