@@ -1,6 +1,7 @@
 #include "core/mesh/topology.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
 #include <numeric>
@@ -11,11 +12,28 @@
 namespace geomfit {
 namespace {
 
+// A half-edge filed under its lower endpoint (the bucket) with the higher one.
 struct HalfEdge {
-  int32_t lo, hi;  // sorted endpoints
+  int32_t hi;
   int32_t face;
   bool forward;  // face traverses lo -> hi
 };
+
+// Sorts one bucket by (hi, face). Half-edges are filed in face order, so a stable sort
+// by hi suffices; buckets hold a vertex's few edges, so insertion sort, unless a
+// vertex has a huge fan.
+void SortBucket(HalfEdge* begin, HalfEdge* end) {
+  if (end - begin > 32) {
+    std::stable_sort(begin, end, [](const HalfEdge& x, const HalfEdge& y) { return x.hi < y.hi; });
+    return;
+  }
+  for (HalfEdge* i = begin + 1; i < end; ++i) {
+    const HalfEdge e = *i;
+    HalfEdge* j = i;
+    for (; j > begin && (j - 1)->hi > e.hi; --j) *j = *(j - 1);
+    *j = e;
+  }
+}
 
 // Smallest-root union-find over a handful of faces around one vertex.
 int Find(std::vector<int>& parent, int i) {
@@ -38,85 +56,107 @@ absl::StatusOr<Topology> BuildTopology(const Mesh& mesh) {
   Topology t;
   t.num_vertices = nv;
   t.num_faces = nf;
-  std::vector<HalfEdge> edges;
-  edges.reserve(static_cast<size_t>(nf) * 4);
+  // Pass 1: check the faces; count half-edges per lower endpoint and faces per vertex.
+  std::vector<int32_t> bucket(nv + 1, 0);
+  t.vf_offsets.assign(nv + 1, 0);
   for (int f = 0; f < nf; ++f) {
-    const int n = mesh.FaceSize(f);
+    const int32_t* idx = mesh.faces.data() + 4 * static_cast<int64_t>(f);
+    const int n = idx[3] < 0 ? 3 : 4;
     if (n == 4) t.has_quads = true;
     for (int i = 0; i < n; ++i) {
-      const int32_t a = mesh.faces(f, i);
+      const int32_t a = idx[i];
       if (a < 0 || a >= nv)
         return absl::InvalidArgumentError(absl::StrFormat(
             "face %d: vertex index %d out of range [0, %d)", f, a, nv));
       for (int j = 0; j < i; ++j)
-        if (mesh.faces(f, j) == a)
+        if (idx[j] == a)
           return absl::InvalidArgumentError(
               absl::StrFormat("face %d: vertex %d appears twice", f, a));
     }
     for (int i = 0; i < n; ++i) {
-      const int32_t a = mesh.faces(f, i), b = mesh.faces(f, (i + 1) % n);
-      edges.push_back({std::min(a, b), std::max(a, b), f, a < b});
+      const int32_t a = idx[i], b = idx[i + 1 < n ? i + 1 : 0];
+      ++bucket[std::min(a, b) + 1];
+      ++t.vf_offsets[a + 1];
     }
   }
-  std::sort(edges.begin(), edges.end(), [](const HalfEdge& x, const HalfEdge& y) {
-    return x.lo != y.lo ? x.lo < y.lo : x.hi != y.hi ? x.hi < y.hi : x.face < y.face;
-  });
+  std::partial_sum(bucket.begin(), bucket.end(), bucket.begin());
+  std::partial_sum(t.vf_offsets.begin(), t.vf_offsets.end(), t.vf_offsets.begin());
+
+  // Pass 2: file the half-edges under their lower endpoint (a counting sort: linear)
+  // and the faces under their vertices, both in face order.
+  // With each face filed under vertex a go its corners after and before a (the
+  // "spokes" of the fan check below, which then reads no face).
+  std::vector<HalfEdge> edges(bucket[nv]);
+  t.vf_faces.resize(t.vf_offsets[nv]);
+  std::vector<std::array<int32_t, 2>> spokes(t.vf_offsets[nv]);
+  {
+    std::vector<int32_t> fill(bucket.begin(), bucket.end() - 1);
+    std::vector<int32_t> vf_fill(t.vf_offsets.begin(), t.vf_offsets.end() - 1);
+    for (int f = 0; f < nf; ++f) {
+      const int32_t* idx = mesh.faces.data() + 4 * static_cast<int64_t>(f);
+      const int n = idx[3] < 0 ? 3 : 4;
+      for (int i = 0; i < n; ++i) {
+        const int32_t a = idx[i], b = idx[i + 1 < n ? i + 1 : 0];
+        edges[fill[std::min(a, b)]++] = {std::max(a, b), f, a < b};
+        const int32_t k = vf_fill[a]++;
+        t.vf_faces[k] = f;
+        spokes[k] = {b, idx[i > 0 ? i - 1 : n - 1]};
+      }
+    }
+  }
+  // Buckets sorted by (hi, face): the half-edges are now in (lo, hi, face) order.
+  for (int v = 0; v < nv; ++v) SortBucket(edges.data() + bucket[v], edges.data() + bucket[v + 1]);
 
   t.is_boundary.assign(nv, 0);
   std::vector<int32_t> degree(nv, 0);
-  for (size_t i = 0; i < edges.size();) {
-    size_t j = i + 1;
-    while (j < edges.size() && edges[j].lo == edges[i].lo && edges[j].hi == edges[i].hi) ++j;
-    const HalfEdge& e = edges[i];
-    if (j - i > 2)
-      return absl::InvalidArgumentError(absl::StrFormat(
-          "non-manifold edge (%d, %d): shared by %d faces (faces %d, %d, %d ...)", e.lo, e.hi,
-          j - i, edges[i].face, edges[i + 1].face, edges[i + 2].face));
-    if (j - i == 2 && edges[i].forward == edges[i + 1].forward)
-      return absl::InvalidArgumentError(absl::StrFormat(
-          "inconsistent orientation: faces %d and %d traverse edge (%d, %d) in the same direction",
-          edges[i].face, edges[i + 1].face, e.lo, e.hi));
-    if (j - i == 1) {
-      t.is_boundary[e.lo] = t.is_boundary[e.hi] = 1;
-      ++t.num_boundary_edges;
+  for (int lo = 0; lo < nv; ++lo) {
+    const int32_t end = bucket[lo + 1];
+    for (int32_t i = bucket[lo]; i < end;) {
+      int32_t j = i + 1;
+      while (j < end && edges[j].hi == edges[i].hi) ++j;
+      const int32_t hi = edges[i].hi;
+      if (j - i > 2)
+        return absl::InvalidArgumentError(absl::StrFormat(
+            "non-manifold edge (%d, %d): shared by %d faces (faces %d, %d, %d ...)", lo, hi,
+            j - i, edges[i].face, edges[i + 1].face, edges[i + 2].face));
+      if (j - i == 2 && edges[i].forward == edges[i + 1].forward)
+        return absl::InvalidArgumentError(absl::StrFormat(
+            "inconsistent orientation: faces %d and %d traverse edge (%d, %d) in the same direction",
+            edges[i].face, edges[i + 1].face, lo, hi));
+      if (j - i == 1) {
+        t.is_boundary[lo] = t.is_boundary[hi] = 1;
+        ++t.num_boundary_edges;
+      }
+      ++degree[lo];
+      ++degree[hi];
+      i = j;
     }
-    ++degree[e.lo];
-    ++degree[e.hi];
-    i = j;
   }
 
-  // vertex -> vertices (edges), sorted because `edges` is sorted by (lo, hi).
+  // vertex -> vertices (edges). Edges come in (lo, hi) order, so each vertex first
+  // receives its lower neighbours in increasing order, then (from its own bucket) its
+  // higher ones in increasing order: every row is sorted as filled.
   t.vv_offsets.assign(nv + 1, 0);
   for (int v = 0; v < nv; ++v) t.vv_offsets[v + 1] = t.vv_offsets[v] + degree[v];
   t.vv.resize(t.vv_offsets[nv]);
   {
-    std::vector<int32_t> fill(t.vv_offsets.begin(), t.vv_offsets.end() - 1);
-    for (size_t i = 0; i < edges.size(); ++i) {
-      if (i > 0 && edges[i].lo == edges[i - 1].lo && edges[i].hi == edges[i - 1].hi) continue;
-      t.vv[fill[edges[i].lo]++] = edges[i].hi;
-      t.vv[fill[edges[i].hi]++] = edges[i].lo;
-    }
-    for (int v = 0; v < nv; ++v)
-      std::sort(t.vv.begin() + t.vv_offsets[v], t.vv.begin() + t.vv_offsets[v + 1]);
+    std::vector<int32_t>& fill = degree;  // reused as the fill cursor
+    std::copy(t.vv_offsets.begin(), t.vv_offsets.end() - 1, fill.begin());
+    for (int lo = 0; lo < nv; ++lo)
+      for (int32_t i = bucket[lo]; i < bucket[lo + 1]; ++i) {
+        if (i > bucket[lo] && edges[i].hi == edges[i - 1].hi) continue;
+        t.vv[fill[lo]++] = edges[i].hi;
+        t.vv[fill[edges[i].hi]++] = lo;
+      }
   }
-
-  // vertex -> faces.
-  t.vf_offsets.assign(nv + 1, 0);
-  for (int f = 0; f < nf; ++f)
-    for (int i = 0; i < mesh.FaceSize(f); ++i) ++t.vf_offsets[mesh.faces(f, i) + 1];
-  std::partial_sum(t.vf_offsets.begin(), t.vf_offsets.end(), t.vf_offsets.begin());
-  t.vf_faces.resize(t.vf_offsets[nv]);
-  {
-    std::vector<int32_t> fill(t.vf_offsets.begin(), t.vf_offsets.end() - 1);
-    for (int f = 0; f < nf; ++f)
-      for (int i = 0; i < mesh.FaceSize(f); ++i) t.vf_faces[fill[mesh.faces(f, i)]++] = f;
-  }
+  edges = {};
 
   // Manifold vertices: the faces around each vertex form one fan (connected through
-  // the edges incident on the vertex).
+  // the edges incident on the vertex): union-find over its faces, joined where two
+  // share a spoke (found by sorting the spokes, keyed (other endpoint, local face)).
   t.is_isolated.assign(nv, 0);
   std::vector<int> parent;
-  std::vector<std::pair<int32_t, int>> spokes;  // (other endpoint, local face index)
+  std::vector<uint64_t> keys;
   for (int v = 0; v < nv; ++v) {
     const int k = t.NumVertexFaces(v);
     if (k == 0) {
@@ -126,19 +166,16 @@ absl::StatusOr<Topology> BuildTopology(const Mesh& mesh) {
     }
     parent.resize(k);
     std::iota(parent.begin(), parent.end(), 0);
-    spokes.clear();
-    for (int i = 0; i < k; ++i) {
-      const int f = t.VertexFaces(v)[i], n = mesh.FaceSize(f);
-      for (int c = 0; c < n; ++c)
-        if (mesh.faces(f, c) == v) {
-          spokes.emplace_back(mesh.faces(f, (c + 1) % n), i);
-          spokes.emplace_back(mesh.faces(f, (c + n - 1) % n), i);
-        }
-    }
-    std::sort(spokes.begin(), spokes.end());
-    for (size_t i = 1; i < spokes.size(); ++i)
-      if (spokes[i].first == spokes[i - 1].first)
-        parent[Find(parent, spokes[i].second)] = Find(parent, spokes[i - 1].second);
+    keys.resize(2 * k);
+    const std::array<int32_t, 2>* s = spokes.data() + t.vf_offsets[v];
+    for (int i = 0; i < k; ++i)
+      for (int side = 0; side < 2; ++side)
+        keys[2 * i + side] = static_cast<uint64_t>(s[i][side]) << 32 | static_cast<uint32_t>(i);
+    std::sort(keys.begin(), keys.end());
+    for (size_t i = 1; i < keys.size(); ++i)
+      if (keys[i] >> 32 == keys[i - 1] >> 32)
+        parent[Find(parent, static_cast<int>(keys[i] & 0xffffffffu))] =
+            Find(parent, static_cast<int>(keys[i - 1] & 0xffffffffu));
     int fans = 0;
     for (int i = 0; i < k; ++i) fans += Find(parent, i) == i;
     if (fans > 1)

@@ -1,5 +1,6 @@
 #include "core/mesh/topology.h"
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <limits>
@@ -9,6 +10,7 @@
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
 
+#include "core/surfaces/analytic.h"
 #include "tests/mesh/make_mesh.h"
 
 namespace geomfit {
@@ -18,6 +20,7 @@ using ::testing::ElementsAre;
 using ::testing::HasSubstr;
 
 using testing_util::MakeMesh;
+using testing_util::ShuffleVertices;
 
 Mesh Tetrahedron() {
   return MakeMesh({{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {0, 0, 1}},
@@ -127,6 +130,37 @@ TEST(TopologyTest, MixedTrianglesAndQuads) {
   EXPECT_THAT(VertexFaces(*t, 1), ElementsAre(0, 1, 2));
   EXPECT_THAT(VertexFaces(*t, 5), ElementsAre(1, 2));
   EXPECT_THAT(t->is_boundary, ElementsAre(1, 1, 1, 1, 1, 1));
+}
+
+// An external mesher's vertex order: the topology of the relabelled mesh is the
+// relabelling of the topology (rows sorted, faces in face order, same flags).
+TEST(TopologyTest, ShuffledVerticesGiveTheRelabelledTopology) {
+  GeneratorOptions g;
+  g.n = 10;
+  GeneratorOptions q = g;
+  q.quads = true;
+  const Mesh meshes[] = {GenerateTorusMesh(g), GenerateBumpMesh(g), GenerateTorusMesh(q),
+                         GenerateBumpMesh(q), GenerateSphereMesh(g)};
+  for (const Mesh& m : meshes) {
+    std::vector<int32_t> perm;
+    const Mesh s = ShuffleVertices(m, 7, &perm);
+    auto t = BuildTopology(m);
+    auto u = BuildTopology(s);
+    ASSERT_TRUE(t.ok()) << t.status();
+    ASSERT_TRUE(u.ok()) << u.status();
+    EXPECT_EQ(u->num_boundary_edges, t->num_boundary_edges);
+    EXPECT_EQ(u->has_quads, t->has_quads);
+    EXPECT_EQ(u->vv.size(), t->vv.size());
+    for (int v = 0; v < m.NumVertices(); ++v) {
+      const int w = perm[v];
+      EXPECT_EQ(u->is_boundary[w], t->is_boundary[v]) << v;
+      std::vector<int32_t> relabelled;
+      for (int32_t x : Neighbors(*t, v)) relabelled.push_back(perm[x]);
+      std::sort(relabelled.begin(), relabelled.end());
+      EXPECT_EQ(Neighbors(*u, w), relabelled) << v;
+      EXPECT_EQ(VertexFaces(*u, w), VertexFaces(*t, v)) << v;
+    }
+  }
 }
 
 TEST(TopologyTest, IsolatedVertexIsAllowedButFlagged) {

@@ -1,11 +1,13 @@
 #include "core/mesh/formats/common.h"
 
+#include <charconv>
+#include <cmath>
 #include <cstring>
+#include <system_error>
 
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
-#include "absl/strings/str_split.h"
 
 namespace geomfit::mesh_io {
 
@@ -100,13 +102,35 @@ bool LineReader::Next(absl::string_view* line) {
   return true;
 }
 
+LineReader::LineReader(absl::string_view text, absl::string_view source, char comment)
+    : text_(text), source_(source), comment_(comment) {
+  for (const char c : {' ', '\t', '\r', '\f', '\v'}) class_[static_cast<uint8_t>(c)] = kSeparator;
+  class_[static_cast<uint8_t>('\n')] = kLineEnd;
+  if (comment != 0) class_[static_cast<uint8_t>(comment)] = kLineEnd;
+}
+
+// Next() and the split of its line, in one pass over the bytes.
 bool LineReader::NextTokens(std::vector<absl::string_view>* tokens) {
-  absl::string_view line;
-  while (Next(&line)) {
-    *tokens = absl::StrSplit(line, absl::ByAnyChar(" \t\r\f\v"), absl::SkipEmpty());
+  tokens->clear();  // reused: no allocation once it holds the longest line's tokens
+  const char* const begin = text_.data();
+  const char* const end = begin + text_.size();
+  while (pos_ < text_.size()) {
+    ++line_number_;
+    const char* p = begin + pos_;
+    for (;;) {
+      while (p < end && class_[static_cast<uint8_t>(*p)] == kSeparator) ++p;
+      if (p == end || class_[static_cast<uint8_t>(*p)] == kLineEnd) break;
+      const char* const start = p;
+      while (p < end && class_[static_cast<uint8_t>(*p)] == kToken) ++p;
+      tokens->emplace_back(start, static_cast<size_t>(p - start));
+    }
+    if (p < end && *p != '\n') {  // a comment: skip to the end of the line
+      p = static_cast<const char*>(std::memchr(p, '\n', end - p));
+      if (p == nullptr) p = end;
+    }
+    pos_ = static_cast<size_t>(p - begin) + 1;
     if (!tokens->empty()) return true;
   }
-  tokens->clear();
   return false;
 }
 
@@ -119,12 +143,34 @@ absl::Status ParseCoordinates(const LineReader& lines, const std::vector<absl::s
   if (tok.size() < first + 3)
     return lines.Error(absl::StrCat("vertex needs 3 coordinates, found ", tok.size() - first));
   for (int c = 0; c < 3; ++c)
-    if (!absl::SimpleAtod(tok[first + c], &p[c]))
+    if (!ParseDouble(tok[first + c], &p[c]))
       return lines.Error(absl::StrCat("'", tok[first + c], "' is not a number"));
   return absl::OkStatus();
 }
 
+// Both parsers below take std::from_chars's answer when it reads the whole token to a
+// finite value (then it is the correctly rounded value Abseil's parser gives too) and
+// leave everything else (a '+' sign, overflow, inf, nan, malformed text) to Abseil,
+// whose rules define what is accepted.
+bool ParseDouble(absl::string_view token, double* value) {
+  const char* const end = token.data() + token.size();
+  double v;
+  const std::from_chars_result r = std::from_chars(token.data(), end, v);
+  if (r.ec == std::errc() && r.ptr == end && std::isfinite(v)) {
+    *value = v;
+    return true;
+  }
+  return absl::SimpleAtod(token, value);
+}
+
 bool ParseInteger(absl::string_view token, int64_t* value) {
+  const char* const end = token.data() + token.size();
+  int64_t v;
+  const std::from_chars_result r = std::from_chars(token.data(), end, v);
+  if (r.ec == std::errc() && r.ptr == end) {
+    *value = v;
+    return true;
+  }
   return absl::SimpleAtoi(token, value);
 }
 

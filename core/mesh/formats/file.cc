@@ -1,4 +1,6 @@
 // Whole-file reads and atomic writes.
+#include <sys/stat.h>
+
 #include <cerrno>
 #include <cstdio>
 #include <memory>
@@ -12,10 +14,20 @@ namespace geomfit {
 absl::StatusOr<std::string> ReadFileToString(const std::string& path) {
   std::unique_ptr<FILE, int (*)(FILE*)> f(std::fopen(path.c_str(), "rb"), &std::fclose);
   if (!f) return absl::ErrnoToStatus(errno, absl::StrCat("cannot open '", path, "'"));
-  std::string out;
-  char buf[1 << 16];
-  size_t n;
-  while ((n = std::fread(buf, 1, sizeof(buf), f.get())) > 0) out.append(buf, n);
+  // One block: the whole file when its size is known (a regular file), read straight
+  // into the string; pipes and growing files continue in doubling blocks.
+  struct stat st;
+  size_t block = 1 << 16;
+  if (fstat(fileno(f.get()), &st) == 0 && S_ISREG(st.st_mode) && st.st_size > 0)
+    block = static_cast<size_t>(st.st_size) + 1;  // + 1: EOF in the same read
+  std::string out(block, '\0');
+  size_t used = 0;
+  for (;;) {
+    used += std::fread(out.data() + used, 1, out.size() - used, f.get());
+    if (used < out.size()) break;  // end of file or an error
+    out.resize(2 * out.size());
+  }
+  out.resize(used);
   if (std::ferror(f.get()))
     return absl::ErrnoToStatus(errno, absl::StrCat("cannot read '", path, "'"));
   return out;

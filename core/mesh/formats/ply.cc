@@ -146,7 +146,7 @@ class PlyAsciiSource : public PlySource {
   absl::Status Read(PlyType, double* value) override {
     if (next_ >= tokens_.size()) return Error("too few values on the line");
     const absl::string_view t = tokens_[next_++];
-    if (!absl::SimpleAtod(t, value)) return Error(absl::StrCat("'", t, "' is not a number"));
+    if (!ParseDouble(t, value)) return Error(absl::StrCat("'", t, "' is not a number"));
     return absl::OkStatus();
   }
   size_t Remaining() const override { return lines_.remaining(); }

@@ -1,0 +1,228 @@
+// The cold path of a run on a fresh mesh: reading the file, BuildTopology and
+// BuildNeighborhoods, on the n = 168 torus (84,672 vertices, 169,344 triangles) as
+// generated (neighbours have near indices) and with its vertices shuffled (an external
+// mesher's order: neighbours anywhere in memory). One thread.
+//
+//   BM_Topology/shuffled:<0|1>              BuildTopology
+//   BM_Neighborhoods/shuffled:<0|1>/deg:<d> BuildNeighborhoods(RingSpecFor(degree d)), 1 thread
+//   BM_Parse/shuffled:<0|1>/fmt:<f>         ParseMesh of bytes in memory; f = 0 OBJ, 1 OFF,
+//                                           2 ascii PLY (%.17g coordinates, as FormatObj)
+//   BM_ReadObj/shuffled:<0|1>               ReadMesh of the OBJ file (file read + parse)
+//
+// Counters: MB/s of file text (parse and read), verts. See bench/README.md.
+//
+// `cold_path_bench --dump=FILE` writes every output (topologies, neighbourhoods at
+// degrees 1-6, parsed meshes; then, for 20,000 mutations of each reader fuzz seed file
+// read as every format, the reader's status or mesh and BuildTopology's status) to
+// FILE instead of timing: `cmp` of two builds' dumps
+// shows a rewrite changed nothing. `--write=DIR` writes DIR/torus.obj and
+// DIR/torus_shuffled.obj (for whole runs of `geomfit curvature --local`).
+#include <unistd.h>
+
+#include <algorithm>
+#include <cstdio>
+#include <cstring>
+#include <random>
+#include <string>
+#include <vector>
+
+#include <benchmark/benchmark.h>
+
+#include "absl/strings/str_format.h"
+#include "core/fitting/neighborhood.h"
+#include "core/mesh/io.h"
+#include "core/mesh/topology.h"
+#include "core/surfaces/analytic.h"
+#include "tests/mesh/make_mesh.h"
+#include "tests/mesh/reader_fuzz.h"
+
+namespace {
+
+using namespace geomfit;
+
+constexpr int kTorusN = 168;
+
+std::string AsciiPly(const Mesh& m) {
+  std::string out = absl::StrFormat(
+      "ply\nformat ascii 1.0\nelement vertex %d\nproperty double x\nproperty double y\n"
+      "property double z\nelement face %d\nproperty list uchar int vertex_indices\nend_header\n",
+      m.NumVertices(), m.NumFaces());
+  for (int v = 0; v < m.NumVertices(); ++v)
+    absl::StrAppendFormat(&out, "%.17g %.17g %.17g\n", m.positions(v, 0), m.positions(v, 1),
+                          m.positions(v, 2));
+  for (int f = 0; f < m.NumFaces(); ++f) {
+    absl::StrAppend(&out, m.FaceSize(f));
+    for (int c = 0; c < m.FaceSize(f); ++c) absl::StrAppend(&out, " ", m.faces(f, c));
+    out += '\n';
+  }
+  return out;
+}
+
+struct Variant {
+  Mesh mesh;
+  Topology topo;
+  std::string text[3];  // OBJ, OFF, ascii PLY
+  std::string obj_path;
+};
+
+struct Fixture {
+  Variant v[2];
+  Fixture() {
+    GeneratorOptions g;
+    g.n = kTorusN;
+    v[0].mesh = GenerateTorusMesh(g);
+    v[1].mesh = testing_util::ShuffleVertices(v[0].mesh, 12345);
+    for (int s = 0; s < 2; ++s) {
+      Variant& x = v[s];
+      x.topo = BuildTopology(x.mesh).value();
+      x.text[0] = FormatMesh(x.mesh, MeshFormat::kObj).value();
+      x.text[1] = FormatMesh(x.mesh, MeshFormat::kOff).value();
+      x.text[2] = AsciiPly(x.mesh);
+      x.obj_path = absl::StrFormat("/tmp/geomfit_cold_path_bench_%d_%d.obj", getpid(), s);
+      if (!WriteMesh(x.mesh, x.obj_path).ok()) std::abort();
+    }
+  }
+  ~Fixture() {
+    for (const Variant& x : v) std::remove(x.obj_path.c_str());
+  }
+};
+
+Fixture& F() {
+  static Fixture f;
+  return f;
+}
+
+void BM_Topology(benchmark::State& state) {
+  const Variant& x = F().v[state.range(0)];
+  for (auto _ : state) {
+    Topology t = BuildTopology(x.mesh).value();
+    benchmark::DoNotOptimize(t.vv.data());
+    benchmark::ClobberMemory();
+  }
+  state.counters["verts"] = x.mesh.NumVertices();
+}
+
+void BM_Neighborhoods(benchmark::State& state) {
+  const Variant& x = F().v[state.range(0)];
+  FitOptions o;
+  o.degree = static_cast<int>(state.range(1));
+  for (auto _ : state) {
+    Neighborhoods nb = BuildNeighborhoods(x.topo, x.mesh, RingSpecFor(o), 1);
+    benchmark::DoNotOptimize(nb.indices.data());
+    benchmark::ClobberMemory();
+  }
+  state.counters["verts"] = x.mesh.NumVertices();
+}
+
+void BM_Parse(benchmark::State& state) {
+  const Variant& x = F().v[state.range(0)];
+  const int fmt = static_cast<int>(state.range(1));
+  const MeshFormat format[] = {MeshFormat::kObj, MeshFormat::kOff, MeshFormat::kPly};
+  const std::string& text = x.text[fmt];
+  for (auto _ : state) {
+    Mesh m = ParseMesh(text, format[fmt]).value();
+    benchmark::DoNotOptimize(m.positions.data());
+    benchmark::ClobberMemory();
+  }
+  state.counters["MB/s"] = benchmark::Counter(text.size() * 1e-6, benchmark::Counter::kIsIterationInvariantRate);
+  state.counters["MB"] = text.size() * 1e-6;
+}
+
+void BM_ReadObj(benchmark::State& state) {
+  const Variant& x = F().v[state.range(0)];
+  for (auto _ : state) {
+    Mesh m = ReadMesh(x.obj_path).value();
+    benchmark::DoNotOptimize(m.positions.data());
+    benchmark::ClobberMemory();
+  }
+  state.counters["MB/s"] =
+      benchmark::Counter(x.text[0].size() * 1e-6, benchmark::Counter::kIsIterationInvariantRate);
+}
+
+BENCHMARK(BM_Topology)->ArgName("shuffled")->DenseRange(0, 1)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_Neighborhoods)
+    ->ArgNames({"shuffled", "deg"})
+    ->ArgsProduct({{0, 1}, {2, 4}})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
+BENCHMARK(BM_Parse)
+    ->ArgNames({"shuffled", "fmt"})
+    ->ArgsProduct({{0, 1}, {0, 1, 2}})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
+BENCHMARK(BM_ReadObj)->ArgName("shuffled")->DenseRange(0, 1)->Unit(benchmark::kMillisecond)->UseRealTime();
+
+template <typename T>
+void Put(FILE* out, const std::vector<T>& v) {
+  const uint64_t n = v.size();
+  std::fwrite(&n, sizeof(n), 1, out);
+  std::fwrite(v.data(), sizeof(T), v.size(), out);
+}
+
+void PutMesh(FILE* out, const Mesh& m) {
+  Put(out, std::vector<double>(m.positions.data(), m.positions.data() + m.positions.size()));
+  Put(out, std::vector<int32_t>(m.faces.data(), m.faces.data() + m.faces.size()));
+}
+
+void Dump(const char* path) {
+  FILE* out = std::fopen(path, "wb");
+  if (!out) std::abort();
+  for (const Variant& x : F().v) {
+    const Topology& t = x.topo;
+    Put(out, t.vf_offsets), Put(out, t.vf_faces), Put(out, t.vv_offsets), Put(out, t.vv);
+    Put(out, t.is_boundary), Put(out, t.is_isolated);
+    Put(out, std::vector<int>{t.num_boundary_edges, t.num_isolated, t.has_quads});
+    for (int d = 1; d <= kMaxDegree; ++d) {
+      FitOptions o;
+      o.degree = d;
+      for (int threads : {1, 2}) {
+        const Neighborhoods nb = BuildNeighborhoods(t, x.mesh, RingSpecFor(o), threads);
+        Put(out, nb.offsets), Put(out, nb.indices), Put(out, nb.rings);
+      }
+    }
+    const MeshFormat format[] = {MeshFormat::kObj, MeshFormat::kOff, MeshFormat::kPly};
+    for (int fmt = 0; fmt < 3; ++fmt) PutMesh(out, ParseMesh(x.text[fmt], format[fmt]).value());
+    PutMesh(out, ReadMesh(x.obj_path).value());
+  }
+  // Error messages: the reader fuzz corpus (tests/mesh/reader_fuzz.h).
+  std::mt19937_64 rng(1);
+  const auto put_status = [out](const absl::Status& st) {
+    const std::string text = st.ToString();
+    Put(out, std::vector<char>(text.begin(), text.end()));
+  };
+  for (int i = 0; i < 20000; ++i)
+    for (const reader_fuzz::SeedFile& s : reader_fuzz::SeedFiles()) {
+      const std::string bytes = reader_fuzz::Mutate(s.bytes, rng);
+      for (MeshFormat f : {MeshFormat::kObj, MeshFormat::kOff, MeshFormat::kPly, MeshFormat::kStl}) {
+        const absl::StatusOr<Mesh> m = ParseMesh(bytes, f);
+        put_status(m.status());
+        if (!m.ok()) continue;
+        PutMesh(out, *m);
+        put_status(BuildTopology(*m).status());
+      }
+    }
+  std::fclose(out);
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  for (int i = 1; i < argc; ++i)
+    if (std::strncmp(argv[i], "--dump=", 7) == 0) {
+      Dump(argv[i] + 7);
+      return 0;
+    } else if (std::strncmp(argv[i], "--write=", 8) == 0) {
+      const std::string dir = argv[i] + 8;
+      const bool ok = WriteMesh(F().v[0].mesh, dir + "/torus.obj").ok() &&
+                      WriteMesh(F().v[1].mesh, dir + "/torus_shuffled.obj").ok();
+      return ok ? 0 : 1;
+    }
+  benchmark::Initialize(&argc, argv);
+  if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
+  const Fixture& f = F();  // build meshes and files before any timing
+  std::fprintf(stderr, "torus n=%d: %d vertices, %d triangles; OBJ %.1f MB\n", kTorusN,
+               f.v[0].mesh.NumVertices(), f.v[0].mesh.NumFaces(), f.v[0].text[0].size() * 1e-6);
+  benchmark::RunSpecifiedBenchmarks();
+  benchmark::Shutdown();
+  return 0;
+}
