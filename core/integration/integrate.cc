@@ -89,19 +89,23 @@ absl::StatusOr<Integrals> Integrate(const ReconstructedSurface& surface, const I
       const int nn = ShapeFunctions(mesh, fp.face, fp.xi, fp.eta, N, dNa, dNb);
       std::fill(phi, phi + nfield, 0.0);
       Eigen::Vector3d x = Eigen::Vector3d::Zero();
-      for (int i = 0; i < nn; ++i) x += N[i] * mesh.positions.row(mesh.faces(f, i)).transpose();
+      double lin[32] = {};  // the linear interpolant of the fields
       for (int i = 0; i < nn; ++i) {
+        x += N[i] * mesh.positions.row(mesh.faces(f, i)).transpose();
+        for (int k = 0; k < nfield; ++k) lin[k] += N[i] * values(mesh.faces(f, i), k);
+      }
+      if (!walf) std::copy(lin, lin + nfield, phi);
+      for (int i = 0; walf && i < nn; ++i) {
         const int v = mesh.faces(f, i);
-        if (!walf) {
-          for (int k = 0; k < nfield; ++k) phi[k] += N[i] * values(v, k);
-          continue;
-        }
         const LocalFrame& fr = walf->fits().frame(v);
         const double u = (x - fr.origin).dot(fr.t1), t = (x - fr.origin).dot(fr.t2);
+        // A degree-1 vertex contributes the mean of its plane and the linear interpolant,
+        // whose O(h^2) errors cancel, as for the geometry (WalfSurface::Evaluate).
+        const bool planar = walf->fits().diagnostics(v).degree_used == 1;
         for (int k = 0; k < nfield; ++k) {
           double val;
           EvalTaylor(&coef[(static_cast<size_t>(v) * nfield + k) * ncoef], degree, u, t, &val, nullptr, nullptr);
-          phi[k] += N[i] * val;
+          phi[k] += N[i] * (planar ? 0.5 * (val + lin[k]) : val);
         }
       }
       for (int k = 0; k < ns; ++k) per_face(f, 3 + k) += w * phi[k] * n.norm();

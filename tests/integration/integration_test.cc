@@ -184,6 +184,22 @@ TEST(IntegrationTest, FlatBaselineIsSecondOrderAndWalfBeatsIt) {
   EXPECT_LT(Errors("torus", 48, 4, false, 0.25, ex).area, flat.back() / 100);
 }
 
+// WALF at degree 1 is no worse than the flat mesh: a degree-1 vertex contributes the
+// mean of its tangent plane and the chord, whose O(h^2) errors cancel (surface.cc).
+TEST(IntegrationTest, WalfDegreeOneNoWorseThanLinear) {
+  for (const std::string name : {"torus", "sphere"}) {
+    const Exact ex = name == "torus" ? TorusExact(Phi, Field) : SphereExact(Phi, Field);
+    for (int n : name == "torus" ? std::vector<int>{12, 24, 48} : std::vector<int>{6, 12, 24}) {
+      const Rel flat = Errors(name, n, 1, true, 0.25, ex), walf = Errors(name, n, 1, false, 0.25, ex);
+      std::printf("%s n=%d degree 1: area %.2e (linear %.2e, x%.2f) volume %.2e (linear %.2e, x%.2f)\n",
+                  name.c_str(), n, walf.area, flat.area, walf.area / flat.area, walf.volume, flat.volume,
+                  walf.volume / flat.volume);
+      EXPECT_LE(walf.area, flat.area) << name << " n=" << n;
+      EXPECT_LE(walf.volume, flat.volume) << name << " n=" << n;
+    }
+  }
+}
+
 TEST(IntegrationTest, RejectsFieldsOfTheWrongShapeAndNonFiniteValues) {
   GeneratorOptions g;
   g.n = 6;
