@@ -167,11 +167,33 @@ WlsSolution SolveWls(const WlsProblem& P, const WlsSettings& S, double* coeffici
     for (int d = 0; d < dims; ++d) BackSubstitute(a, ld, cols_of(deg), B + d * ld, out[d]);
   };
   solve(degree, y);
-  // Oscillation safeguard (4.1.3): the degree-p coefficients (2 <= p < degree) of the
-  // degree-p fit (the leading block of the same QR) must agree with the degree-d fit's:
-  // |c^_p - c_p| <= max(|c^_p|, eps), taken as 2-norms over all degree-p coefficients,
-  // in heights at the stencil radius (c h^p).
-  if (S.oscillation_safeguard) {
+  // Oscillation safeguard (4.1.3), made scale-free. In heights at the stencil radius
+  // (c h^p), a resolved degree-p fit's degree-p coefficients differ from the degree-d
+  // fit's by the aliased degree-(p+1) term, ~ h t^p with t = |c^_2| h the stencil radius
+  // over the curvature radius (from the degree-2 fit). The text's test
+  // |c^_p - c_p| <= max(|c^_p|, eps) with an absolute eps = 0.01 instead downgrades
+  // resolved fits whose c_p vanish by symmetry (odd orders on a sphere), costing up to
+  // 100x at mid resolutions; so eps becomes tolerance * h t^p. That alone lets the
+  // unresolved fits of coarse meshes through (t ~ 1), so a second test bounds what WALF
+  // uses: inside half the stencil radius the degree-d fit may not leave the degree-2 fit
+  // by more than deviation * h.
+  if (S.oscillation_safeguard && degree > 2) {
+    double y2[3][kMaxCoef];
+    solve(2, y2);
+    double t2 = 0;  // |c^_2|^2 h^4
+    for (int c = cols_of(1); c < cols_of(2); ++c)
+      for (int d = 0; d < dims; ++d) t2 += scale[c] * y2[d][c] * scale[c] * y2[d][c];
+    const double t = std::sqrt(t2) / h;
+    // Taylor coefficients in heights at the stencil radius, for EvalTaylor on the unit disc.
+    auto unscaled = [&](const double yy[3][kMaxCoef], int deg, double out[3][kMaxCoef]) {
+      for (int d = 0; d < dims; ++d) std::fill(out[d], out[d] + kMaxCoef, 0.0);
+      int c = 0;
+      for (int p = first_col; p <= deg; ++p)
+        for (int kk = 0; kk <= p; ++kk, ++c)
+          for (int d = 0; d < dims; ++d) out[d][TaylorIdx(p - kk, kk)] = scale[c] * yy[d][c];
+    };
+    double c2[3][kMaxCoef];
+    unscaled(y2, 2, c2);
     while (degree > 2) {
       bool ok = true;
       for (int p = 2; p < degree && ok; ++p) {
@@ -184,7 +206,26 @@ WlsSolution SolveWls(const WlsProblem& P, const WlsSettings& S, double* coeffici
             diff2 += (lo - hi) * (lo - hi);
             ref2 += lo * lo;
           }
-        ok = std::sqrt(diff2) <= std::max(std::sqrt(ref2), S.oscillation_epsilon);
+        const double eps = S.oscillation_tolerance * h * std::pow(t, p) + 1e-12 * h;
+        ok = std::sqrt(diff2) <= std::max(std::sqrt(ref2), eps);
+      }
+      if (ok) {
+        double cd[3][kMaxCoef];
+        unscaled(y, degree, cd);
+        double dev = 0;
+        for (int a = 0; a < 12; ++a)
+          for (double r : {0.25, 0.5}) {
+            const double u = r * std::cos(a * M_PI / 6), v = r * std::sin(a * M_PI / 6);
+            double e2 = 0;
+            for (int d = 0; d < dims; ++d) {
+              double fd, f2;
+              EvalTaylor(cd[d], degree, u, v, &fd, nullptr, nullptr);
+              EvalTaylor(c2[d], 2, u, v, &f2, nullptr, nullptr);
+              e2 += (fd - f2) * (fd - f2);
+            }
+            dev = std::max(dev, std::sqrt(e2));
+          }
+        ok = dev <= S.oscillation_deviation * h;
       }
       if (ok) break;
       --degree;

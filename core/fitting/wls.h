@@ -21,7 +21,10 @@ struct WlsSettings {
   double weight_epsilon = 0.01;
   const double* cond_threshold = nullptr;  ///< per degree, index 1..6
   bool oscillation_safeguard = false;      ///< (4.1.3)
-  double oscillation_epsilon = 0.01;
+  /// Coefficient test: |c^_p - c_p| <= max(|c^_p|, tolerance h t^p) (see SolveWls).
+  double oscillation_tolerance = 10;
+  /// Deviation test: |f_d - f_2| <= deviation h inside half the stencil radius.
+  double oscillation_deviation = 0.3;
   /// Operator rows to build (leading Taylor coefficients); -1 builds all.
   int op_rows = -1;
 };

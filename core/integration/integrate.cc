@@ -6,6 +6,7 @@
 #include "absl/strings/str_format.h"
 #include "core/fitting/wls.h"
 #include "core/integration/quadrature.h"
+#include "core/reconstruction/features.h"
 #include "core/util/parallel.h"
 #include "core/util/status_macros.h"
 
@@ -31,11 +32,18 @@ absl::StatusOr<Integrals> Integrate(const ReconstructedSurface& surface, const I
                                     const RunContext& ctx) {
   const Mesh& mesh = surface.mesh();
   const int nv = mesh.NumVertices(), nf = mesh.NumFaces();
-  const auto* walf = dynamic_cast<const WalfSurface*>(&surface);
-  if (!walf && !dynamic_cast<const LinearSurface*>(&surface))
-    return absl::InvalidArgumentError("integration supports the linear and WALF surfaces only");
   if (absl::Status s = CheckField(in.scalars, nv, 0, "scalar field"); !s.ok()) return s;
   if (absl::Status s = CheckField(in.vectors, nv, 3, "vector field"); !s.ok()) return s;
+  // Sharp features (4.1.4): the geometry is the feature surface's (faces follow the
+  // ridge curves); fields are blended from the one-sided fits over the split mesh (same
+  // faces), with nodal values copied to every side of a split vertex.
+  const auto* feature = dynamic_cast<const FeatureSurface*>(&surface);
+  const ReconstructedSurface& base = feature ? feature->inner() : surface;
+  const Mesh& fmesh = base.mesh();  // vertex ids of the field blend
+  const auto* walf = dynamic_cast<const WalfSurface*>(&base);
+  if (!walf && !dynamic_cast<const LinearSurface*>(&base))
+    return absl::InvalidArgumentError(
+        "integration supports the linear and WALF surfaces (with or without sharp features) only");
   const int degree = walf ? walf->fits().options().degree : 1;
   const int qdeg = in.quadrature_degree > 0 ? in.quadrature_degree : std::max(4, degree + 2);
   if (qdeg > kMaxQuadratureDegree)
@@ -48,6 +56,12 @@ absl::StatusOr<Integrals> Integrate(const ReconstructedSurface& surface, const I
   Eigen::MatrixXd values(nv, nfield);
   if (ns) values.leftCols(ns) = in.scalars;
   if (in.vectors.size()) values.rightCols(3) = in.vectors;
+  if (feature && nfield) {
+    const std::vector<int32_t>& original = feature->features().split_to_original;
+    Eigen::MatrixXd split(static_cast<Eigen::Index>(original.size()), nfield);
+    for (size_t v = 0; v < original.size(); ++v) split.row(v) = values.row(original[v]);
+    values = std::move(split);
+  }
 
   // WALF fields: per-vertex Taylor coefficients of each field from the stencil
   // operators of the geometry fits (same frames, weights and degree) (4.3.13).
@@ -57,8 +71,8 @@ absl::StatusOr<Integrals> Integrate(const ReconstructedSurface& surface, const I
     const SurfaceFits& fits = walf->fits();
     if (!fits.has_stencils())
       return absl::FailedPreconditionError("field integration needs fits built with stencil operators");
-    coef.assign(static_cast<size_t>(nv) * nfield * ncoef, 0.0);
-    GF_RETURN_IF_ERROR(ParallelFor(nv, ctx, [&](int64_t v) {
+    coef.assign(static_cast<size_t>(fmesh.NumVertices()) * nfield * ncoef, 0.0);
+    GF_RETURN_IF_ERROR(ParallelFor(fmesh.NumVertices(), ctx, [&](int64_t v) {
       const int n = fits.neighborhoods().Size(static_cast<int>(v));
       const int32_t* pts = fits.neighborhoods().Points(static_cast<int>(v));
       const double* S = fits.stencil(static_cast<int>(v));
@@ -86,22 +100,26 @@ absl::StatusOr<Integrals> Integrate(const ReconstructedSurface& surface, const I
       per_face(f, 0) += w * n.norm();                   // area (4.3.2)
       per_face(f, 1) += w * sp.position.dot(n) / 3.0;   // volume (4.3.16)
       if (!nfield) continue;
-      const int nn = ShapeFunctions(mesh, fp.face, fp.xi, fp.eta, N, dNa, dNb);
+      const int nn = ShapeFunctions(fmesh, fp.face, fp.xi, fp.eta, N, dNa, dNb);
       std::fill(phi, phi + nfield, 0.0);
       Eigen::Vector3d x = Eigen::Vector3d::Zero();
-      for (int i = 0; i < nn; ++i) x += N[i] * mesh.positions.row(mesh.faces(f, i)).transpose();
+      double lin[32] = {};  // the linear interpolant of the fields
       for (int i = 0; i < nn; ++i) {
-        const int v = mesh.faces(f, i);
-        if (!walf) {
-          for (int k = 0; k < nfield; ++k) phi[k] += N[i] * values(v, k);
-          continue;
-        }
+        x += N[i] * fmesh.positions.row(fmesh.faces(f, i)).transpose();
+        for (int k = 0; k < nfield; ++k) lin[k] += N[i] * values(fmesh.faces(f, i), k);
+      }
+      if (!walf) std::copy(lin, lin + nfield, phi);
+      for (int i = 0; walf && i < nn; ++i) {
+        const int v = fmesh.faces(f, i);
         const LocalFrame& fr = walf->fits().frame(v);
         const double u = (x - fr.origin).dot(fr.t1), t = (x - fr.origin).dot(fr.t2);
+        // A degree-1 vertex contributes the mean of its plane and the linear interpolant,
+        // whose O(h^2) errors cancel, as for the geometry (WalfSurface::Evaluate).
+        const bool planar = walf->fits().diagnostics(v).degree_used == 1;
         for (int k = 0; k < nfield; ++k) {
           double val;
           EvalTaylor(&coef[(static_cast<size_t>(v) * nfield + k) * ncoef], degree, u, t, &val, nullptr, nullptr);
-          phi[k] += N[i] * val;
+          phi[k] += N[i] * (planar ? 0.5 * (val + lin[k]) : val);
         }
       }
       for (int k = 0; k < ns; ++k) per_face(f, 3 + k) += w * phi[k] * n.norm();

@@ -30,6 +30,8 @@ struct Integrals {
 };
 
 /// Integrates over every face with Jacobians of the reconstructed geometry (4.3.5)-(4.3.6).
+/// Linear, WALF, and FeatureSurface over either (sharp features: integrated over the
+/// split mesh's one-sided surface, fields indexed by the original vertices).
 /// WALF surfaces blend vertex fits of the fields, which needs fits built with
 /// FitRequest::stencils (FAILED_PRECONDITION otherwise); CMF surfaces are not
 /// supported for fields (their Jacobian is approximate). Errors name the bad field.

@@ -171,44 +171,75 @@ FeatureSurface::FeatureSurface(const Mesh& mesh, std::shared_ptr<const Features>
   }
 }
 
-Vector3d FeatureSurface::CurvePoint(int a, int b, double t) const {
+Vector3d FeatureSurface::CurvePoint(int a, int b, double t, Vector3d* dt) const {
   const Vector3d xa = mesh_.positions.row(a).transpose(), xb = mesh_.positions.row(b).transpose();
   const Vector3d x = (1 - t) * xa + t * xb;
-  auto eval = [&](int v, int other) -> Vector3d {
+  // Vertex v's curve fit at x, and its derivative along t.
+  auto eval = [&](int v, int other, Vector3d* d) -> Vector3d {
     auto it = fits_.find({v, other});
-    if (it == fits_.end()) return x;
+    if (it == fits_.end()) {
+      *d = xb - xa;
+      return x;
+    }
     const CurveFit& f = it->second;
     const double s = f.tangent.dot(x - f.origin);
-    double y1 = 0, y2 = 0, sp = 1;
-    for (int p = 1; p <= f.degree; ++p) sp *= s, y1 += f.c1[p] * sp, y2 += f.c2[p] * sp;
+    double y1 = 0, y2 = 0, d1 = 0, d2 = 0, sp = 1;  // sp = s^(p-1)
+    for (int p = 1; p <= f.degree; ++p) {
+      d1 += p * f.c1[p] * sp, d2 += p * f.c2[p] * sp;
+      sp *= s;
+      y1 += f.c1[p] * sp, y2 += f.c2[p] * sp;
+    }
+    *d = f.tangent.dot(xb - xa) * (f.tangent + d1 * f.n1 + d2 * f.n2);
     return f.origin + s * f.tangent + y1 * f.n1 + y2 * f.n2;
   };
-  return (1 - t) * eval(a, b) + t * eval(b, a);  // WALF for curves
+  Vector3d da, db;
+  const Vector3d ea = eval(a, b, &da), eb = eval(b, a, &db);
+  if (dt) *dt = eb - ea + (1 - t) * da + t * db;
+  return (1 - t) * ea + t * eb;  // WALF for curves
 }
 
 SurfacePoint FeatureSurface::Evaluate(const FacePoint& p) const {
   SurfacePoint s = surface_->Evaluate(p);
-  // On a feature edge of the face, the ridge curve decides the position.
   const int n = mesh_.FaceSize(p.face);
-  constexpr double tol = 1e-14;
+  // Each feature edge (a, b) of the face adds w * (C(t) - S(t)): its ridge curve's offset
+  // from the one-sided surface at edge parameter t, with weight w = 1 on the edge and 0
+  // at the opposite corner (triangles: w = l_a + l_b, t = l_b / w in barycentrics; quads:
+  // the bilinear coordinate across the edge). On the edge the face meets the curve.
+  const double xi = p.xi, eta = p.eta;
   for (int c = 0; c < n; ++c) {
     const int a = mesh_.faces(p.face, c), b = mesh_.faces(p.face, (c + 1) % n);
     if (!features_->IsFeature(a, b)) continue;
-    double t = -1;
+    // w, t and their (xi, eta) derivatives; the edge point's natural coordinates at t.
+    double w, t, w_xi, w_eta, t_xi, t_eta;
+    Eigen::Vector2d e0, e1;  // edge point = e0 + t e1
     if (n == 3) {
-      if (c == 0 && std::abs(p.eta) < tol) t = p.xi;
-      if (c == 1 && std::abs(p.xi + p.eta - 1) < tol) t = p.eta;
-      if (c == 2 && std::abs(p.xi) < tol) t = 1 - p.eta;
+      const double l[3] = {1 - xi - eta, xi, eta};
+      const double l_xi[3] = {-1, 1, 0}, l_eta[3] = {-1, 0, 1};
+      const int ia = c, ib = (c + 1) % 3;
+      w = l[ia] + l[ib];
+      if (w < 1e-12) continue;  // the opposite corner: no offset
+      t = l[ib] / w;
+      w_xi = l_xi[ia] + l_xi[ib], w_eta = l_eta[ia] + l_eta[ib];
+      t_xi = (l_xi[ib] - t * w_xi) / w, t_eta = (l_eta[ib] - t * w_eta) / w;
+      const Eigen::Vector2d corner[3] = {{0, 0}, {1, 0}, {0, 1}};
+      e0 = corner[ia], e1 = corner[ib] - corner[ia];
     } else {
-      if (c == 0 && std::abs(p.eta) < tol) t = p.xi;
-      if (c == 1 && std::abs(p.xi - 1) < tol) t = p.eta;
-      if (c == 2 && std::abs(p.eta - 1) < tol) t = 1 - p.xi;
-      if (c == 3 && std::abs(p.xi) < tol) t = 1 - p.eta;
+      switch (c) {
+        case 0: w = 1 - eta, t = xi, w_xi = 0, w_eta = -1, t_xi = 1, t_eta = 0, e0 = {0, 0}, e1 = {1, 0}; break;
+        case 1: w = xi, t = eta, w_xi = 1, w_eta = 0, t_xi = 0, t_eta = 1, e0 = {1, 0}, e1 = {0, 1}; break;
+        case 2: w = eta, t = 1 - xi, w_xi = 0, w_eta = 1, t_xi = -1, t_eta = 0, e0 = {1, 1}, e1 = {-1, 0}; break;
+        default: w = 1 - xi, t = 1 - eta, w_xi = -1, w_eta = 0, t_xi = 0, t_eta = -1, e0 = {0, 1}, e1 = {0, -1}; break;
+      }
+      if (w < 1e-12) continue;
     }
-    if (t >= 0) {
-      s.position = CurvePoint(a, b, t);
-      break;
-    }
+    const Eigen::Vector2d e = e0 + t * e1;
+    const SurfacePoint edge = surface_->Evaluate({p.face, e.x(), e.y()});
+    Vector3d dcurve;
+    const Vector3d offset = CurvePoint(a, b, t, &dcurve) - edge.position;
+    const Vector3d doffset = dcurve - edge.jacobian * e1;  // d/dt of the offset
+    s.position += w * offset;
+    s.jacobian.col(0) += w_xi * offset + w * t_xi * doffset;
+    s.jacobian.col(1) += w_eta * offset + w * t_eta * doffset;
   }
   return s;
 }

@@ -37,7 +37,10 @@ absl::StatusOr<Features> DetectFeatures(const Mesh& mesh, const Topology& topo, 
 /// A reconstruction that respects features: faces are evaluated on a surface built
 /// from the split mesh (one-sided fits), and points on feature edges on the ridge
 /// curves, reconstructed by one-dimensional fits of degree `degree` blended linearly
-/// along each edge (WALF for curves), so the two sides of a ridge meet exactly.
+/// along each edge (WALF for curves), so the two sides of a ridge meet exactly. Inside
+/// a face with a feature edge the edge's offset from the one-sided surface is blended
+/// in, linearly fading towards the opposite corner (a curved-edge element map), so the
+/// face follows the ridge curve and its integrals do too (4.3).
 class FeatureSurface final : public ReconstructedSurface {
  public:
   /// `surface` must be built over `features.split` (which must outlive this object).
@@ -45,10 +48,13 @@ class FeatureSurface final : public ReconstructedSurface {
                  std::unique_ptr<ReconstructedSurface> surface, int degree);
   SurfacePoint Evaluate(const FacePoint& p) const override;
   const Mesh& mesh() const override { return mesh_; }
+  /// The surface over `features().split` that evaluates every point off feature edges.
+  const ReconstructedSurface& inner() const { return *surface_; }
+  const Features& features() const { return *features_; }
 
  private:
-  // Point at parameter t in [0, 1] along ridge edge a -> b.
-  Eigen::Vector3d CurvePoint(int a, int b, double t) const;
+  // Point at parameter t in [0, 1] along ridge edge a -> b, and optionally d/dt.
+  Eigen::Vector3d CurvePoint(int a, int b, double t, Eigen::Vector3d* dt = nullptr) const;
   const Mesh& mesh_;
   std::shared_ptr<const Features> features_;
   std::unique_ptr<ReconstructedSurface> surface_;

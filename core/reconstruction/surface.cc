@@ -85,12 +85,21 @@ SurfacePoint WalfSurface::Evaluate(const FacePoint& p) const {
   for (int i = 0; i < l.n; ++i) {
     const int v = mesh_.faces(p.face, i);
     // q_i: vertex i's fit at the projection of the linear point onto its frame (4.1.1).
-    const SurfaceFits::LocalPoint q = fits_->Evaluate(v, l.x);
+    SurfaceFits::LocalPoint q = fits_->Evaluate(v, l.x);
     const LocalFrame& fr = fits_->frame(v);
-    s.position += l.N[i] * q.position;  // (4.3.11)
     // d q_i / d xi = q_u (t1 . dx/dxi) + q_v (t2 . dx/dxi), plus the shape-function term.
-    const Vector3d dqdxi = q.du * fr.t1.dot(l.dxi) + q.dv * fr.t2.dot(l.dxi);
-    const Vector3d dqdeta = q.du * fr.t1.dot(l.deta) + q.dv * fr.t2.dot(l.deta);
+    Vector3d dqdxi = q.du * fr.t1.dot(l.dxi) + q.dv * fr.t2.dot(l.dxi);
+    Vector3d dqdeta = q.du * fr.t1.dot(l.deta) + q.dv * fr.t2.dot(l.deta);
+    if (fits_->diagnostics(v).degree_used == 1) {
+      // A tangent plane over-shoots the surface by as much as the chord under-shoots it:
+      // for a quadratic surface sum_i N_i (plane_i - f)(x) = -1/2 sum_i N_i |x - x_i|^2_H,
+      // the linear interpolant's error with the opposite sign. Their mean cancels the
+      // O(h^2) term, so a degree-1 vertex contributes (x + q_i) / 2.
+      q.position = 0.5 * (l.x + q.position);
+      dqdxi = 0.5 * (l.dxi + dqdxi);
+      dqdeta = 0.5 * (l.deta + dqdeta);
+    }
+    s.position += l.N[i] * q.position;  // (4.3.11)
     s.jacobian.col(0) += l.dNdxi[i] * q.position + l.N[i] * dqdxi;
     s.jacobian.col(1) += l.dNdeta[i] * q.position + l.N[i] * dqdeta;
     normal += l.N[i] * q.normal;  // (4.3.12)

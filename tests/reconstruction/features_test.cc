@@ -89,5 +89,44 @@ TEST(FeaturesTest, RefinementKeepsSharpEdges) {
   EXPECT_GE(ConvergenceOrder(h, rim_err), 3.5);
 }
 
+// Inside faces along a ridge the feature surface follows the ridge curve (a curved-edge
+// map), so interior points of rim faces converge to the cylinder like the rest, and its
+// Jacobian is the derivative of its positions (what integration uses, 4.3).
+TEST(FeaturesTest, RimFacesFollowTheRidgeWithConsistentJacobians) {
+  std::vector<double> h, err;
+  for (int n : {4, 8, 16}) {
+    const Mesh mesh = GenerateCylinderMesh(n);
+    const Topology topo = BuildTopology(mesh).value();
+    auto features = std::make_shared<Features>(DetectFeatures(mesh, topo, FeatureOptions()).value());
+    FitOptions o;
+    o.degree = 3;
+    const Topology split_topo = BuildTopology(features->split).value();
+    auto fits = FitSurface(features->split, split_topo, o).value();
+    FeatureSurface surface(mesh, features, MakeSurface(ReconstructionMethod::kWalf, features->split, fits), o.degree);
+    double worst = 0, jac = 0;
+    for (const FacePoint& p : RandomFacePoints(mesh, 6, 7)) {
+      bool rim_face = false;
+      for (int c = 0; c < 3; ++c) rim_face |= features->IsFeature(mesh.faces(p.face, c), mesh.faces(p.face, (c + 1) % 3));
+      if (!rim_face) continue;
+      const SurfacePoint s = surface.Evaluate(p);
+      worst = std::max(worst, CylinderDistance(s.position));
+      const double eps = 1e-6;
+      for (int k = 0; k < 2; ++k) {  // central differences, kept inside the triangle
+        FacePoint a = p, b = p;
+        (k == 0 ? a.xi : a.eta) -= eps;
+        (k == 0 ? b.xi : b.eta) += eps;
+        if (a.xi < 0 || a.eta < 0 || b.xi + b.eta > 1) continue;
+        const Eigen::Vector3d fd = (surface.Evaluate(b).position - surface.Evaluate(a).position) / (2 * eps);
+        jac = std::max(jac, (fd - s.jacobian.col(k)).norm() / s.jacobian.col(k).norm());
+      }
+    }
+    std::printf("n=%d: rim faces' interior points within %.2e of the cylinder; Jacobian vs FD %.1e\n", n, worst, jac);
+    EXPECT_LT(jac, 1e-6);
+    h.push_back(AverageEdgeLength(mesh));
+    err.push_back(worst);
+  }
+  EXPECT_GE(ConvergenceOrder(h, err), 3.5);  // degree 3: O(h^4); the flat chord would be O(h^2)
+}
+
 }  // namespace
 }  // namespace geomfit

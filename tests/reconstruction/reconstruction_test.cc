@@ -123,8 +123,8 @@ TEST(OscillationSafeguardTest, DowngradesOnCoarseMeshesOnly) {
       (n == 8 ? coarse : fine) = count;
     }
     std::printf("degree %d: downgraded %d of 192 coarse vertices, %d of 12288 fine\n", d, coarse, fine);
-    EXPECT_GT(coarse, 0);
-    EXPECT_LT(fine, 12288 / 10);
+    EXPECT_GT(coarse, 192 / 5);
+    EXPECT_EQ(fine, 0);
   }
   // Degrees <= 3 on the fine mesh: nothing to downgrade.
   GeneratorOptions g;
@@ -135,6 +135,36 @@ TEST(OscillationSafeguardTest, DowngradesOnCoarseMeshesOnly) {
   o.oscillation_safeguard = true;
   auto fits = FitSurface(mesh, BuildTopology(mesh).value(), o).value();
   for (const VertexDiagnostics& dg : fits->diagnostics()) ASSERT_FALSE(dg.flags & kFlagOscillation);
+}
+
+// The safeguard costs nothing on smooth, resolved meshes: WALF's max distance with it is
+// within 1.5x of without it at mid resolutions, every degree (the text's absolute
+// eps = 0.01 cost 2-36x on the torus and up to 290x on the sphere here). At the
+// coarsest level it still prevents the blow-ups: without it degree 5 reaches 0.37 on a
+// torus of tube radius 0.3 and normals turn by ~70 degrees.
+TEST(OscillationSafeguardTest, CostsNothingOnSmoothMeshesAndBoundsCoarseOnes) {
+  for (const std::string name : {"torus", "sphere"})
+    for (int n : {16, 24})
+      for (int d = 2; d <= 6; ++d) {
+        const Errors off = Measure(name, n, ReconstructionMethod::kWalf, d, false, 4);
+        const Errors on = Measure(name, n, ReconstructionMethod::kWalf, d, true, 4);
+        std::printf("%s n=%d d=%d: distance off %.2e on %.2e (x%.2f)\n", name.c_str(), n, d, off.distance,
+                    on.distance, on.distance / off.distance);
+        EXPECT_LE(on.distance, 1.5 * off.distance) << name << " n=" << n << " d=" << d;
+        EXPECT_LE(on.normal, 1.5 * off.normal) << name << " n=" << n << " d=" << d;
+      }
+  const double linear = Measure("torus", 8, ReconstructionMethod::kLinear, 2).distance;
+  double worst_off = 0;
+  for (int d = 3; d <= 6; ++d) {
+    const Errors off = Measure("torus", 8, ReconstructionMethod::kWalf, d, false);
+    const Errors on = Measure("torus", 8, ReconstructionMethod::kWalf, d, true);
+    std::printf("torus n=8 d=%d: distance off %.2e on %.2e, normal off %.2f on %.2f (linear %.2e)\n", d,
+                off.distance, on.distance, off.normal, on.normal, linear);
+    worst_off = std::max(worst_off, off.distance);
+    EXPECT_LT(on.normal, 0.7);  // |n - n_exact| < sqrt(2): no flipped normal, far from it
+    EXPECT_LT(on.distance, 1.5 * linear);
+  }
+  EXPECT_GT(worst_off, 5 * linear);  // the blow-up the safeguard exists for
 }
 
 TEST(FacePointTest, RejectsPointsOutsideFacesAndBadFaces) {
