@@ -10,7 +10,7 @@ pkgs=(
   libsqlite3-dev prometheus-cpp-dev libsuitesparse-dev
   python3 python3-grpcio python3-protobuf python3-numpy python3-pytest
   python3-vtk9 python3-meshio
-  python3-dev pybind11-dev
+  python3-dev pybind11-dev python3-setuptools python3-pip python3-venv python3-wheel
   "$@"
 )
 missing=()
