@@ -193,4 +193,22 @@ for line in open(sys.argv[1]):
 assert worst < 2e-3, worst
 PY
 
+# --- progress bars: forced on with --progress (stderr is a file here), off by default
+run_ok generate torus --level 24 --output p.obj
+run_ok curvature p.obj --degree 4 --output p.npy
+[ ! -s stderr.txt ] || fail "progress drawn on a non-terminal stderr: $(cat stderr.txt)"
+run_ok curvature --progress p.obj --degree 4 --output p.npy
+tr '\r' '\n' <stderr.txt >progress.txt
+for phase in read fit evaluate write; do
+  grep -q "^$phase " progress.txt || fail "no '$phase' progress: $(cat progress.txt)"
+done
+grep -Eq '^evaluate +\[#{24}\] 100%  1728/1728  [0-9.e+]+/s  [0-9.]+ s' progress.txt ||
+  fail "evaluate bar lacks 100%, count or rate: $(cat progress.txt)"
+run_ok integrate p.obj --progress --no-progress
+[ "$(grep -c . stderr.txt)" -eq 0 ] || fail "--no-progress (last) still drew"
+run_ok integrate p.obj --progress
+grep -q "integrate" stderr.txt || fail "no integrate progress"
+run_ok nodes p.obj --order 2 --output pn --progress
+tr '\r' '\n' <stderr.txt | grep -q "^write " || fail "nodes: no write progress"
+
 echo "cli_test: $checks checks passed"

@@ -4,6 +4,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "clients/cpp/cli/cli.h"
+#include "clients/cpp/cli/progress.h"
 #include "core/mesh/topology.h"
 #include "core/surfaces/analytic.h"
 #include "core/util/status_macros.h"
@@ -43,19 +44,23 @@ absl::Status RunCurvature(const std::vector<std::string>& argv) {
 #endif
   }
 
+  ProgressBar& bar = ProgressBar::Get();
   Stopwatch read_timer;
+  bar.Begin("read");
   GF_ASSIGN_OR_RETURN(const Mesh mesh, ReadMesh(a.mesh));
   GF_RETURN_IF_ERROR(WithPrefix(ValidateMesh(mesh).status(), a.mesh));
   Verbose(a.verbose, absl::StrFormat("read %s: %d vertices, %d faces in %.3f s", a.mesh,
                                      mesh.NumVertices(), mesh.NumFaces(), read_timer.Seconds()));
 
   Stopwatch fit_timer;
-  GF_ASSIGN_OR_RETURN(const Differentials d, ComputeDifferentials(mesh, a.fit, kAllQuantities, RunContext(nullptr, a.threads)));
+  GF_ASSIGN_OR_RETURN(const Differentials d, ComputeDifferentials(mesh, a.fit, kAllQuantities, bar.Context(a.threads)));
   Verbose(a.verbose, absl::StrFormat("fit + quantities (degree %d, %s): %.3f s", a.fit.degree,
                                      FitMethodName(a.fit.method), fit_timer.Seconds()));
 
   Stopwatch write_timer;
+  bar.Begin("write");
   GF_RETURN_IF_ERROR(WriteDifferentials(a.output, mesh, d, a.ascii));
+  bar.Finish();
   Verbose(a.verbose, absl::StrFormat("wrote %s in %.3f s", a.output.empty() ? "stdout" : a.output,
                                      write_timer.Seconds()));
   return absl::OkStatus();

@@ -8,6 +8,7 @@
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_split.h"
 #include "clients/cpp/cli/cli.h"
+#include "clients/cpp/cli/progress.h"
 #include "core/integration/integrate.h"
 #include "core/mesh/topology.h"
 #include "core/reconstruction/features.h"
@@ -120,6 +121,7 @@ absl::Status Load(const SurfaceArgs& a, bool stencils, Loaded* out) {
   o.oscillation_safeguard = !a.no_safeguard;
   if (absl::Status s = ValidateFitOptions(o); !s.ok()) return UsageError(s.message());
   Stopwatch t;
+  ProgressBar::Get().Begin("read");
   GF_ASSIGN_OR_RETURN(out->mesh, ReadMesh(a.mesh));
   absl::StatusOr<Topology> topo = ValidateMesh(out->mesh);
   if (!topo.ok()) return absl::InvalidArgumentError(absl::StrCat(a.mesh, ": ", topo.status().message()));
@@ -135,13 +137,13 @@ absl::Status Load(const SurfaceArgs& a, bool stencils, Loaded* out) {
     GF_ASSIGN_OR_RETURN(Features f, DetectFeatures(out->mesh, out->topo, fo));
     auto features = std::make_shared<const Features>(std::move(f));
     GF_ASSIGN_OR_RETURN(out->split_topo, BuildTopology(features->split));
-    GF_ASSIGN_OR_RETURN(out->fits, FitSurface(features->split, out->split_topo, o, nullptr, FitRequest{.stencils = stencils}, RunContext(nullptr, a.threads)));
+    GF_ASSIGN_OR_RETURN(out->fits, FitSurface(features->split, out->split_topo, o, nullptr, FitRequest{.stencils = stencils}, ProgressBar::Get().Context(a.threads)));
     out->features = features;
     out->surface = std::make_unique<FeatureSurface>(out->mesh, features, MakeSurface(method, features->split, out->fits, a.threads), a.degree);
     if (a.verbose)
       std::fprintf(stderr, "geomfit: %zu feature edges in %zu ridge curves\n", features->edges.size(), features->curves.size());
   } else {
-    GF_ASSIGN_OR_RETURN(out->fits, FitSurface(out->mesh, out->topo, o, nullptr, FitRequest{.stencils = stencils}, RunContext(nullptr, a.threads)));
+    GF_ASSIGN_OR_RETURN(out->fits, FitSurface(out->mesh, out->topo, o, nullptr, FitRequest{.stencils = stencils}, ProgressBar::Get().Context(a.threads)));
     out->surface = MakeSurface(method, out->mesh, out->fits, a.threads);
   }
   if (a.verbose)
@@ -151,6 +153,7 @@ absl::Status Load(const SurfaceArgs& a, bool stencils, Loaded* out) {
 }
 
 absl::Status WriteText(const std::string& path, const std::string& text) {
+  ProgressBar::Get().Begin("write");
   if (path.empty()) {
     std::fputs(text.c_str(), stdout);
     return absl::OkStatus();
@@ -234,7 +237,7 @@ absl::Status RunProject(const std::vector<std::string>& argv) {
     Loaded l;
     GF_RETURN_IF_ERROR(Load(a, false, &l));
     GF_ASSIGN_OR_RETURN(const RowMajorMatrixXd xyz, ReadTable(points, 3));
-    GF_RETURN_IF_ERROR(ProjectPoints(*l.surface, l.topo, Positions(xyz), &out, RunContext(nullptr, a.threads)));
+    GF_RETURN_IF_ERROR(ProjectPoints(*l.surface, l.topo, Positions(xyz), &out, ProgressBar::Get().Context(a.threads)));
   } else {
     Loaded l;
     GF_RETURN_IF_ERROR(Load(a, false, &l));
@@ -246,7 +249,7 @@ absl::Status RunProject(const std::vector<std::string>& argv) {
       fp[i] = {static_cast<int32_t>(fxe(i, 0)), fxe(i, 1), fxe(i, 2)};
     }
     std::vector<SurfacePoint> sp;
-    GF_RETURN_IF_ERROR(EvaluatePoints(*l.surface, fp, &sp, RunContext(nullptr, a.threads)));
+    GF_RETURN_IF_ERROR(EvaluatePoints(*l.surface, fp, &sp, ProgressBar::Get().Context(a.threads)));
     out.resize(sp.size());
     for (size_t i = 0; i < sp.size(); ++i) out[i] = {fp[i], sp[i], 0.0};
   }
@@ -297,7 +300,8 @@ absl::Status RunRefine(const std::vector<std::string>& argv) {
   }
   Loaded l;
   GF_RETURN_IF_ERROR(Load(a, false, &l));
-  GF_ASSIGN_OR_RETURN(const Mesh refined, RefineMesh(*l.surface, l.topo, factor, RunContext(nullptr, a.threads)));
+  GF_ASSIGN_OR_RETURN(const Mesh refined, RefineMesh(*l.surface, l.topo, factor, ProgressBar::Get().Context(a.threads)));
+  ProgressBar::Get().Begin("write");
   return WriteMesh(refined, a.output);
 }
 
@@ -329,11 +333,12 @@ absl::Status RunNodes(const std::vector<std::string>& argv) {
   } else {
     Loaded l;
     GF_RETURN_IF_ERROR(Load(a, false, &l));
-    GF_ASSIGN_OR_RETURN(ho, MakeHighOrderMesh(*l.surface, l.topo, order, RunContext(nullptr, a.threads)));
+    GF_ASSIGN_OR_RETURN(ho, MakeHighOrderMesh(*l.surface, l.topo, order, ProgressBar::Get().Context(a.threads)));
     // For viewing: each element split along its nodes (the same lattice) as PREFIX.vtp.
-    GF_ASSIGN_OR_RETURN(const Mesh split, RefineMesh(*l.surface, l.topo, order, RunContext(nullptr, a.threads)));
+    GF_ASSIGN_OR_RETURN(const Mesh split, RefineMesh(*l.surface, l.topo, order, ProgressBar::Get().Context(a.threads)));
     GF_RETURN_IF_ERROR(WriteVtp(a.output + ".vtp", split, {}, VtkOptions{}));
   }
+  ProgressBar::Get().Begin("write");
   std::string nodes = "x\ty\tz\n", elements;
   for (int i = 0; i < ho.nodes.rows(); ++i)
     absl::StrAppendFormat(&nodes, "%.17g\t%.17g\t%.17g\n", ho.nodes(i, 0), ho.nodes(i, 1), ho.nodes(i, 2));
@@ -386,7 +391,7 @@ absl::Status RunIntegrate(const std::vector<std::string>& argv) {
   } else {
     Loaded l;
     GF_RETURN_IF_ERROR(Load(a, !scalar.empty() || !vector.empty(), &l));
-    GF_ASSIGN_OR_RETURN(r, Integrate(*l.surface, in, RunContext(nullptr, a.threads)));
+    GF_ASSIGN_OR_RETURN(r, Integrate(*l.surface, in, ProgressBar::Get().Context(a.threads)));
   }
   std::string text = absl::StrFormat("area\t%.17g\nvolume\t%.17g\n", r.area, r.volume);
   if (!scalar.empty()) absl::StrAppendFormat(&text, "scalar\t%.17g\n", r.scalars[0]);
