@@ -20,10 +20,7 @@ absl::Status WithPrefix(const absl::Status& s, const std::string& prefix) {
 }
 
 /// Checks an output path's mesh extension before any work is done (a usage error).
-absl::Status CheckMeshOutput(const std::string& path) {
-  auto format = FormatFromPath(path);
-  return format.ok() ? absl::OkStatus() : UsageError(format.status().message());
-}
+absl::Status CheckMeshOutput(const std::string& path) { return MeshOutputFormat(path).status(); }
 
 void Verbose(bool on, const std::string& line) {
   if (on) std::fprintf(stderr, "geomfit: %s\n", line.c_str());
@@ -94,7 +91,7 @@ absl::Status RunGenerate(const std::vector<std::string>& argv) {
   Verbose(verbose, absl::StrFormat("generated %s: %d vertices, %d faces in %.3f s", name,
                                    mesh->NumVertices(), mesh->NumFaces(), timer.Seconds()));
   Stopwatch write_timer;
-  GF_RETURN_IF_ERROR(WriteMesh(*mesh, output));
+  GF_RETURN_IF_ERROR(WriteMeshOutput(*mesh, output));
   Verbose(verbose, absl::StrFormat("wrote %s in %.3f s", output, write_timer.Seconds()));
   return absl::OkStatus();
 }
@@ -125,7 +122,7 @@ absl::Status RunConvert(const std::vector<std::string>& argv) {
   Stopwatch write_timer;
   VtkOptions vtk;
   if (ascii) vtk.encoding = VtkEncoding::kAscii;
-  GF_RETURN_IF_ERROR(WriteMesh(mesh, out, vtk));
+  GF_RETURN_IF_ERROR(WriteMeshOutput(mesh, out, vtk));
   Verbose(verbose, absl::StrFormat("wrote %s in %.3f s", out, write_timer.Seconds()));
   return absl::OkStatus();
 }

@@ -154,7 +154,7 @@ absl::Status Load(const SurfaceArgs& a, bool stencils, Loaded* out) {
 
 absl::Status WriteText(const std::string& path, const std::string& text) {
   ProgressBar::Get().Begin("write");
-  if (path.empty()) {
+  if (path.empty() || path == "-") {
     std::fputs(text.c_str(), stdout);
     return absl::OkStatus();
   }
@@ -175,7 +175,7 @@ absl::Status RefineAsJob(const SurfaceArgs& a, int factor, int levels) {
   if (levels < 1 || levels > 8) return UsageError(absl::StrCat("--levels ", levels, " is out of range [1, 8]"));
   if (factor != 2 && factor != 3) return UsageError(absl::StrCat("--factor ", factor, ": a job refines by 2 or 3"));
   if (!a.output.empty()) {
-    if (auto f = FormatFromPath(a.output); !f.ok()) return UsageError(f.status().message());
+    GF_RETURN_IF_ERROR(MeshOutputFormat(a.output).status());
   }
 #ifdef GEOMFIT_WITH_CLIENT
   GF_ASSIGN_OR_RETURN(const v1::ReconstructionOptions o, ToWire(a));
@@ -195,7 +195,7 @@ absl::Status RefineAsJob(const SurfaceArgs& a, int factor, int levels) {
   std::fputs(table.c_str(), stdout);
   if (a.output.empty() || results.empty()) return absl::OkStatus();
   GF_ASSIGN_OR_RETURN(const Mesh finest, r.client->Download(results.back().mesh_id()));
-  return WriteMesh(finest, a.output);
+  return WriteMeshOutput(finest, a.output);
 #else
   return NoClient(a);
 #endif
@@ -254,7 +254,7 @@ absl::Status RunProject(const std::vector<std::string>& argv) {
     for (size_t i = 0; i < sp.size(); ++i) out[i] = {fp[i], sp[i], 0.0};
   }
   if (a.verbose) std::fprintf(stderr, "geomfit: %zu points in %.3f s\n", out.size(), t.Seconds());
-  std::string text = "face\txi\teta\tx\ty\tz\tnx\tny\tnz\tdistance\n";
+  std::string text = "# face\txi\teta\tx\ty\tz\tnx\tny\tnz\tdistance\n";
   for (const ProjectedPoint& q : out) {
     const Eigen::Vector3d& x = q.point.position;
     const Eigen::Vector3d& n = q.point.normal;
@@ -284,7 +284,7 @@ absl::Status RunRefine(const std::vector<std::string>& argv) {
   if (job) return RefineAsJob(a, factor, levels);
   if (levels != 1) return UsageError("--levels needs --job (and --server)");
   if (a.output.empty()) return UsageError("'geomfit refine' needs --output FILE");
-  if (auto f = FormatFromPath(a.output); !f.ok()) return UsageError(f.status().message());
+  GF_RETURN_IF_ERROR(MeshOutputFormat(a.output).status());
   if (factor < 2 || factor > 8) return UsageError(absl::StrCat("--factor ", factor, " is out of range [2, 8]"));
   if (!a.server.empty()) {
 #ifdef GEOMFIT_WITH_CLIENT
@@ -293,7 +293,7 @@ absl::Status RunRefine(const std::vector<std::string>& argv) {
     GF_ASSIGN_OR_RETURN(const RemoteMesh refined, r.client->RefineMesh(r.id, factor, o));
     std::fprintf(stderr, "geomfit: stored the refined mesh as %s\n", refined.mesh_id.c_str());
     GF_ASSIGN_OR_RETURN(const Mesh m, r.client->Download(refined.mesh_id));
-    return WriteMesh(m, a.output);
+    return WriteMeshOutput(m, a.output);
 #else
     return NoClient(a);
 #endif
@@ -302,7 +302,7 @@ absl::Status RunRefine(const std::vector<std::string>& argv) {
   GF_RETURN_IF_ERROR(Load(a, false, &l));
   GF_ASSIGN_OR_RETURN(const Mesh refined, RefineMesh(*l.surface, l.topo, factor, ProgressBar::Get().Context(a.threads)));
   ProgressBar::Get().Begin("write");
-  return WriteMesh(refined, a.output);
+  return WriteMeshOutput(refined, a.output);
 }
 
 absl::Status RunNodes(const std::vector<std::string>& argv) {
@@ -339,7 +339,7 @@ absl::Status RunNodes(const std::vector<std::string>& argv) {
     GF_RETURN_IF_ERROR(WriteVtp(a.output + ".vtp", split, {}, VtkOptions{}));
   }
   ProgressBar::Get().Begin("write");
-  std::string nodes = "x\ty\tz\n", elements;
+  std::string nodes = "# x\ty\tz\n", elements;
   for (int i = 0; i < ho.nodes.rows(); ++i)
     absl::StrAppendFormat(&nodes, "%.17g\t%.17g\t%.17g\n", ho.nodes(i, 0), ho.nodes(i, 1), ho.nodes(i, 2));
   for (size_t f = 0; f + 1 < ho.offsets.size(); ++f) {

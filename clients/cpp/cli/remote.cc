@@ -94,11 +94,17 @@ absl::Status Update(const std::vector<std::string>& args) {
 
 absl::Status Info(const std::vector<std::string>& args) {
   std::string server, id;
-  ArgParser p("geomfit info", "--server HOST:PORT MESH_ID", "Prints what the server stores about a mesh.");
-  p.String("server", &server, "geomfit server", "HOST:PORT").Positional("MESH_ID", &id, "id of the stored mesh");
+  ArgParser p("geomfit info", "--server HOST:PORT MESH|MESH_ID",
+              "Prints what the server stores about a mesh: a stored mesh's id, or a mesh file\n"
+              "(uploaded, idempotently, as every command taking MESH does).");
+  p.String("server", &server, "geomfit server", "HOST:PORT")
+      .Positional("MESH", &id, "mesh file (.obj .off .ply .stl) or id of a stored mesh");
   GF_ASSIGN_OR_RETURN(bool run, ParseRemote(p, args, server));
   if (!run) return absl::OkStatus();
-  GF_ASSIGN_OR_RETURN(RemoteMesh info, ConnectTo(server)->GetMesh(id));
+  std::unique_ptr<Client> client = ConnectTo(server);
+  Mesh mesh;
+  GF_ASSIGN_OR_RETURN(id, RemoteMeshId(*client, id, false, &mesh));
+  GF_ASSIGN_OR_RETURN(RemoteMesh info, client->GetMesh(id));
   return Print({info});
 }
 
