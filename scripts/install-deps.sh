@@ -9,7 +9,7 @@ pkgs=(
   libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc
   libsqlite3-dev prometheus-cpp-dev libsuitesparse-dev
   python3 python3-grpcio python3-protobuf python3-numpy python3-pytest
-  python3-vtk9 python3-meshio
+  python3-vtk9 python3-meshio python3-tqdm
   python3-dev pybind11-dev python3-setuptools python3-pip python3-venv python3-wheel
   "$@"
 )

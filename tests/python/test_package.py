@@ -177,3 +177,21 @@ def test_wait_job_reports_progress(server):
     assert [e.seq for e in seen] == list(range(1, len(seen) + 1))
     assert seen[-1] is final and len(final.results) == 2
     assert {e.step for e in seen} >= {1, 2}
+
+
+def test_progress_callbacks_draw_tqdm_bars_and_text(server, capsys):
+    import io
+
+    import geomfit.progress
+    positions, faces = torus(12, 8)
+    text = io.StringIO()
+    with geomfit.Client(server.address) as c:
+        mesh_id = c.upload(positions, faces).mesh_id
+        final = c.wait_job(c.refine_job(mesh_id, levels=2).job_id, progress=geomfit.progress.tqdm_callback())
+        c.wait_job(c.refine_job(mesh_id, levels=1).job_id, progress=geomfit.progress.text_callback(text))
+    assert len(final.results) == 2
+    bars = capsys.readouterr().err
+    assert "refine 1" in bars and "refine 2" in bars, bars  # a tqdm bar per (step, phase)
+    lines = text.getvalue().splitlines()
+    assert lines[0].endswith(": 1 queued step 0 0"), lines
+    assert any(line.endswith(" stored step 1 1/1") for line in lines), lines
