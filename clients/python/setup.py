@@ -74,6 +74,9 @@ class BuildNative(build_ext):
 
     def build_extension(self, ext):
         mode = os.environ.get("GEOMFIT_NATIVE", "auto")
+        stale = self.get_ext_fullpath(ext.name)  # from an earlier build in the same folder
+        if os.path.isfile(stale):
+            os.remove(stale)
         if mode == "0":
             print("geomfit: GEOMFIT_NATIVE=0: no native transport (grpcio only)")
             return
