@@ -123,7 +123,7 @@ absl::StatusOr<std::vector<v1::JobResultMesh>> RunRefineJob(Client& client, cons
   ProgressBar& bar = ProgressBar::Get();
   GF_RETURN_IF_ERROR(client.WatchJob(job.job_id(), 0, [&](const v1::JobEvent& e) {
     if (bar.enabled()) {
-      bar.Update(absl::StrCat(e.phase(), " ", e.step()), e.done(), e.total());
+      if (!e.phase().empty()) bar.Update(absl::StrCat(e.phase(), " ", e.step()), e.done(), e.total());
     } else {
       std::fprintf(stderr, "geomfit: %s\n", FormatJobEvent(e).c_str());
     }

@@ -66,6 +66,7 @@ absl::StatusOr<RemoteSession> Connect(const SurfaceArgs& a) {
   RemoteSession r;
   r.client = ConnectTo(a.server);
   GF_ASSIGN_OR_RETURN(r.id, RemoteMeshId(*r.client, a.mesh, a.verbose, &r.mesh));
+  ProgressBar::Get().Begin("compute");
   return r;
 }
 #endif
