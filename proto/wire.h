@@ -76,6 +76,11 @@ void AddQuantities(uint32_t mask, v1::ComputeDifferentialsRequest* request);
 /// Face kind of a mesh from its faces.
 v1::FaceKind KindOf(const Mesh& mesh);
 
+/// gRPC metadata key carrying the mesh id of every mesh-scoped call (and the id an
+/// upload will get: MeshIdOf(MeshContentHash(...)), core/mesh/content_hash.h), for
+/// cache-affine routers (deploy/router).
+inline constexpr char kMeshIdMetadata[] = "x-mesh-id";
+
 /// The UploadMesh stream of `mesh`: `header` (counts and kind filled in), then
 /// positions and faces in chunks of at most `chunk_rows` rows. Pure-triangle meshes
 /// send #F x 3 faces.

@@ -8,10 +8,16 @@
 #include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
 
+#include "geomfit/version.h"
+#include "server/logging.h"
 #include "server/options.h"
 #include "server/server.h"
 
 int main(int argc, char** argv) {
+  if (argc == 2 && std::string(argv[1]) == "--version") {
+    std::printf("%s\n", geomfit::VersionLine("geomfit-server").c_str());
+    return 0;
+  }
   absl::StatusOr<geomfit::server::ServerOptions> options =
       geomfit::server::ParseServerOptions(std::vector<std::string>(argv + 1, argv + argc));
   if (!options.ok()) {
@@ -34,6 +40,7 @@ int main(int argc, char** argv) {
   spdlog::init_thread_pool(8192, 1);
   spdlog::set_default_logger(spdlog::stderr_color_mt<spdlog::async_factory>("geomfit-server"));
   spdlog::set_level(spdlog::level::from_str(options->log_level));
+  if (options->log_format == "json") spdlog::set_formatter(geomfit::server::NewJsonLogFormatter());
 
   auto server = geomfit::server::Server::Start(*options);
   if (!server.ok()) {
@@ -47,10 +54,16 @@ int main(int argc, char** argv) {
   int sig = 0;
   sigwait(&signals, &sig);
   spdlog::info("received signal {}", sig);
-  std::thread([&signals] {  // a second signal stops at once
+  const bool json = options->log_format == "json";
+  std::thread([&signals, json] {  // a second signal stops at once
     int again = 0;
     sigwait(&signals, &again);
-    std::fprintf(stderr, "geomfit-server: second signal %d: exiting without draining\n", again);
+    if (json) {
+      std::fprintf(stderr, "{\"level\":\"critical\",\"logger\":\"geomfit-server\",\"message\":\"second signal %d: "
+                           "exiting without draining\"}\n", again);
+    } else {
+      std::fprintf(stderr, "geomfit-server: second signal %d: exiting without draining\n", again);
+    }
     std::_Exit(128 + again);
   }).detach();
   (*server)->Shutdown(options->drain_seconds);

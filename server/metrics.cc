@@ -1,7 +1,15 @@
 #include "server/metrics.h"
 
+#include <sys/resource.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
 #include <limits>
+#include <sstream>
 #include <string>
+
+#include "geomfit/version.h"
 
 namespace geomfit::server {
 namespace {
@@ -26,10 +34,70 @@ ClientMetric Sample(std::vector<ClientMetric::Label> labels, double value, Metri
   return m;
 }
 
+/// Boot time (seconds since the epoch): the "btime" line of /proc/stat.
+double BootTimeSeconds() {
+  std::ifstream in("/proc/stat");
+  for (std::string key; in >> key;) {
+    if (key == "btime") {
+      double t = 0;
+      in >> t;
+      return t;
+    }
+    in.ignore(std::numeric_limits<std::streamsize>::max(), '\n');
+  }
+  return 0;
+}
+
+void AddGauge(std::vector<MetricFamily>* out, const char* name, const char* help, double value,
+              MetricType type = MetricType::Gauge, std::vector<ClientMetric::Label> labels = {}) {
+  MetricFamily f = Family(name, help, type);
+  f.metric.push_back(Sample(std::move(labels), value, type));
+  out->push_back(std::move(f));
+}
+
 }  // namespace
+
+ProcessStats ReadProcessStats() {
+  ProcessStats p;
+  const double ticks = static_cast<double>(sysconf(_SC_CLK_TCK));
+  const double page = static_cast<double>(sysconf(_SC_PAGESIZE));
+  std::ifstream in("/proc/self/stat");
+  std::string line;
+  if (std::getline(in, line)) {
+    // Fields after the command name, which is in parentheses and may hold spaces:
+    // field 3 (state) onwards; utime 14, stime 15, starttime 22, vsize 23, rss 24.
+    std::istringstream rest(line.substr(line.rfind(')') + 2));
+    std::vector<std::string> f{"", "", ""};
+    for (std::string x; rest >> x;) f.push_back(x);
+    if (f.size() > 24) {
+      p.cpu_seconds = (std::stod(f[14]) + std::stod(f[15])) / ticks;
+      p.start_time_seconds = BootTimeSeconds() + std::stod(f[22]) / ticks;
+      p.virtual_bytes = std::stod(f[23]);
+      p.resident_bytes = std::stod(f[24]) * page;
+    }
+  }
+  std::error_code ec;
+  for (auto it = std::filesystem::directory_iterator("/proc/self/fd", ec); !ec && it != std::filesystem::end(it);
+       it.increment(ec)) {
+    p.open_fds += 1;
+  }
+  if (rlimit r{}; getrlimit(RLIMIT_NOFILE, &r) == 0) p.max_fds = static_cast<double>(r.rlim_cur);
+  return p;
+}
 
 std::vector<MetricFamily> MetricsCollectable::Collect() const {
   std::vector<MetricFamily> out;
+  const ProcessStats p = ReadProcessStats();
+  AddGauge(&out, "process_cpu_seconds_total", "Total user and system CPU time spent in seconds.", p.cpu_seconds,
+           MetricType::Counter);
+  AddGauge(&out, "process_resident_memory_bytes", "Resident memory size in bytes.", p.resident_bytes);
+  AddGauge(&out, "process_virtual_memory_bytes", "Virtual memory size in bytes.", p.virtual_bytes);
+  AddGauge(&out, "process_open_fds", "Number of open file descriptors.", p.open_fds);
+  AddGauge(&out, "process_max_fds", "Maximum number of open file descriptors.", p.max_fds);
+  AddGauge(&out, "process_start_time_seconds", "Start time of the process since unix epoch in seconds.",
+           p.start_time_seconds);
+  AddGauge(&out, "geomfit_build_info", "geomfit version and git revision (value 1)", 1, MetricType::Gauge,
+           {{"version", kVersion}, {"revision", kRevision}});
   MetricFamily requests = Family("geomfit_requests_total", "RPCs handled, by method and status code",
                                  MetricType::Counter);
   MetricFamily latency = Family("geomfit_request_duration_seconds", "RPC latency by method", MetricType::Histogram);

@@ -117,6 +117,12 @@ const std::vector<Flag>& Flags() {
          }
          return Bad("log-level", v, "trace, debug, info, warn, error or off");
        }},
+      {"log-format", "text, or json: one JSON object per line (for cluster log collectors)",
+       [](const std::string& v, ServerOptions* o) {
+         if (v != "text" && v != "json") return Bad("log-format", v, "text or json");
+         o->log_format = v;
+         return absl::OkStatus();
+       }},
   };
   return *flags;
 }
@@ -135,7 +141,7 @@ const Flag* Find(const std::string& name) {
 
 std::string ServerUsage() {
   ServerOptions d;
-  std::string s = "usage: geomfit-server [--flag=value ...]\n";
+  std::string s = "usage: geomfit-server [--flag=value ...]\n       geomfit-server --version\n";
   for (const Flag& f : Flags()) absl::StrAppend(&s, "  --", f.name, "  (", EnvName(f.name), ")  ", f.help, "\n");
   absl::StrAppend(&s, "defaults: --port=", d.port, " --store=", d.store, " --data-dir=", d.data_dir,
                   " --cache-bytes=", d.cache_bytes, " --max-message-bytes=", d.max_message_bytes,

@@ -25,6 +25,7 @@ struct ServerOptions {
   int64_t chunk_rows = 0;                  ///< rows per streamed response chunk; 0 = by chunk_bytes
   int64_t chunk_bytes = 128 << 10;         ///< target bytes per streamed chunk when chunk_rows = 0
   std::string log_level = "info";
+  std::string log_format = "text";         ///< text | json (one JSON object per line)
   int prefetch = 1;                        ///< 1: after UpdatePositions, recompute last step's differentials
   int spin_us = 1000;                      ///< one idle compute worker polls this long before sleeping
   int job_threads = 1;                     ///< jobs running at once (own threads, apart from the pools)

@@ -6,7 +6,8 @@ namespace geomfit::server {
 
 const std::vector<double>& RequestStats::BucketsMs() {
   static const auto* b = new std::vector<double>{0.1, 0.25, 0.5, 1, 2.5, 5, 10, 25, 50, 100,
-                                                 250, 500, 1000, 2500, 5000, 10000, 30000};
+                                                 250, 500, 1000, 2500, 5000, 10000, 30000,
+                                                 60000, 120000, 300000, 600000};
   return *b;
 }
 

@@ -12,7 +12,8 @@ namespace geomfit::server {
 /// GetStatistics and the Prometheus exposition.
 class RequestStats {
  public:
-  /// Upper bounds (ms) of the latency buckets; a final +inf bucket is implied.
+  /// Upper bounds (ms) of the latency buckets, 0.1 ms to 10 min (a 480k-vertex
+  /// degree-6 fit takes ~40 s); a final +inf bucket is implied.
   static const std::vector<double>& BucketsMs();
 
   struct Method {

@@ -7,28 +7,14 @@
 
 #include "absl/strings/str_cat.h"
 #include "core/fitting/neighborhood.h"
+#include "core/mesh/content_hash.h"
 #include "core/quantities/differentials.h"
 #include "core/util/status_macros.h"
 #include "core/util/timer.h"
-#include "server/content_hash.h"
 
 namespace geomfit::server {
 namespace {
 
-/// Identity of an upload: faces, positions, name and (sorted) labels.
-std::string HashUpload(const Mesh& mesh, const MeshMeta& meta) {
-  ContentHash h;
-  const int64_t counts[2] = {mesh.NumVertices(), mesh.NumFaces()};
-  h.Add(counts, sizeof(counts));
-  h.Add(mesh.faces.data(), sizeof(int32_t) * mesh.faces.size());
-  h.Add(mesh.positions.data(), sizeof(double) * mesh.positions.size());
-  h.AddString(meta.name);
-  for (const auto& [k, v] : meta.labels) {  // std::map: sorted
-    h.AddString(k);
-    h.AddString(v);
-  }
-  return h.Hex();
-}
 
 int64_t DifferentialsBytes(const Differentials& d) {
   const size_t doubles = d.normals.size() + d.mean.size() + d.gaussian.size() + d.k1.size() + d.k2.size() +
@@ -63,8 +49,8 @@ absl::StatusOr<MeshRecord> Workspace::AddMesh(Mesh mesh, const MeshMeta& meta) {
                                                      cache_->budget(), " (--cache-bytes)"));
   }
   MeshRecord info;
-  info.content_hash = HashUpload(mesh, meta);
-  info.mesh_id = "m-" + info.content_hash.substr(0, 20);
+  info.content_hash = MeshContentHash(mesh, meta.name, meta.labels);  // the clients compute it too
+  info.mesh_id = MeshIdOf(info.content_hash);
   info.num_vertices = mesh.NumVertices();
   info.num_faces = mesh.NumFaces();
   info.face_kind = FaceKindOf(mesh);

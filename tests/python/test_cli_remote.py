@@ -122,3 +122,17 @@ def test_refine_job_and_jobs_commands(server, mesh_file, tmp_path):
     assert missing.returncode == 1 and "not found" in missing.stderr
     bad = run("refine", "--server", address, mesh_file, "--job", "--levels", "0", check=False)
     assert bad.returncode == 2 and "--levels" in bad.stderr
+
+
+def test_health_reports_serving_and_fails_when_nothing_listens(server):
+    r = run("health", "--server", server.address)
+    assert r.stdout == "SERVING\n"
+    r = run("health", "--server", server.address, "--service", "geomfit.v1.GeomFit")
+    assert r.stdout == "SERVING\n"
+    import socket
+    with socket.socket() as s:  # a port with nothing listening
+        s.bind(("127.0.0.1", 0))
+        closed = "127.0.0.1:%d" % s.getsockname()[1]
+    r = run("health", "--server", closed, "--timeout", "2", check=False)
+    assert r.returncode == 1, r.stderr
+    assert r.stderr.startswith("geomfit: error: ") and "UNAVAILABLE" not in r.stdout

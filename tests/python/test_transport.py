@@ -40,7 +40,7 @@ def test_transports_give_identical_results(server):
         b = grpcio.curvature(mesh_id, degree=3, quantities=ALL_QUANTITIES, diagnostics=True)
         assert not a.summary.fit_cache_hit and b.summary.quantities_cache_hit
         assert sum(a.summary.vertices_by_degree) == len(positions)  # the last chunk's summary
-        timing = ("fit_cache_hit", "quantities_cache_hit", "fit_ms", "evaluate_ms")
+        timing = ("fit_cache_hit", "quantities_cache_hit", "fit_ms", "evaluate_ms", "joined_compute_ms")
         assert _without(a.summary, *timing) == _without(b.summary, *timing)
         for name in ("normals", "mean", "gaussian", "k1", "k2", "dir1", "dir2", "tensor"):
             x, y = getattr(a, name), getattr(b, name)

@@ -25,14 +25,15 @@ example = next(b for b in blocks if "upload_file" in b)
 print(example.replace("127.0.0.1:50051", sys.argv[2]))
 PY
 
-for native in 1 0; do
-  rm -rf "$tmp/venv" "$tmp/src"
+/usr/bin/python3 -m venv --system-site-packages "$tmp/venv"
+for native in 1 0; do  # the second install replaces the first in the same venv
+  rm -rf "$tmp/src"
   # A copy of the sources, as a user's checkout: the install writes nothing into ours.
   mkdir -p "$tmp/src/clients" && cp -r "$src/clients/python" "$tmp/src/clients/" && cp -r "$src/proto" "$tmp/src/"
-  rm -rf "$tmp/src/clients/python/geomfit/_gen" "$tmp/src/clients/python/geomfit/"_native*.so
-  /usr/bin/python3 -m venv --system-site-packages "$tmp/venv"
+  rm -rf "$tmp/src/clients/python/geomfit/_gen" "$tmp/src/clients/python/geomfit/"_native*.so \
+         "$tmp/src/clients/python/build" "$tmp/src/clients/python/"*.egg-info
   GEOMFIT_NATIVE=$native GEOMFIT_CMAKE_BUILD_DIR=$build GEOMFIT_PROTO_DIR=$tmp/src/proto \
-    "$tmp/venv/bin/pip" install -q --no-build-isolation --no-index "$tmp/src/clients/python"
+    "$tmp/venv/bin/pip" install -q --no-build-isolation --no-index --force-reinstall --no-deps "$tmp/src/clients/python"
   out=$(cd "$src" && env -u PYTHONPATH "$tmp/venv/bin/python" "$tmp/example.py")
   echo "$out"
   where=$(cd / && env -u PYTHONPATH "$tmp/venv/bin/python" -c "import geomfit; print(geomfit.__file__)")

@@ -10,6 +10,7 @@
 #include <gtest/gtest.h>
 
 #include "geomfit/v1/geomfit.pb.h"
+#include "core/mesh/content_hash.h"
 #include "tests/server/test_util.h"
 
 namespace geomfit {
@@ -67,6 +68,39 @@ TEST(ClientTest, AStreamTheServerRefusesEndsInItsStatus) {
       EXPECT_EQ(info.status().code(), absl::StatusCode::kResourceExhausted) << info.status();
     }
   }
+}
+
+// The id a client computes before uploading (its x-mesh-id routing key) is the id the
+// server gives the upload: triangles and quads, names and labels.
+TEST(ClientTest, PredictsTheMeshIdOfAnUpload) {
+  InProcessServer server;
+  auto client = ClientFor(server.port());
+  Mesh cube;
+  cube.positions.resize(8, 3);
+  for (int i = 0; i < 8; ++i) cube.positions.row(i) << (i & 1), (i >> 1) & 1, (i >> 2) & 1;
+  cube.faces.resize(6, 4);
+  cube.faces << 0, 2, 3, 1, 4, 5, 7, 6, 0, 1, 5, 4, 2, 6, 7, 3, 0, 4, 6, 2, 1, 3, 7, 5;
+  struct Case {
+    Mesh mesh;
+    std::string name;
+    std::map<std::string, std::string> labels;
+  };
+  for (const Case& c : {Case{server::testing::TestTorus(10), "torus", {{"b", "2"}, {"a", "1"}}},
+                        Case{server::testing::TestSphere(), "", {}}, Case{cube, "cube", {{"k", ""}}}}) {
+    const std::string predicted = MeshIdOf(MeshContentHash(c.mesh, c.name, c.labels));
+    auto info = client->Upload(c.mesh, c.name, c.labels);
+    ASSERT_TRUE(info.ok()) << info.status();
+    EXPECT_EQ(info->mesh_id, predicted) << c.name;
+    EXPECT_EQ(info->content_hash.substr(0, 20), predicted.substr(2));
+  }
+}
+
+TEST(ClientTest, ChecksHealth) {
+  InProcessServer server;
+  auto client = ClientFor(server.port());
+  EXPECT_EQ(client->CheckHealth().value_or("error"), "SERVING");
+  EXPECT_EQ(client->CheckHealth("geomfit.v1.GeomFit").value_or("error"), "SERVING");
+  EXPECT_EQ(client->CheckHealth("no.such.Service").status().code(), absl::StatusCode::kNotFound);
 }
 
 TEST(ClientTest, RoundTrip) {

@@ -26,6 +26,21 @@ TEST(OptionsTest, DefaultsFlagsAndEnvironment) {
   EXPECT_EQ(o->max_vertices, 1000);
 }
 
+TEST(OptionsTest, LogFormat) {
+  auto d = ParseServerOptions({});
+  ASSERT_TRUE(d.ok());
+  EXPECT_EQ(d->log_format, "text");
+  ::setenv("GEOMFIT_LOG_FORMAT", "json", 1);
+  auto o = ParseServerOptions({});
+  ::unsetenv("GEOMFIT_LOG_FORMAT");
+  ASSERT_TRUE(o.ok()) << o.status();
+  EXPECT_EQ(o->log_format, "json");
+  o = ParseServerOptions({"--log-format", "json"});
+  ASSERT_TRUE(o.ok()) << o.status();
+  EXPECT_EQ(o->log_format, "json");
+  EXPECT_NE(ServerUsage().find("GEOMFIT_LOG_FORMAT"), std::string::npos);
+}
+
 TEST(OptionsTest, BadValuesNameTheFlag) {
   auto r = ParseServerOptions({"--store=postgres"});
   ASSERT_FALSE(r.ok());
@@ -36,6 +51,9 @@ TEST(OptionsTest, BadValuesNameTheFlag) {
   r = ParseServerOptions({"--log-level=loud"});
   ASSERT_FALSE(r.ok());
   EXPECT_NE(r.status().message().find("--log-level=loud"), std::string::npos);
+  r = ParseServerOptions({"--log-format=xml"});
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.status().message().find("--log-format=xml"), std::string::npos) << r.status();
   r = ParseServerOptions({"--spin-us=-1"});
   ASSERT_FALSE(r.ok());
   EXPECT_NE(r.status().message().find("--spin-us"), std::string::npos);

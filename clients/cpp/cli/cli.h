@@ -12,14 +12,13 @@
 #include "core/mesh/io.h"
 #include "core/mesh/mesh.h"
 #include "core/quantities/differentials.h"
+#include "geomfit/version.h"
 
 namespace geomfit {
 struct HighOrderMesh;
 }  // namespace geomfit
 
 namespace geomfit::cli {
-
-inline constexpr char kVersion[] = "0.1.0";
 
 /// Exit codes: 0 success, 1 runtime error (I/O, invalid mesh, server), 2 usage error.
 inline constexpr int kExitOk = 0;
@@ -164,7 +163,7 @@ absl::StatusOr<bool> ParseRemote(ArgParser& p, const std::vector<std::string>& a
 absl::StatusOr<std::string> RemoteMeshId(Client& client, const std::string& mesh_arg, bool verbose, Mesh* mesh);
 /// Service mode (remote.cc): `curvature --server ...` with parsed arguments.
 absl::Status RunCurvatureRemote(const CurvatureArgs& args);
-/// Service-only commands (remote.cc): upload, update, info, list, delete.
+/// Service-only commands (remote.cc): upload, update, info, list, delete, health.
 /// Returns a usage error for a command it does not know.
 absl::Status RunRemoteCommand(const std::string& command, const std::vector<std::string>& args);
 /// `geomfit jobs list|get|watch|cancel` (jobs.cc).
@@ -179,7 +178,7 @@ absl::StatusOr<std::vector<v1::JobResultMesh>> RunRefineJob(Client& client, cons
 /// Names of the service-only commands (for help text and a clear error when the
 /// client is not built in).
 inline const std::vector<std::string>& RemoteCommandNames() {
-  static const std::vector<std::string> names = {"upload", "update", "info", "list", "delete", "jobs"};
+  static const std::vector<std::string> names = {"upload", "update", "info", "list", "delete", "jobs", "health"};
   return names;
 }
 inline constexpr char kNoClientMessage[] = "this geomfit was built without the service client";

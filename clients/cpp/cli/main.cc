@@ -96,7 +96,7 @@ int Main(int argc, char** argv) {
     return kExitOk;
   }
   if (command == "--version") {
-    std::printf("geomfit %s\n", kVersion);
+    std::printf("%s\n", VersionLine("geomfit").c_str());
     return kExitOk;
   }
   absl::Status status;

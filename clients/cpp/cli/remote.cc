@@ -128,6 +128,30 @@ absl::Status Delete(const std::vector<std::string>& args) {
   return ConnectTo(server)->DeleteMesh(id);
 }
 
+/// grpc.health.v1 Check: prints the status; OK only when SERVING (container
+/// HEALTHCHECKs and readiness scripts run it).
+absl::Status Health(const std::vector<std::string>& args) {
+  std::string server, service;
+  double timeout = 5;
+  ArgParser p("geomfit health", "--server HOST:PORT [--service NAME] [--timeout SECONDS]",
+              "Asks the server's grpc.health.v1 service; prints SERVING, NOT_SERVING (draining), ...\n"
+              "Exit status 0 only when SERVING.");
+  p.String("server", &server, "geomfit server", "HOST:PORT")
+      .String("service", &service, "service name; empty = the whole server (geomfit.v1.GeomFit also works)", "NAME")
+      .Double("timeout", &timeout, "seconds to wait for the answer");
+  GF_ASSIGN_OR_RETURN(bool run, ParseRemote(p, args, server));
+  if (!run) return absl::OkStatus();
+  if (!(timeout > 0)) return UsageError("--timeout must be positive");
+  ClientOptions o;
+  o.target = server;
+  o.deadline = std::chrono::milliseconds(static_cast<int64_t>(timeout * 1e3));
+  o.max_attempts = 1;
+  GF_ASSIGN_OR_RETURN(const std::string status, Client::Connect(o)->CheckHealth(service));
+  std::printf("%s\n", status.c_str());
+  if (status != "SERVING") return absl::UnavailableError(absl::StrCat(server, " is ", status));
+  return absl::OkStatus();
+}
+
 }  // namespace
 
 absl::StatusOr<std::string> RemoteMeshId(Client& client, const std::string& mesh_arg, bool verbose, Mesh* mesh) {
@@ -167,6 +191,7 @@ absl::Status RunRemoteCommand(const std::string& command, const std::vector<std:
   if (command == "list") return List(args);
   if (command == "delete") return Delete(args);
   if (command == "jobs") return RunJobs(args);
+  if (command == "health") return Health(args);
   return UsageError(absl::StrCat("unknown service command '", command, "'"));
 }
 

@@ -4,8 +4,10 @@
 #include <thread>
 
 #include <grpcpp/grpcpp.h>
+#include <grpcpp/impl/codegen/client_unary_call.h>
 
 #include "absl/strings/str_cat.h"
+#include "core/mesh/content_hash.h"
 #include "core/util/status_macros.h"
 #include "geomfit/v1/geomfit.grpc.pb.h"
 #include "proto/wire.h"
@@ -89,13 +91,16 @@ struct Client::Impl {
   std::map<std::string, Kept> kept;
 
   /// Runs one call (a fresh context with the deadline per attempt), retrying
-  /// UNAVAILABLE with exponential backoff.
-  absl::Status Call(const std::function<grpc::Status(grpc::ClientContext&)>& fn) const {
+  /// UNAVAILABLE with exponential backoff. A mesh-scoped call names its mesh in
+  /// `x-mesh-id` metadata, the key of cache-affine routers (deploy/router).
+  absl::Status Call(const std::function<grpc::Status(grpc::ClientContext&)>& fn,
+                    const std::string& mesh_id = "") const {
     auto backoff = options.initial_backoff;
     grpc::Status s;
     for (int attempt = 1; attempt <= std::max(1, options.max_attempts); ++attempt) {
       grpc::ClientContext ctx;
       ctx.set_deadline(std::chrono::system_clock::now() + options.deadline);
+      if (!mesh_id.empty()) ctx.AddMetadata(wire::kMeshIdMetadata, mesh_id);
       s = fn(ctx);
       if (s.error_code() != grpc::StatusCode::UNAVAILABLE || attempt == options.max_attempts) break;
       std::this_thread::sleep_for(backoff);
@@ -110,11 +115,14 @@ struct Client::Impl {
     header.set_name(name);
     header.mutable_labels()->insert(labels.begin(), labels.end());
     const std::vector<v1::UploadMeshRequest> chunks = wire::UploadChunks(mesh, header, options.chunk_rows);
+    // The id the server will give this content: the upload reaches the replica that
+    // every later call on the mesh is routed to.
+    const std::string id = MeshIdOf(MeshContentHash(mesh, name, labels));
     v1::MeshInfo info;
     GF_RETURN_IF_ERROR(Call([&](grpc::ClientContext& ctx) {
       auto writer = stub->UploadMesh(&ctx, &info);
       return SendAll(writer.get(), chunks);
-    }));
+    }, id));
     return info;
   }
 };
@@ -186,7 +194,7 @@ absl::StatusOr<v1::MeshInfo> Client::UpdatePositionsWire(const std::string& mesh
       *request.mutable_header() = header;
       wire::EncodeDoubles(positions.data(), positions.rows(), 3, request.mutable_positions()->mutable_positions());
       const absl::Status s =
-          impl_->Call([&](grpc::ClientContext& ctx) { return impl_->stub->SetPositions(&ctx, request, &info); });
+          impl_->Call([&](grpc::ClientContext& ctx) { return impl_->stub->SetPositions(&ctx, request, &info); }, id);
       if (!absl::IsUnimplemented(s)) {
         GF_RETURN_IF_ERROR(s);
         return info;
@@ -197,7 +205,7 @@ absl::StatusOr<v1::MeshInfo> Client::UpdatePositionsWire(const std::string& mesh
     GF_RETURN_IF_ERROR(impl_->Call([&](grpc::ClientContext& ctx) {
       auto writer = impl_->stub->UpdatePositions(&ctx, &info);
       return SendAll(writer.get(), chunks);
-    }));
+    }, id));
     return info;
   })));
   std::lock_guard<std::mutex> lock(impl_->mu);
@@ -209,7 +217,8 @@ absl::StatusOr<RemoteMesh> Client::GetMesh(const std::string& mesh_id) {
   v1::GetMeshRequest request;
   request.set_mesh_id(ResolveId(mesh_id));
   v1::MeshInfo info;
-  GF_RETURN_IF_ERROR(impl_->Call([&](grpc::ClientContext& ctx) { return impl_->stub->GetMesh(&ctx, request, &info); }));
+  GF_RETURN_IF_ERROR(impl_->Call([&](grpc::ClientContext& ctx) { return impl_->stub->GetMesh(&ctx, request, &info); },
+                                  request.mesh_id()));
   return FromProto(info);
 }
 
@@ -243,7 +252,7 @@ absl::StatusOr<Mesh> Client::Download(const std::string& mesh_id, RemoteMesh* in
       }
     }
     return reader->Finish();
-  }));
+  }, request.mesh_id()));
   GF_RETURN_IF_ERROR(decode);
   if (info_out) *info_out = FromProto(info);
   return mesh;
@@ -269,7 +278,8 @@ absl::Status Client::DeleteMesh(const std::string& mesh_id) {
   request.set_mesh_id(ResolveId(mesh_id));
   v1::DeleteMeshResponse response;
   GF_RETURN_IF_ERROR(
-      impl_->Call([&](grpc::ClientContext& ctx) { return impl_->stub->DeleteMesh(&ctx, request, &response); }));
+      impl_->Call([&](grpc::ClientContext& ctx) { return impl_->stub->DeleteMesh(&ctx, request, &response); },
+                  request.mesh_id()));
   std::lock_guard<std::mutex> lock(impl_->mu);
   impl_->kept.erase(mesh_id);
   return absl::OkStatus();
@@ -301,7 +311,7 @@ absl::StatusOr<RemoteDifferentials> Client::ComputeDifferentials(v1::ComputeDiff
       while (stream->Read(&chunk))
         if (decode.ok()) decode = reader->Add(chunk);
       return stream->Finish();
-    }));
+    }, id));
     GF_RETURN_IF_ERROR(decode);
     RemoteDifferentials out;
     GF_ASSIGN_OR_RETURN(out.values, reader->Finish());
@@ -390,7 +400,7 @@ absl::StatusOr<std::vector<ProjectedPoint>> Client::SendProject(const std::strin
             }
           }
           return stream->Finish();
-        }));
+        }, id));
         GF_RETURN_IF_ERROR(decode);
         return out;
       });
@@ -405,7 +415,7 @@ absl::StatusOr<HighOrderMesh> Client::HighOrderNodes(const std::string& mesh_id,
     *request.mutable_options() = options;
     v1::HighOrderNodesResponse response;
     GF_RETURN_IF_ERROR(impl_->Call(
-        [&](grpc::ClientContext& ctx) { return impl_->stub->HighOrderNodes(&ctx, request, &response); }));
+        [&](grpc::ClientContext& ctx) { return impl_->stub->HighOrderNodes(&ctx, request, &response); }, id));
     HighOrderMesh out;
     out.order = response.order();
     GF_ASSIGN_OR_RETURN(out.nodes, wire::DecodeDoubles(response.nodes(), "nodes", {3}));
@@ -427,7 +437,7 @@ absl::StatusOr<RemoteMesh> Client::RefineMesh(const std::string& mesh_id, int fa
     *request.mutable_options() = options;
     v1::MeshInfo info;
     GF_RETURN_IF_ERROR(
-        impl_->Call([&](grpc::ClientContext& ctx) { return impl_->stub->RefineMesh(&ctx, request, &info); }));
+        impl_->Call([&](grpc::ClientContext& ctx) { return impl_->stub->RefineMesh(&ctx, request, &info); }, id));
     return FromProto(info);
   });
 }
@@ -449,7 +459,7 @@ absl::StatusOr<Integrals> Client::Integrate(const std::string& mesh_id, const In
     }
     v1::IntegrateResponse response;
     GF_RETURN_IF_ERROR(
-        impl_->Call([&](grpc::ClientContext& ctx) { return impl_->stub->Integrate(&ctx, request, &response); }));
+        impl_->Call([&](grpc::ClientContext& ctx) { return impl_->stub->Integrate(&ctx, request, &response); }, id));
     Integrals out;
     out.area = response.area();
     out.volume = response.volume();
@@ -532,6 +542,38 @@ absl::StatusOr<std::vector<v1::Job>> Client::ListJobs() {
     if (response.next_page_token().empty()) return out;
     request.set_page_token(response.next_page_token());
   }
+}
+
+}  // namespace geomfit
+
+// ---- grpc.health.v1 -------------------------------------------------------------------
+
+namespace geomfit {
+
+absl::StatusOr<std::string> Client::CheckHealth(const std::string& service) {
+  // HealthCheckRequest {string service = 1} and HealthCheckResponse {enum status = 1}
+  // are encoded by hand: Debian ships no health.proto to generate them from.
+  if (service.size() > 127) return absl::InvalidArgumentError("health: service name too long");
+  std::string request_bytes;
+  if (!service.empty()) request_bytes = std::string("\x0a", 1) + static_cast<char>(service.size()) + service;
+  const grpc::internal::RpcMethod method("/grpc.health.v1.Health/Check", grpc::internal::RpcMethod::NORMAL_RPC);
+  std::string response_bytes;
+  GF_RETURN_IF_ERROR(impl_->Call([&](grpc::ClientContext& ctx) {
+    grpc::Slice slice(request_bytes);
+    grpc::ByteBuffer request(&slice, 1), response;
+    grpc::Status s = grpc::internal::BlockingUnaryCall<grpc::ByteBuffer, grpc::ByteBuffer>(
+        impl_->channel.get(), method, &ctx, request, &response);
+    std::vector<grpc::Slice> slices;
+    response_bytes.clear();
+    if (s.ok() && response.Dump(&slices).ok()) {
+      for (const grpc::Slice& piece : slices) response_bytes.append(reinterpret_cast<const char*>(piece.begin()), piece.size());
+    }
+    return s;
+  }));
+  int status = 0;  // an empty message is status 0 (UNKNOWN)
+  if (response_bytes.size() >= 2 && response_bytes[0] == '\x08') status = static_cast<unsigned char>(response_bytes[1]);
+  static const char* const kNames[] = {"UNKNOWN", "SERVING", "NOT_SERVING", "SERVICE_UNKNOWN"};
+  return status >= 0 && status < 4 ? std::string(kNames[status]) : absl::StrCat("STATUS_", status);
 }
 
 }  // namespace geomfit

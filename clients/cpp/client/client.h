@@ -94,6 +94,10 @@ class Client {
   absl::StatusOr<RemoteDifferentials> ComputeDifferentials(v1::ComputeDifferentialsRequest request);
   absl::StatusOr<v1::ServerInfo> GetServerInfo();
   absl::StatusOr<v1::Statistics> GetStatistics();
+  /// grpc.health.v1 Check of `service` ("" = the whole server): "SERVING",
+  /// "NOT_SERVING" (draining), "SERVICE_UNKNOWN" or "UNKNOWN"; an error status when
+  /// the call fails (UNAVAILABLE: nothing listening).
+  absl::StatusOr<std::string> CheckHealth(const std::string& service = "");
 
   // Chapter 4: the high-order surface (options as on the wire; default WALF with the
   // fit defaults and the oscillation safeguard on).

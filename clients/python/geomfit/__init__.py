@@ -30,8 +30,8 @@ __path__.append(_GEN[0])
 
 from geomfit._version import __version__  # noqa: E402
 from geomfit.client import (  # noqa: E402
-    Client, Differentials, GeomfitError, QUANTITIES, read_mesh_file)
+    Client, Differentials, GeomfitError, MESH_ID_METADATA, QUANTITIES, mesh_id_of, read_mesh_file)
 from geomfit.interop import from_meshio, to_meshio  # noqa: E402
 
-__all__ = ["Client", "Differentials", "GeomfitError", "QUANTITIES", "__version__", "from_meshio",
-           "read_mesh_file", "to_meshio"]
+__all__ = ["Client", "Differentials", "GeomfitError", "MESH_ID_METADATA", "QUANTITIES", "__version__",
+           "from_meshio", "mesh_id_of", "read_mesh_file", "to_meshio"]

@@ -17,6 +17,7 @@
 
 #include "clients/cpp/client/client.h"
 #include "core/mesh/io.h"
+#include "core/mesh/content_hash.h"
 
 namespace py = pybind11;
 using namespace pybind11::literals;
@@ -147,6 +148,22 @@ py::tuple ReadMeshFile(const std::string& path) {
   return py::make_tuple(py::cast(std::move(mesh->positions)), py::cast(std::move(faces)));
 }
 
+/// The mesh id the server gives an upload (MeshContentHash): the routing key.
+std::string UploadMeshId(const py::array_t<double, py::array::c_style | py::array::forcecast>& positions,
+                     const py::array_t<int32_t, py::array::c_style | py::array::forcecast>& faces,
+                     const std::string& name, const std::map<std::string, std::string>& labels) {
+  if (positions.ndim() != 2 || positions.shape(1) != 3) throw py::value_error("positions must be #V x 3");
+  if (faces.ndim() != 2 || (faces.shape(1) != 3 && faces.shape(1) != 4))
+    throw py::value_error("faces must be #F x 3 or #F x 4");
+  Mesh mesh;
+  mesh.positions = Eigen::Map<const Positions>(positions.data(), positions.shape(0), 3);
+  mesh.faces.setConstant(faces.shape(0), 4, -1);
+  const auto in = faces.unchecked<2>();
+  for (py::ssize_t f = 0; f < in.shape(0); ++f)
+    for (py::ssize_t c = 0; c < in.shape(1); ++c) mesh.faces(f, c) = in(f, c);
+  return MeshIdOf(MeshContentHash(mesh, name, labels));
+}
+
 }  // namespace
 }  // namespace geomfit
 
@@ -173,4 +190,6 @@ PYBIND11_MODULE(_native, m) {
   m.def("read_mesh", &geomfit::ReadMeshFile, "path"_a,
         "Reads OBJ, OFF, PLY (ascii, binary) or STL (ascii, binary) with geomfit's C++ readers: "
         "(positions #V x 3 float64, faces #F x 3 int32, or #F x 4 with -1 padding).");
+  m.def("mesh_id_of", &geomfit::UploadMeshId, "positions"_a, "faces"_a, "name"_a, "labels"_a,
+        "The mesh_id the server gives this upload (content, name, labels).");
 }

@@ -1,10 +1,10 @@
-#include "server/content_hash.h"
+#include "core/mesh/content_hash.h"
 
 #include <cstring>
 
 #include "absl/strings/str_format.h"
 
-namespace geomfit::server {
+namespace geomfit {
 namespace {
 
 inline uint64_t Mix(uint64_t x) {  // splitmix64 finalizer
@@ -37,4 +37,21 @@ std::string ContentHash::Hex() const {
   return absl::StrFormat("%016x%016x", Mix(a_ ^ length_), Mix(b_ + length_));
 }
 
-}  // namespace geomfit::server
+std::string MeshContentHash(const Mesh& mesh, const std::string& name,
+                            const std::map<std::string, std::string>& labels) {
+  ContentHash h;
+  const int64_t counts[2] = {mesh.NumVertices(), mesh.NumFaces()};
+  h.Add(counts, sizeof(counts));
+  h.Add(mesh.faces.data(), sizeof(int32_t) * mesh.faces.size());
+  h.Add(mesh.positions.data(), sizeof(double) * mesh.positions.size());
+  h.AddString(name);
+  for (const auto& [k, v] : labels) {  // std::map: sorted
+    h.AddString(k);
+    h.AddString(v);
+  }
+  return h.Hex();
+}
+
+std::string MeshIdOf(const std::string& content_hash) { return "m-" + content_hash.substr(0, 20); }
+
+}  // namespace geomfit
