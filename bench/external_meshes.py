@@ -376,7 +376,7 @@ def run_geomfit(geomfit, mesh, out, degree, extra, threads):
     if r.returncode != 0:
         FAILURES.append((" ".join(cmd), r.returncode, (r.stderr or r.stdout).strip()))
         return None, dt
-    data = np.loadtxt(out, skiprows=1, ndmin=2)
+    data = np.loadtxt(out, ndmin=2)
     return data, dt
 
 

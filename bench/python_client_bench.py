@@ -16,7 +16,7 @@ drifting machine affects both alike; the last columns give Python's overhead ove
 The Python client is timed with each --transport (update_positions and curvature through
 the C++ client, geomfit._native, or through grpcio), one column each.
 
-    PYTHONPATH=clients/python /usr/bin/python3 bench/python_client_bench.py \\
+    PYTHONPATH=clients/python:build/python /usr/bin/python3 bench/python_client_bench.py \\
         build/server/geomfit-server --cpp-bench build/bench/service/service_rpc_bench \\
         [--transport native|grpcio|both] [--store memory|sqlite] [--rounds 5] [--reps 20] [--threads 1]
 """

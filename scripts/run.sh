@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The main job: installs and builds geomfit, starts geomfit-server with its embedded
 # durable store, uploads the bundled torus with the geomfit CLI, computes normals and
-# curvatures over gRPC and writes out/torus_curvature.vtp (open it in ParaView); then
+# curvatures (degree 4) over gRPC, prints their error against the exact torus, and writes out/torus_curvature.vtp (open it in ParaView); then
 # refines the torus onto its high-order surface (out/torus_refined.vtp) and integrates.
 # Set GEOMFIT_KEEP_SERVER=1 to leave the server running afterwards.
 set -euo pipefail
@@ -25,13 +25,16 @@ if [ -x "$server" ]; then
   done
   echo "== geomfit-server on $target (log: out/server.log, store: out/geomfit-data)"
   "$geomfit" upload --server "$target" "$mesh"
-  "$geomfit" curvature --server "$target" "$mesh" --degree 3 --output out/torus_curvature.vtp --verbose
+  "$geomfit" curvature --server "$target" "$mesh" --degree 4 --output out/torus_curvature.vtp --verbose
+  "$geomfit" curvature --server "$target" "$mesh" --degree 4 --output out/torus_curvature.tsv
   "$geomfit" list --server "$target"
 else
   echo "== geomfit-server not built: computing in-process"
-  "$geomfit" curvature --local "$mesh" --degree 3 --output out/torus_curvature.vtp --verbose
+  "$geomfit" curvature --local "$mesh" --degree 4 --output out/torus_curvature.vtp --verbose
+  "$geomfit" curvature --local "$mesh" --degree 4 --output out/torus_curvature.tsv
 fi
-echo "== wrote out/torus_curvature.vtp"
+echo "== wrote out/torus_curvature.vtp (and .tsv)"
+bash scripts/torus_error.sh "$mesh" out/torus_curvature.tsv
 "$geomfit" refine "$mesh" --factor 2 --degree 4 --output out/torus_refined.vtp
 echo "== wrote out/torus_refined.vtp"
 echo "== high-order integrals of the torus (exact area 11.843525, volume 1.776529):"

@@ -124,7 +124,11 @@ absl::Status WriteNpy(const std::string& path, const Eigen::Ref<const RowMajorMa
 /// Whole-file helpers shared by the writers and the CLI. Errors name the path and
 /// the errno text.
 absl::StatusOr<std::string> ReadFileToString(const std::string& path);
-/// Writes `path + ".tmp"`, then renames it to `path`.
+/// Writes `path + ".tmp"`, then renames it to `path`. "-" writes to standard output,
+/// and an existing file that is not a regular file (/dev/null, a FIFO, /dev/stdout)
+/// is written in place.
 absl::Status WriteFileAtomically(const std::string& path, std::string_view contents);
+/// True for "-" and for existing paths that are not regular files (see above).
+bool IsStreamPath(const std::string& path);
 
 }  // namespace geomfit

@@ -2,7 +2,7 @@
 loopback. Every mesh's calls after its upload land on one replica, and stopping a
 replica moves only its meshes, which the client recovers by re-uploading.
 
-    GEOMFIT_SERVER_BINARY=... PYTHONPATH=clients/python python3 deploy/router/test_router.py
+    GEOMFIT_SERVER_BINARY=... PYTHONPATH=clients/python:build/python python3 deploy/router/test_router.py
 Exit status 77 (skipped) when nginx is not installed.
 """
 import os

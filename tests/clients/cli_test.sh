@@ -33,7 +33,7 @@ expect_error() {
   pass
 }
 
-header=$'nx\tny\tnz\tH\tK\tk1\tk2\te1x\te1y\te1z\te2x\te2y\te2z\tdegree_used\tpoints\tflags'
+header=$'# nx\tny\tnz\tH\tK\tk1\tk2\te1x\te1y\te1z\te2x\te2y\te2z\tdegree_used\tpoints\tflags'
 
 # --- generate, curvature to TSV -------------------------------------------------
 run_ok generate torus --level 8 --output t.obj
@@ -192,5 +192,38 @@ for line in open(sys.argv[1]):
     worst = max(worst, min(side, cap))
 assert worst < 2e-3, worst
 PY
+
+# --- outputs to /dev/null and to stdout ('-'); '#' headers read by numpy.loadtxt
+run_ok generate torus --level 24 --output p.obj
+run_ok curvature p.obj --degree 2 --output /dev/null
+[ ! -s stdout.txt ] || fail "--output /dev/null wrote to stdout"
+[ -c /dev/null ] || fail "/dev/null was replaced"
+run_ok curvature p.obj --degree 2 --output -
+cmp -s stdout.txt <("$G" curvature p.obj --degree 2) || fail "--output - differs from the default stdout TSV"
+/usr/bin/python3 -c "import numpy, sys; t = numpy.loadtxt(sys.argv[1], ndmin=2); assert t.shape == (1728, 16), t.shape" \
+  stdout.txt || fail "numpy.loadtxt cannot read the TSV without skiprows"
+run_ok generate torus --level 8 --output -
+grep -q '^v ' stdout.txt || fail "generate --output - did not write OBJ to stdout"
+run_ok refine p.obj --output /dev/null
+run_ok convert p.obj /dev/null
+run_ok project p.obj --points xyz.txt --output -
+head -c 1 stdout.txt | grep -q '#' || fail "project TSV header lacks #"
+
+# --- progress bars: forced on with --progress (stderr is a file here), off by default
+run_ok curvature p.obj --degree 4 --output p.npy
+[ ! -s stderr.txt ] || fail "progress drawn on a non-terminal stderr: $(cat stderr.txt)"
+run_ok curvature --progress p.obj --degree 4 --output p.npy
+tr '\r' '\n' <stderr.txt >progress.txt
+for phase in read fit evaluate write; do
+  grep -q "^$phase " progress.txt || fail "no '$phase' progress: $(cat progress.txt)"
+done
+grep -Eq '^evaluate +\[#{24}\] 100%  1728/1728  [0-9.e+]+/s  [0-9.]+ s' progress.txt ||
+  fail "evaluate bar lacks 100%, count or rate: $(cat progress.txt)"
+run_ok integrate p.obj --progress --no-progress
+[ "$(grep -c . stderr.txt)" -eq 0 ] || fail "--no-progress (last) still drew"
+run_ok integrate p.obj --progress
+grep -q "integrate" stderr.txt || fail "no integrate progress"
+run_ok nodes p.obj --order 2 --output pn --progress
+tr '\r' '\n' <stderr.txt | grep -q "^write " || fail "nodes: no write progress"
 
 echo "cli_test: $checks checks passed"

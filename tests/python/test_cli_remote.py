@@ -36,6 +36,11 @@ def test_remote_commands_and_outputs_match_local(server, mesh_file, tmp_path):
     assert revision == "1"
     assert mesh_id in run("list", "--server", address).stdout
     assert run("info", "--server", address, mesh_id).stdout.splitlines()[1].startswith(mesh_id)
+    # A file is accepted too, as by every command taking MESH (uploaded idempotently under
+    # its file name, without labels: another id than the labelled upload, same geometry).
+    by_file = run("info", "--server", address, mesh_file).stdout.splitlines()[1].split("\t")
+    assert by_file[0].startswith("m-") and by_file[2:4] == upload[1].split("\t")[2:4]
+    assert run("info", "--server", address, mesh_file).stdout.splitlines()[1].split("\t")[0] == by_file[0]
 
     local, remote = str(tmp_path / "local.tsv"), str(tmp_path / "remote.tsv")
     run("curvature", mesh_file, "--degree", "3", "--output", local)

@@ -112,11 +112,17 @@ absl::StatusOr<OutputKind> OutputKindFromPath(const std::string& path);
 /// True if writing `path` needs the mesh (VTK outputs).
 bool OutputNeedsMesh(const std::string& path);
 
+/// The mesh format of an output path by extension; "-" and other streams (/dev/null)
+/// without one get OBJ. Unknown extension: a usage error.
+absl::StatusOr<MeshFormat> MeshOutputFormat(const std::string& path);
+/// WriteMesh, or for "-" / a stream path its bytes written there (text formats).
+absl::Status WriteMeshOutput(const Mesh& mesh, const std::string& path, const VtkOptions& vtk = {});
+
 /// Column names of the table (the TSV header); the first 13 are the NPY columns.
 const std::vector<std::string>& DifferentialsColumns();
 /// #V x 13: nx ny nz H K k1 k2 e1x e1y e1z e2x e2y e2z (NaN where not computed).
 RowMajorMatrixXd DifferentialsTable(const Differentials& d);
-/// Header line, then one tab-separated line per vertex (%.17g; then degree_used,
+/// Header line ("# nx\tny...", a comment for numpy.loadtxt), then one tab-separated line per vertex (%.17g; then degree_used,
 /// points, flags from the diagnostics, 0 when absent).
 std::string DifferentialsTsv(const Differentials& d);
 /// VTK point arrays: Normals, MeanCurvature, GaussianCurvature, k1, k2, Direction1,

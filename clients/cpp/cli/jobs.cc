@@ -7,6 +7,7 @@
 #include "absl/strings/str_format.h"
 #include "absl/strings/strip.h"
 #include "clients/cpp/cli/cli.h"
+#include "clients/cpp/cli/progress.h"
 #include "clients/cpp/client/client.h"
 #include "core/util/status_macros.h"
 
@@ -119,8 +120,13 @@ absl::StatusOr<std::vector<v1::JobResultMesh>> RunRefineJob(Client& client, cons
   std::fprintf(stderr, "geomfit: started job %s (geomfit jobs watch|cancel --server ... %s)\n", job.job_id().c_str(),
                job.job_id().c_str());
   v1::JobEvent last;
+  ProgressBar& bar = ProgressBar::Get();
   GF_RETURN_IF_ERROR(client.WatchJob(job.job_id(), 0, [&](const v1::JobEvent& e) {
-    std::fprintf(stderr, "geomfit: %s\n", FormatJobEvent(e).c_str());
+    if (bar.enabled()) {
+      if (!e.phase().empty()) bar.Update(absl::StrCat(e.phase(), " ", e.step()), e.done(), e.total());
+    } else {
+      std::fprintf(stderr, "geomfit: %s\n", FormatJobEvent(e).c_str());
+    }
     last = e;
     return true;
   }));

@@ -4,6 +4,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "clients/cpp/cli/cli.h"
+#include "clients/cpp/cli/progress.h"
 #include "core/mesh/topology.h"
 #include "core/surfaces/analytic.h"
 #include "core/util/status_macros.h"
@@ -19,10 +20,7 @@ absl::Status WithPrefix(const absl::Status& s, const std::string& prefix) {
 }
 
 /// Checks an output path's mesh extension before any work is done (a usage error).
-absl::Status CheckMeshOutput(const std::string& path) {
-  auto format = FormatFromPath(path);
-  return format.ok() ? absl::OkStatus() : UsageError(format.status().message());
-}
+absl::Status CheckMeshOutput(const std::string& path) { return MeshOutputFormat(path).status(); }
 
 void Verbose(bool on, const std::string& line) {
   if (on) std::fprintf(stderr, "geomfit: %s\n", line.c_str());
@@ -43,19 +41,23 @@ absl::Status RunCurvature(const std::vector<std::string>& argv) {
 #endif
   }
 
+  ProgressBar& bar = ProgressBar::Get();
   Stopwatch read_timer;
+  bar.Begin("read");
   GF_ASSIGN_OR_RETURN(const Mesh mesh, ReadMesh(a.mesh));
   GF_RETURN_IF_ERROR(WithPrefix(ValidateMesh(mesh).status(), a.mesh));
   Verbose(a.verbose, absl::StrFormat("read %s: %d vertices, %d faces in %.3f s", a.mesh,
                                      mesh.NumVertices(), mesh.NumFaces(), read_timer.Seconds()));
 
   Stopwatch fit_timer;
-  GF_ASSIGN_OR_RETURN(const Differentials d, ComputeDifferentials(mesh, a.fit, kAllQuantities, RunContext(nullptr, a.threads)));
+  GF_ASSIGN_OR_RETURN(const Differentials d, ComputeDifferentials(mesh, a.fit, kAllQuantities, bar.Context(a.threads)));
   Verbose(a.verbose, absl::StrFormat("fit + quantities (degree %d, %s): %.3f s", a.fit.degree,
                                      FitMethodName(a.fit.method), fit_timer.Seconds()));
 
   Stopwatch write_timer;
+  bar.Begin("write");
   GF_RETURN_IF_ERROR(WriteDifferentials(a.output, mesh, d, a.ascii));
+  bar.Finish();
   Verbose(a.verbose, absl::StrFormat("wrote %s in %.3f s", a.output.empty() ? "stdout" : a.output,
                                      write_timer.Seconds()));
   return absl::OkStatus();
@@ -89,7 +91,7 @@ absl::Status RunGenerate(const std::vector<std::string>& argv) {
   Verbose(verbose, absl::StrFormat("generated %s: %d vertices, %d faces in %.3f s", name,
                                    mesh->NumVertices(), mesh->NumFaces(), timer.Seconds()));
   Stopwatch write_timer;
-  GF_RETURN_IF_ERROR(WriteMesh(*mesh, output));
+  GF_RETURN_IF_ERROR(WriteMeshOutput(*mesh, output));
   Verbose(verbose, absl::StrFormat("wrote %s in %.3f s", output, write_timer.Seconds()));
   return absl::OkStatus();
 }
@@ -120,7 +122,7 @@ absl::Status RunConvert(const std::vector<std::string>& argv) {
   Stopwatch write_timer;
   VtkOptions vtk;
   if (ascii) vtk.encoding = VtkEncoding::kAscii;
-  GF_RETURN_IF_ERROR(WriteMesh(mesh, out, vtk));
+  GF_RETURN_IF_ERROR(WriteMeshOutput(mesh, out, vtk));
   Verbose(verbose, absl::StrFormat("wrote %s in %.3f s", out, write_timer.Seconds()));
   return absl::OkStatus();
 }

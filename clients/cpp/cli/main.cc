@@ -9,6 +9,7 @@
 #include "absl/strings/str_join.h"
 #include "absl/strings/str_replace.h"
 #include "clients/cpp/cli/cli.h"
+#include "clients/cpp/cli/progress.h"
 
 namespace geomfit::cli {
 namespace {
@@ -49,6 +50,8 @@ std::string MainUsage() {
 #else
   out += "\n(built without the service client: --server and the service commands are off)\n";
 #endif
+  out += "\nevery command: --progress / --no-progress force the progress bar on stderr on or off\n"
+         "(default: on when stderr is a terminal)\n";
   out += "\nexit status: 0 success, 1 runtime error, 2 usage error\n";
   return out;
 }
@@ -70,7 +73,19 @@ absl::Status Dispatch(const std::string& name, const std::vector<std::string>& a
 
 
 int Main(int argc, char** argv) {
-  const std::vector<std::string> args(argv + 1, argv + argc);
+  std::vector<std::string> args;
+  ProgressBar::Mode progress = ProgressBar::Mode::kAuto;
+  bool options_end = false;  // after `--`, everything is an argument
+  for (int i = 1; i < argc; ++i) {
+    const std::string arg = argv[i];
+    options_end = options_end || arg == "--";
+    if (!options_end && (arg == "--progress" || arg == "--no-progress")) {
+      progress = arg == "--progress" ? ProgressBar::Mode::kOn : ProgressBar::Mode::kOff;
+    } else {
+      args.push_back(arg);
+    }
+  }
+  ProgressBar::Get().SetMode(progress);
   if (args.empty()) {
     std::fputs("geomfit: error: missing command (see 'geomfit --help')\n", stderr);
     return kExitUsageError;
@@ -90,6 +105,7 @@ int Main(int argc, char** argv) {
   } catch (const std::exception& e) {
     status = absl::InternalError(absl::StrCat("unexpected exception: ", e.what()));
   }
+  ProgressBar::Get().Finish();
   if (status.ok()) return kExitOk;
   // One line on stderr, whatever the message holds.
   const std::string message = absl::StrReplaceAll(status.message(), {{"\r", " "}, {"\n", "; "}});

@@ -10,6 +10,7 @@
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_join.h"
 #include "clients/cpp/cli/cli.h"
+#include "core/util/status_macros.h"
 #include "core/reconstruction/meshing.h"
 
 namespace geomfit::cli {
@@ -39,12 +40,14 @@ PointField Field(const std::string& name, const M& m) {
 
 absl::StatusOr<OutputKind> OutputKindFromPath(const std::string& path) {
   const std::string lower = absl::AsciiStrToLower(path);
+  if (path == "-") return OutputKind::kTsv;
   if (absl::EndsWith(lower, ".tsv") || absl::EndsWith(lower, ".txt")) return OutputKind::kTsv;
   if (absl::EndsWith(lower, ".npy")) return OutputKind::kNpy;
   if (absl::EndsWith(lower, ".vtp")) return OutputKind::kVtp;
   if (absl::EndsWith(lower, ".vtu")) return OutputKind::kVtu;
+  if (IsStreamPath(path)) return OutputKind::kTsv;  // /dev/null, a pipe
   return UsageError(absl::StrCat("output '", path,
-                                 "': unknown extension (expected .vtp, .vtu, .npy, .tsv or .txt)"));
+                                 "': unknown extension (expected .vtp, .vtu, .npy, .tsv or .txt, or - for stdout)"));
 }
 
 bool OutputNeedsMesh(const std::string& path) {
@@ -78,7 +81,7 @@ RowMajorMatrixXd DifferentialsTable(const Differentials& d) {
 
 std::string DifferentialsTsv(const Differentials& d) {
   const RowMajorMatrixXd t = DifferentialsTable(d);
-  std::string out = absl::StrJoin(DifferentialsColumns(), "\t");
+  std::string out = "# " + absl::StrJoin(DifferentialsColumns(), "\t");  // '#': numpy.loadtxt skips it
   out += '\n';
   for (int v = 0; v < t.rows(); ++v) {
     for (int c = 0; c < t.cols(); ++c) absl::StrAppendFormat(&out, "%.17g\t", t(v, c));
@@ -142,9 +145,23 @@ absl::Status WriteLagrangeVtu(const std::string& path, const HighOrderMesh& ho) 
   return WriteVtu(path, ho.nodes, cells, {});
 }
 
+absl::StatusOr<MeshFormat> MeshOutputFormat(const std::string& path) {
+  if (IsStreamPath(path) && !FormatFromPath(path).ok()) return MeshFormat::kObj;
+  absl::StatusOr<MeshFormat> format = FormatFromPath(path);
+  if (!format.ok()) return UsageError(format.status().message());
+  return format;
+}
+
+absl::Status WriteMeshOutput(const Mesh& mesh, const std::string& path, const VtkOptions& vtk) {
+  if (FormatFromPath(path).ok()) return WriteMesh(mesh, path, vtk);  // streams too (WriteFileAtomically)
+  GF_ASSIGN_OR_RETURN(const MeshFormat format, MeshOutputFormat(path));
+  GF_ASSIGN_OR_RETURN(const std::string bytes, FormatMesh(mesh, format));
+  return WriteFileAtomically(path, bytes);
+}
+
 absl::Status WriteDifferentials(const std::string& path, const Mesh& mesh, const Differentials& d,
                                 bool ascii) {
-  if (path.empty()) {
+  if (path.empty() || path == "-") {
     const std::string tsv = DifferentialsTsv(d);
     if (std::fwrite(tsv.data(), 1, tsv.size(), stdout) != tsv.size() || std::fflush(stdout) != 0)
       return absl::ErrnoToStatus(errno, "cannot write to standard output");

@@ -8,6 +8,7 @@
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_split.h"
 #include "clients/cpp/cli/cli.h"
+#include "clients/cpp/cli/progress.h"
 #include "core/integration/integrate.h"
 #include "core/mesh/topology.h"
 #include "core/reconstruction/features.h"
@@ -65,6 +66,7 @@ absl::StatusOr<RemoteSession> Connect(const SurfaceArgs& a) {
   RemoteSession r;
   r.client = ConnectTo(a.server);
   GF_ASSIGN_OR_RETURN(r.id, RemoteMeshId(*r.client, a.mesh, a.verbose, &r.mesh));
+  ProgressBar::Get().Begin("compute");
   return r;
 }
 #endif
@@ -120,6 +122,7 @@ absl::Status Load(const SurfaceArgs& a, bool stencils, Loaded* out) {
   o.oscillation_safeguard = !a.no_safeguard;
   if (absl::Status s = ValidateFitOptions(o); !s.ok()) return UsageError(s.message());
   Stopwatch t;
+  ProgressBar::Get().Begin("read");
   GF_ASSIGN_OR_RETURN(out->mesh, ReadMesh(a.mesh));
   absl::StatusOr<Topology> topo = ValidateMesh(out->mesh);
   if (!topo.ok()) return absl::InvalidArgumentError(absl::StrCat(a.mesh, ": ", topo.status().message()));
@@ -135,13 +138,13 @@ absl::Status Load(const SurfaceArgs& a, bool stencils, Loaded* out) {
     GF_ASSIGN_OR_RETURN(Features f, DetectFeatures(out->mesh, out->topo, fo));
     auto features = std::make_shared<const Features>(std::move(f));
     GF_ASSIGN_OR_RETURN(out->split_topo, BuildTopology(features->split));
-    GF_ASSIGN_OR_RETURN(out->fits, FitSurface(features->split, out->split_topo, o, nullptr, FitRequest{.stencils = stencils}, RunContext(nullptr, a.threads)));
+    GF_ASSIGN_OR_RETURN(out->fits, FitSurface(features->split, out->split_topo, o, nullptr, FitRequest{.stencils = stencils}, ProgressBar::Get().Context(a.threads)));
     out->features = features;
     out->surface = std::make_unique<FeatureSurface>(out->mesh, features, MakeSurface(method, features->split, out->fits, a.threads), a.degree);
     if (a.verbose)
       std::fprintf(stderr, "geomfit: %zu feature edges in %zu ridge curves\n", features->edges.size(), features->curves.size());
   } else {
-    GF_ASSIGN_OR_RETURN(out->fits, FitSurface(out->mesh, out->topo, o, nullptr, FitRequest{.stencils = stencils}, RunContext(nullptr, a.threads)));
+    GF_ASSIGN_OR_RETURN(out->fits, FitSurface(out->mesh, out->topo, o, nullptr, FitRequest{.stencils = stencils}, ProgressBar::Get().Context(a.threads)));
     out->surface = MakeSurface(method, out->mesh, out->fits, a.threads);
   }
   if (a.verbose)
@@ -151,7 +154,8 @@ absl::Status Load(const SurfaceArgs& a, bool stencils, Loaded* out) {
 }
 
 absl::Status WriteText(const std::string& path, const std::string& text) {
-  if (path.empty()) {
+  ProgressBar::Get().Begin("write");
+  if (path.empty() || path == "-") {
     std::fputs(text.c_str(), stdout);
     return absl::OkStatus();
   }
@@ -172,7 +176,7 @@ absl::Status RefineAsJob(const SurfaceArgs& a, int factor, int levels) {
   if (levels < 1 || levels > 8) return UsageError(absl::StrCat("--levels ", levels, " is out of range [1, 8]"));
   if (factor != 2 && factor != 3) return UsageError(absl::StrCat("--factor ", factor, ": a job refines by 2 or 3"));
   if (!a.output.empty()) {
-    if (auto f = FormatFromPath(a.output); !f.ok()) return UsageError(f.status().message());
+    GF_RETURN_IF_ERROR(MeshOutputFormat(a.output).status());
   }
 #ifdef GEOMFIT_WITH_CLIENT
   GF_ASSIGN_OR_RETURN(const v1::ReconstructionOptions o, ToWire(a));
@@ -192,7 +196,7 @@ absl::Status RefineAsJob(const SurfaceArgs& a, int factor, int levels) {
   std::fputs(table.c_str(), stdout);
   if (a.output.empty() || results.empty()) return absl::OkStatus();
   GF_ASSIGN_OR_RETURN(const Mesh finest, r.client->Download(results.back().mesh_id()));
-  return WriteMesh(finest, a.output);
+  return WriteMeshOutput(finest, a.output);
 #else
   return NoClient(a);
 #endif
@@ -234,7 +238,7 @@ absl::Status RunProject(const std::vector<std::string>& argv) {
     Loaded l;
     GF_RETURN_IF_ERROR(Load(a, false, &l));
     GF_ASSIGN_OR_RETURN(const RowMajorMatrixXd xyz, ReadTable(points, 3));
-    GF_RETURN_IF_ERROR(ProjectPoints(*l.surface, l.topo, Positions(xyz), &out, RunContext(nullptr, a.threads)));
+    GF_RETURN_IF_ERROR(ProjectPoints(*l.surface, l.topo, Positions(xyz), &out, ProgressBar::Get().Context(a.threads)));
   } else {
     Loaded l;
     GF_RETURN_IF_ERROR(Load(a, false, &l));
@@ -246,12 +250,12 @@ absl::Status RunProject(const std::vector<std::string>& argv) {
       fp[i] = {static_cast<int32_t>(fxe(i, 0)), fxe(i, 1), fxe(i, 2)};
     }
     std::vector<SurfacePoint> sp;
-    GF_RETURN_IF_ERROR(EvaluatePoints(*l.surface, fp, &sp, RunContext(nullptr, a.threads)));
+    GF_RETURN_IF_ERROR(EvaluatePoints(*l.surface, fp, &sp, ProgressBar::Get().Context(a.threads)));
     out.resize(sp.size());
     for (size_t i = 0; i < sp.size(); ++i) out[i] = {fp[i], sp[i], 0.0};
   }
   if (a.verbose) std::fprintf(stderr, "geomfit: %zu points in %.3f s\n", out.size(), t.Seconds());
-  std::string text = "face\txi\teta\tx\ty\tz\tnx\tny\tnz\tdistance\n";
+  std::string text = "# face\txi\teta\tx\ty\tz\tnx\tny\tnz\tdistance\n";
   for (const ProjectedPoint& q : out) {
     const Eigen::Vector3d& x = q.point.position;
     const Eigen::Vector3d& n = q.point.normal;
@@ -281,7 +285,7 @@ absl::Status RunRefine(const std::vector<std::string>& argv) {
   if (job) return RefineAsJob(a, factor, levels);
   if (levels != 1) return UsageError("--levels needs --job (and --server)");
   if (a.output.empty()) return UsageError("'geomfit refine' needs --output FILE");
-  if (auto f = FormatFromPath(a.output); !f.ok()) return UsageError(f.status().message());
+  GF_RETURN_IF_ERROR(MeshOutputFormat(a.output).status());
   if (factor < 2 || factor > 8) return UsageError(absl::StrCat("--factor ", factor, " is out of range [2, 8]"));
   if (!a.server.empty()) {
 #ifdef GEOMFIT_WITH_CLIENT
@@ -290,15 +294,16 @@ absl::Status RunRefine(const std::vector<std::string>& argv) {
     GF_ASSIGN_OR_RETURN(const RemoteMesh refined, r.client->RefineMesh(r.id, factor, o));
     std::fprintf(stderr, "geomfit: stored the refined mesh as %s\n", refined.mesh_id.c_str());
     GF_ASSIGN_OR_RETURN(const Mesh m, r.client->Download(refined.mesh_id));
-    return WriteMesh(m, a.output);
+    return WriteMeshOutput(m, a.output);
 #else
     return NoClient(a);
 #endif
   }
   Loaded l;
   GF_RETURN_IF_ERROR(Load(a, false, &l));
-  GF_ASSIGN_OR_RETURN(const Mesh refined, RefineMesh(*l.surface, l.topo, factor, RunContext(nullptr, a.threads)));
-  return WriteMesh(refined, a.output);
+  GF_ASSIGN_OR_RETURN(const Mesh refined, RefineMesh(*l.surface, l.topo, factor, ProgressBar::Get().Context(a.threads)));
+  ProgressBar::Get().Begin("write");
+  return WriteMeshOutput(refined, a.output);
 }
 
 absl::Status RunNodes(const std::vector<std::string>& argv) {
@@ -329,12 +334,13 @@ absl::Status RunNodes(const std::vector<std::string>& argv) {
   } else {
     Loaded l;
     GF_RETURN_IF_ERROR(Load(a, false, &l));
-    GF_ASSIGN_OR_RETURN(ho, MakeHighOrderMesh(*l.surface, l.topo, order, RunContext(nullptr, a.threads)));
+    GF_ASSIGN_OR_RETURN(ho, MakeHighOrderMesh(*l.surface, l.topo, order, ProgressBar::Get().Context(a.threads)));
     // For viewing: each element split along its nodes (the same lattice) as PREFIX.vtp.
-    GF_ASSIGN_OR_RETURN(const Mesh split, RefineMesh(*l.surface, l.topo, order, RunContext(nullptr, a.threads)));
+    GF_ASSIGN_OR_RETURN(const Mesh split, RefineMesh(*l.surface, l.topo, order, ProgressBar::Get().Context(a.threads)));
     GF_RETURN_IF_ERROR(WriteVtp(a.output + ".vtp", split, {}, VtkOptions{}));
   }
-  std::string nodes = "x\ty\tz\n", elements;
+  ProgressBar::Get().Begin("write");
+  std::string nodes = "# x\ty\tz\n", elements;
   for (int i = 0; i < ho.nodes.rows(); ++i)
     absl::StrAppendFormat(&nodes, "%.17g\t%.17g\t%.17g\n", ho.nodes(i, 0), ho.nodes(i, 1), ho.nodes(i, 2));
   for (size_t f = 0; f + 1 < ho.offsets.size(); ++f) {
@@ -386,7 +392,7 @@ absl::Status RunIntegrate(const std::vector<std::string>& argv) {
   } else {
     Loaded l;
     GF_RETURN_IF_ERROR(Load(a, !scalar.empty() || !vector.empty(), &l));
-    GF_ASSIGN_OR_RETURN(r, Integrate(*l.surface, in, RunContext(nullptr, a.threads)));
+    GF_ASSIGN_OR_RETURN(r, Integrate(*l.surface, in, ProgressBar::Get().Context(a.threads)));
   }
   std::string text = absl::StrFormat("area\t%.17g\nvolume\t%.17g\n", r.area, r.volume);
   if (!scalar.empty()) absl::StrAppendFormat(&text, "scalar\t%.17g\n", r.scalars[0]);

@@ -7,6 +7,7 @@
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_split.h"
 #include "clients/cpp/cli/cli.h"
+#include "clients/cpp/cli/progress.h"
 #include "clients/cpp/client/client.h"
 #include "core/util/status_macros.h"
 
@@ -94,11 +95,17 @@ absl::Status Update(const std::vector<std::string>& args) {
 
 absl::Status Info(const std::vector<std::string>& args) {
   std::string server, id;
-  ArgParser p("geomfit info", "--server HOST:PORT MESH_ID", "Prints what the server stores about a mesh.");
-  p.String("server", &server, "geomfit server", "HOST:PORT").Positional("MESH_ID", &id, "id of the stored mesh");
+  ArgParser p("geomfit info", "--server HOST:PORT MESH|MESH_ID",
+              "Prints what the server stores about a mesh: a stored mesh's id, or a mesh file\n"
+              "(uploaded, idempotently, as every command taking MESH does).");
+  p.String("server", &server, "geomfit server", "HOST:PORT")
+      .Positional("MESH", &id, "mesh file (.obj .off .ply .stl) or id of a stored mesh");
   GF_ASSIGN_OR_RETURN(bool run, ParseRemote(p, args, server));
   if (!run) return absl::OkStatus();
-  GF_ASSIGN_OR_RETURN(RemoteMesh info, ConnectTo(server)->GetMesh(id));
+  std::unique_ptr<Client> client = ConnectTo(server);
+  Mesh mesh;
+  GF_ASSIGN_OR_RETURN(id, RemoteMeshId(*client, id, false, &mesh));
+  GF_ASSIGN_OR_RETURN(RemoteMesh info, client->GetMesh(id));
   return Print({info});
 }
 
@@ -149,7 +156,9 @@ absl::Status Health(const std::vector<std::string>& args) {
 
 absl::StatusOr<std::string> RemoteMeshId(Client& client, const std::string& mesh_arg, bool verbose, Mesh* mesh) {
   if (!std::filesystem::exists(mesh_arg)) return mesh_arg;
+  ProgressBar::Get().Begin("read");
   GF_ASSIGN_OR_RETURN(*mesh, ReadMesh(mesh_arg));
+  ProgressBar::Get().Begin("upload");
   GF_ASSIGN_OR_RETURN(RemoteMesh info, client.Upload(*mesh, std::filesystem::path(mesh_arg).filename().string()));
   if (verbose) std::fprintf(stderr, "geomfit: uploaded %s as %s\n", mesh_arg.c_str(), info.mesh_id.c_str());
   return info.mesh_id;
@@ -161,14 +170,17 @@ absl::Status RunCurvatureRemote(const CurvatureArgs& a) {
   Mesh mesh;
   GF_ASSIGN_OR_RETURN(const std::string id, RemoteMeshId(*client, a.mesh, a.verbose, &mesh));
   if (mesh.NumVertices() == 0 && OutputNeedsMesh(a.output)) {
+    ProgressBar::Get().Begin("download");
     GF_ASSIGN_OR_RETURN(mesh, client->Download(id));  // VTP/VTU need the mesh
   }
+  ProgressBar::Get().Begin("compute");
   GF_ASSIGN_OR_RETURN(RemoteDifferentials d, client->ComputeDifferentials(id, a.fit, kAllQuantities, 0, true));
   if (a.verbose) {
     std::fprintf(stderr, "geomfit: revision %lld, degree %d (min used %d), fit %s %.3f ms, evaluate %.3f ms\n",
                  static_cast<long long>(d.summary.revision), d.summary.degree_requested, d.summary.min_degree_used,
                  d.summary.fit_cache_hit ? "cached" : "computed", d.summary.fit_ms, d.summary.evaluate_ms);
   }
+  ProgressBar::Get().Begin("write");
   return WriteDifferentials(a.output, mesh, d.values, a.ascii);
 }
 

@@ -2,12 +2,13 @@
 import dataclasses
 import math
 import time
-from typing import Dict, Iterable, Iterator, List, Optional, Tuple
+from typing import Callable, Dict, Iterable, Iterator, List, Optional, Tuple
 
 import grpc
 import grpc.experimental
 import numpy as np
 
+from geomfit.readers import read_mesh_file
 from geomfit.v1 import geomfit_pb2 as pb
 from geomfit.v1 import geomfit_pb2_grpc as pb_grpc
 
@@ -33,12 +34,16 @@ _STATUS_CODES = {code.value[0]: code for code in grpc.StatusCode}
 
 
 class GeomfitError(Exception):
-    """A failed call: `code` is the grpc.StatusCode, `details` the server's message."""
+    """A failed call: `code` is the grpc.StatusCode, `details` the server's message.
+    Picklable (multiprocessing, joblib, dask pass it between processes)."""
 
     def __init__(self, code: grpc.StatusCode, details: str):
         super().__init__("%s: %s" % (code.name, details))
         self.code = code
         self.details = details
+
+    def __reduce__(self):
+        return (type(self), (self.code, self.details))
 
 
 @dataclasses.dataclass
@@ -58,6 +63,15 @@ class Differentials:
     dir2: Optional[np.ndarray] = None
     tensor: Optional[np.ndarray] = None
     diagnostics: Optional[Dict[str, np.ndarray]] = None
+
+    def __repr__(self) -> str:
+        s = self.summary
+        arrays = ["%s%s" % (name, list(getattr(self, name).shape)) for name in _ARRAYS
+                  if getattr(self, name) is not None]
+        if self.diagnostics:
+            arrays.append("diagnostics{%s}" % ",".join(sorted(self.diagnostics)))
+        return "Differentials(mesh_id=%r, revision=%d, vertices=%d, %s)" % (
+            s.mesh_id, s.revision, s.num_vertices, " ".join(arrays) or "no arrays")
 
 
 def _encode(array: np.ndarray, dtype: str, out) -> None:
@@ -155,6 +169,24 @@ def _positions_array(positions) -> np.ndarray:
     if p.ndim != 2 or p.shape[1] != 3:
         raise ValueError("positions must be #V x 3, got shape %s" % (p.shape,))
     return p
+
+
+def _faces_array(faces) -> np.ndarray:
+    """Faces as contiguous little-endian int32 #F x 3|4 (ValueError for another shape, or
+    values that are not integers, e.g. 2.7, or out of int32 range)."""
+    a = np.asarray(faces)
+    if a.dtype.kind not in "iub":
+        if a.dtype.kind != "f":
+            raise ValueError("faces must be integers, got dtype %s" % a.dtype)
+        bad = np.argwhere(~np.isfinite(a) | (a != np.round(a)))
+        if len(bad):
+            raise ValueError("faces must be integers: face %d holds %r" % (bad[0][0], a[tuple(bad[0])]))
+    if a.size and (a.min() < -1 or a.max() > np.iinfo(np.int32).max):
+        raise ValueError("faces must be vertex indices (or -1 padding), got values in [%d, %d]" % (a.min(), a.max()))
+    f = np.ascontiguousarray(a, dtype="<i4")
+    if f.ndim != 2 or f.shape[1] not in (3, 4):
+        raise ValueError("faces must be #F x 3 or #F x 4, got shape %s" % (f.shape,))
+    return f
 
 
 # ---------------------------------------------------------------- mesh ids
@@ -259,56 +291,6 @@ def _parse_chunk(raw: bytes) -> dict:
     return out
 
 
-def read_mesh_file(path: str) -> Tuple[np.ndarray, np.ndarray]:
-    """Reads an ASCII OBJ or OFF mesh: (positions #V x 3 float64, faces #F x 3|4 int32).
-
-    Faces with more than 4 vertices are rejected; mixed meshes pad triangles with -1.
-    Other formats: convert them with `geomfit convert` first.
-    """
-    lower = path.lower()
-    with open(path, "r", encoding="utf-8", errors="replace") as f:
-        lines = f.read().splitlines()
-    verts: List[List[float]] = []
-    faces: List[List[int]] = []
-    if lower.endswith(".obj"):
-        for n, line in enumerate(lines, 1):
-            parts = line.split()
-            if not parts:
-                continue
-            if parts[0] == "v":
-                verts.append([float(x) for x in parts[1:4]])
-            elif parts[0] == "f":
-                idx = [int(p.split("/")[0]) for p in parts[1:]]
-                faces.append([i - 1 if i > 0 else len(verts) + i for i in idx])
-                if len(idx) not in (3, 4):
-                    raise ValueError("%s:%d: face with %d vertices (3 or 4 supported)" % (path, n, len(idx)))
-    elif lower.endswith(".off"):
-        tokens = [ln.split("#")[0].split() for ln in lines]
-        tokens = [t for t in tokens if t]
-        header = tokens[0]
-        if header[0] != "OFF":
-            raise ValueError("%s: not an OFF file" % path)
-        counts = header[1:] if len(header) > 1 else tokens[1]
-        start = 1 if len(header) > 1 else 2
-        nv, nf = int(counts[0]), int(counts[1])
-        verts = [[float(x) for x in t[:3]] for t in tokens[start:start + nv]]
-        for t in tokens[start + nv:start + nv + nf]:
-            k = int(t[0])
-            if k not in (3, 4):
-                raise ValueError("%s: face with %d vertices (3 or 4 supported)" % (path, k))
-            faces.append([int(x) for x in t[1:1 + k]])
-    else:
-        raise ValueError("%s: only .obj and .off are read in Python; use `geomfit convert` "
-                         "or `geomfit upload` for other formats" % path)
-    positions = np.asarray(verts, dtype=np.float64).reshape(-1, 3)
-    if all(len(f) == 3 for f in faces):
-        return positions, np.asarray(faces, dtype=np.int32).reshape(-1, 3)
-    padded = np.full((len(faces), 4), -1, dtype=np.int32)
-    for i, f in enumerate(faces):
-        padded[i, :len(f)] = f
-    return positions, padded
-
-
 class Client:
     """Client of a geomfit server. Every call has a deadline (`timeout` seconds);
     UNAVAILABLE is retried `max_attempts` times with exponential backoff. Errors
@@ -366,13 +348,16 @@ class Client:
                 chunk_rows=chunk_rows if chunk_rows > 0 else max(1, max_message_bytes // 4 // 24))
 
     def close(self) -> None:
+        """Closes the channel (and the native client's). The client is unusable after."""
         self._channel.close()
         self._native = None  # the C++ client's channel goes with it
 
     def __enter__(self) -> "Client":
+        """The client itself; leaving the block closes it."""
         return self
 
     def __exit__(self, *exc) -> None:
+        """Closes the client."""
         self.close()
 
     # ------------------------------------------------------------------ plumbing
@@ -421,11 +406,10 @@ class Client:
     # ------------------------------------------------------------------ meshes
     def upload(self, positions: np.ndarray, faces: np.ndarray, name: str = "",
                labels: Optional[Dict[str, str]] = None) -> "pb.MeshInfo":
-        """Uploads a mesh (faces #F x 3, or #F x 4 with -1 padding triangles); returns
+        """Uploads a mesh (positions #V x 3; faces #F x 3, or #F x 4 with -1 padding
+        triangles, integers: ValueError for non-integral values such as 2.7); returns
         MeshInfo. Identical content returns the same mesh_id."""
-        f = np.ascontiguousarray(faces, dtype="<i4")
-        if f.ndim != 2 or f.shape[1] not in (3, 4):
-            raise ValueError("faces must be #F x 3 or #F x 4, got shape %s" % (f.shape,))
+        f = _faces_array(faces)
         header = pb.MeshHeader(num_vertices=len(positions), num_faces=f.shape[0], name=name,
                                labels=labels or {})
         requests = [pb.UploadMeshRequest(header=header)]
@@ -439,7 +423,9 @@ class Client:
 
     def upload_file(self, path: str, name: Optional[str] = None,
                     labels: Optional[Dict[str, str]] = None) -> "pb.MeshInfo":
-        """Reads an OBJ or OFF file (read_mesh_file) and uploads it."""
+        """Reads a mesh file with read_mesh_file (OBJ, OFF, PLY ascii/binary, STL
+        ascii/binary; geomfit's C++ readers when the native module is built) and uploads
+        it, named after the file unless `name` is given."""
         import os
         positions, faces = read_mesh_file(path)
         return self.upload(positions, faces, name=os.path.basename(path) if name is None else name, labels=labels)
@@ -472,6 +458,7 @@ class Client:
                                                                      metadata=_route(mesh_id)))
 
     def get_mesh(self, mesh_id: str) -> "pb.MeshInfo":
+        """The MeshInfo of a stored mesh (NOT_FOUND if there is none)."""
         return self._call(lambda: self._stub.GetMesh(pb.GetMeshRequest(mesh_id=mesh_id), timeout=self.timeout,
                                                              metadata=_route(mesh_id)))
 
@@ -496,6 +483,7 @@ class Client:
         return self._call(run)
 
     def list_meshes(self) -> List["pb.MeshInfo"]:
+        """Every stored mesh's MeshInfo."""
         return self._all_pages(self._stub.ListMeshes, pb.ListMeshesRequest, "meshes")
 
     def _all_pages(self, rpc, request_type, field: str) -> list:
@@ -509,6 +497,7 @@ class Client:
             token = r.next_page_token
 
     def delete_mesh(self, mesh_id: str) -> None:
+        """Deletes a mesh and its cached results (NOT_FOUND if there is none)."""
         self._call(lambda: self._stub.DeleteMesh(pb.DeleteMeshRequest(mesh_id=mesh_id), timeout=self.timeout,
                                                          metadata=_route(mesh_id)))
 
@@ -636,9 +625,11 @@ class Client:
 
     # ------------------------------------------------------------------ server
     def server_info(self) -> "pb.ServerInfo":
+        """The server's version, limits and options (GetServerInfo)."""
         return self._call(lambda: self._stub.GetServerInfo(pb.GetServerInfoRequest(), timeout=self.timeout))
 
     def statistics(self) -> "pb.Statistics":
+        """The server's counters: requests, cache use, timings (GetStatistics)."""
         return self._call(lambda: self._stub.GetStatistics(pb.GetStatisticsRequest(), timeout=self.timeout))
 
     # ------------------------------------------------------------------ jobs
@@ -651,12 +642,15 @@ class Client:
             raise ValueError("give a StartJobRequest or a spec keyword, not both")
         return self._call(lambda: self._stub.StartJob(request, timeout=self.timeout))
 
-    def watch_job(self, job_id: str, from_event: int = 0, timeout: Optional[float] = None) -> Iterator["pb.JobEvent"]:
+    def watch_job(self, job_id: str, from_event: int = 0, timeout: Optional[float] = None,
+                  progress: Optional[Callable[["pb.JobEvent"], None]] = None) -> Iterator["pb.JobEvent"]:
         """Iterates over the job's events with seq >= from_event as they come; ends after
         the final one (event.final). A dropped connection (UNAVAILABLE) is resumed from
         the last event seen, up to max_attempts times in a row; to resume yourself later,
         pass from_event = last seq + 1. Closing the iterator (break) cancels the call.
-        `timeout`: for the whole watch (None: none; jobs may run for hours)."""
+        `timeout`: for the whole watch (None: none; jobs may run for hours).
+        `progress`: called with each event before it is yielded (event.phase, event.step,
+        event.done of event.total); geomfit.progress.tqdm_callback() draws a tqdm bar."""
         next_seq, failures, delay = from_event, 0, self.backoff
         while True:
             call = self._stub.WatchJob(pb.WatchJobRequest(job_id=job_id, from_event=next_seq), timeout=timeout)
@@ -665,6 +659,8 @@ class Client:
                 for event in call:
                     progressed = True
                     next_seq = event.seq + 1
+                    if progress is not None:
+                        progress(event)
                     yield event
                 return
             except grpc.RpcError as e:
@@ -677,12 +673,22 @@ class Client:
             time.sleep(delay)
             delay = min(2.0, delay * 2)
 
+    def wait_job(self, job_id: str, progress: Optional[Callable[["pb.JobEvent"], None]] = None,
+                 timeout: Optional[float] = None) -> "pb.JobEvent":
+        """Watches a job to its end and returns the final event (results, error_code);
+        `progress` as in watch_job."""
+        event = None
+        for event in self.watch_job(job_id, timeout=timeout, progress=progress):
+            pass
+        return event
+
     def cancel_job(self, job_id: str) -> "pb.Job":
         """Cancels a job (a running one stops as soon as it notices and stores nothing);
         a finished job is returned unchanged."""
         return self._call(lambda: self._stub.CancelJob(pb.CancelJobRequest(job_id=job_id), timeout=self.timeout))
 
     def get_job(self, job_id: str) -> "pb.Job":
+        """A job's record: state, results, error and its latest event."""
         return self._call(lambda: self._stub.GetJob(pb.GetJobRequest(job_id=job_id), timeout=self.timeout))
 
     def list_jobs(self) -> List["pb.Job"]:

@@ -16,6 +16,7 @@
 #include <pybind11/stl.h>
 
 #include "clients/cpp/client/client.h"
+#include "core/mesh/io.h"
 #include "core/mesh/content_hash.h"
 
 namespace py = pybind11;
@@ -131,6 +132,22 @@ class NativeClient {
   std::unique_ptr<Client> client_;
 };
 
+/// core's ReadMesh (OBJ, OFF, PLY, STL): (positions #V x 3 float64, faces #F x 3 int32,
+/// or #F x 4 with -1 padding when there are quads). Errors raise ValueError with the
+/// reader's message (file, line or face).
+py::tuple ReadMeshFile(const std::string& path) {
+  absl::StatusOr<Mesh> mesh;
+  {
+    py::gil_scoped_release release;
+    mesh = ReadMesh(path);
+  }
+  if (!mesh.ok()) throw py::value_error(std::string(mesh.status().message()));
+  const bool quads = mesh->NumFaces() > 0 && (mesh->faces.col(3).array() >= 0).any();
+  Eigen::Matrix<int32_t, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> faces =
+      quads ? mesh->faces.leftCols(4) : mesh->faces.leftCols(3);
+  return py::make_tuple(py::cast(std::move(mesh->positions)), py::cast(std::move(faces)));
+}
+
 /// The mesh id the server gives an upload (MeshContentHash): the routing key.
 std::string UploadMeshId(const py::array_t<double, py::array::c_style | py::array::forcecast>& positions,
                      const py::array_t<int32_t, py::array::c_style | py::array::forcecast>& faces,
@@ -170,6 +187,9 @@ PYBIND11_MODULE(_native, m) {
       .def("compute", &NativeClient::Compute, "request"_a,
            "ComputeDifferentials of a serialized ComputeDifferentialsRequest: (serialized "
            "FitSummary, dict of the requested arrays, dict of diagnostics or None).");
+  m.def("read_mesh", &geomfit::ReadMeshFile, "path"_a,
+        "Reads OBJ, OFF, PLY (ascii, binary) or STL (ascii, binary) with geomfit's C++ readers: "
+        "(positions #V x 3 float64, faces #F x 3 int32, or #F x 4 with -1 padding).");
   m.def("mesh_id_of", &geomfit::UploadMeshId, "positions"_a, "faces"_a, "name"_a, "labels"_a,
         "The mesh_id the server gives this upload (content, name, labels).");
 }

@@ -6,6 +6,8 @@
 #include <memory>
 #include <string>
 
+#include <sys/stat.h>
+
 #include "absl/strings/str_cat.h"
 #include "core/mesh/io.h"
 
@@ -33,7 +35,29 @@ absl::StatusOr<std::string> ReadFileToString(const std::string& path) {
   return out;
 }
 
+bool IsStreamPath(const std::string& path) {
+  struct stat st;
+  return path == "-" || (::stat(path.c_str(), &st) == 0 && !S_ISREG(st.st_mode) && !S_ISDIR(st.st_mode));
+}
+
+namespace {
+
+/// Writes `contents` to an open stream; the error names `path`.
+absl::Status WriteAll(FILE* f, const std::string& path, std::string_view contents) {
+  if (std::fwrite(contents.data(), 1, contents.size(), f) != contents.size() || std::fflush(f) != 0)
+    return absl::ErrnoToStatus(errno, absl::StrCat("cannot write '", path, "'"));
+  return absl::OkStatus();
+}
+
+}  // namespace
+
 absl::Status WriteFileAtomically(const std::string& path, std::string_view contents) {
+  if (path == "-") return WriteAll(stdout, "standard output", contents);
+  if (IsStreamPath(path)) {  // a device or pipe: no temporary file beside it
+    std::unique_ptr<FILE, int (*)(FILE*)> f(std::fopen(path.c_str(), "wb"), &std::fclose);
+    if (!f) return absl::ErrnoToStatus(errno, absl::StrCat("cannot write '", path, "'"));
+    return WriteAll(f.get(), path, contents);
+  }
   const std::string tmp = path + ".tmp";
   FILE* f = std::fopen(tmp.c_str(), "wb");
   if (!f) return absl::ErrnoToStatus(errno, absl::StrCat("cannot write '", path, "'"));
