@@ -93,8 +93,9 @@ class EngineTest : public ::testing::Test {
 
 void ExpectStopped(const CancelOutcome& c, const char* rpc) {
   EXPECT_EQ(c.status.error_code(), grpc::StatusCode::CANCELLED) << rpc << ": " << c.status.error_message();
-  // A busy server thread burns ~0.6 s here; an idle process a few ms.
-  EXPECT_LT(c.cpu_after_grace, 0.06) << rpc << " kept computing after the client cancelled";
+  // A server thread still computing burns ~0.6 s per thread in this window; a stopped one
+  // a few ms. The margin absorbs a loaded machine that delays a thread's last block.
+  EXPECT_LT(c.cpu_after_grace, 0.15) << rpc << " kept computing after the client cancelled";
 }
 
 TEST_F(EngineTest, CancelledIntegrateStopsComputing) {
