@@ -3,6 +3,7 @@
 // sqrt(R0^2 - 2t)), cancel, an explicit blow-up naming the step, a concurrent update,
 // and bad inputs naming their fields.
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 #include <string>
 #include <vector>
@@ -90,6 +91,7 @@ TEST(FlowJobsTest, SemiImplicitMcfShrinksTheSphere) {
   absl::StatusOr<Mesh> now = testing::Download(server.stub(), info->mesh_id());
   ASSERT_TRUE(now.ok()) << now.status();
   const double err = MaxRadiusError(*now, std::sqrt(1 - 2 * 0.05));
+  std::printf("flow job, sphere n=8, 50 semi-implicit steps: Linf radius error %.3e\n", err);
   EXPECT_LE(err, 3.3e-4);
   // The positions sent with the last snapshot event are exactly the stored revision.
   const v1::JobEvent* last_snapshot = nullptr;
@@ -154,6 +156,7 @@ TEST(FlowJobsTest, ExplicitBlowUpFailsNamingTheStep) {
   int good = 0;
   for (const v1::JobEvent& e : all) good += e.phase() == "step";
   EXPECT_LT(good, 15);
+  std::printf("explicit dt = 0.05: %d good steps; %s\n", good, last.message().c_str());
   EXPECT_NE(last.message().find("step " + std::to_string(good + 1) + " "), std::string::npos) << last.message();
   EXPECT_NE(last.message().find("explicit"), std::string::npos) << last.message();
   // The last good snapshot is the mesh's latest revision, named in the message.

@@ -61,7 +61,9 @@ absl::Status RunLocal(const FlowArgs& a) {
   FlowOptions o;
   GF_ASSIGN_OR_RETURN(o.kind, ParseFlowKind(a.kind));
   GF_ASSIGN_OR_RETURN(o.scheme, ParseFlowScheme(a.scheme));
-  if (!a.solver.empty()) GF_ASSIGN_OR_RETURN(o.solver.kind, ParseSolverKind(a.solver));
+  if (!a.solver.empty()) {
+    GF_ASSIGN_OR_RETURN(o.solver.kind, ParseSolverKind(a.solver));
+  }
   o.dt = a.dt;
   o.steps = a.steps;
   o.end_time = a.end_time;
@@ -95,7 +97,9 @@ absl::Status RunRemote(const FlowArgs& a) {
   std::unique_ptr<Client> client = ConnectTo(a.server);
   Mesh mesh;
   GF_ASSIGN_OR_RETURN(const std::string id, RemoteMeshId(*client, a.mesh, false, &mesh));
-  if (mesh.NumVertices() == 0 && !a.series.empty()) GF_ASSIGN_OR_RETURN(mesh, client->Download(id));
+  if (mesh.NumVertices() == 0 && !a.series.empty()) {
+    GF_ASSIGN_OR_RETURN(mesh, client->Download(id));
+  }
   v1::FlowJob spec;
   spec.set_mesh_id(id);
   spec.set_kind(a.kind);
