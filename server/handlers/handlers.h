@@ -87,6 +87,13 @@ class Handlers {
   absl::StatusOr<v1::IntegrateResponse> Integrate(const v1::IntegrateRequest& request,
                                                   const CancellationToken& cancel);
 
+  // GFD operators (operators.cc).
+  absl::StatusOr<v1::GetOperatorResponse> GetOperator(const v1::GetOperatorRequest& request,
+                                                      const CancellationToken& cancel);
+  /// The operator times the field (n or n x 1 for scalar operands, n x 3 for vector ones).
+  absl::StatusOr<v1::ApplyOperatorResponse> ApplyOperator(const v1::ApplyOperatorRequest& request,
+                                                          const CancellationToken& cancel);
+
   // Server (info.cc).
   v1::ServerInfo GetServerInfo() const;
   v1::Statistics GetStatistics() const;
@@ -95,6 +102,13 @@ class Handlers {
   Workspace& workspace() { return *ws_; }
 
  private:
+  struct OperatorMatrix {
+    std::shared_ptr<const SparseMatrix> matrix;
+    int64_t revision = 0;
+    int64_t num_vertices = 0;
+  };
+  absl::StatusOr<OperatorMatrix> Operator(const std::string& mesh_id, int64_t revision, v1::OperatorKind kind,
+                                          const v1::FitOptions& options, const CancellationToken& cancel);
   /// The snapshot a request names (revision 0 = latest; negative revisions rejected).
   absl::StatusOr<Snapshot> Acquire(const std::string& id, int64_t revision);
   /// A reconstruction request's snapshot and surface.

@@ -6,6 +6,7 @@
 #include "core/util/status_macros.h"
 #include "proto/wire.h"
 #include "server/handlers/handlers.h"
+#include "server/handlers/flow_job.h"
 #include "server/handlers/refine_job.h"
 
 namespace geomfit::server {
@@ -78,8 +79,13 @@ absl::StatusOr<v1::Job> JobHandlers::StartJob(const v1::StartJobRequest& request
       GF_ASSIGN_OR_RETURN(run, MakeRefineJob(&handlers_->workspace(), request.refine(), max_vertices_));
       break;
     }
+    case v1::StartJobRequest::kFlow: {
+      kind = "flow";
+      GF_ASSIGN_OR_RETURN(run, MakeFlowJob(&handlers_->workspace(), request.flow()));
+      break;
+    }
     case v1::StartJobRequest::SPEC_NOT_SET:
-      return absl::InvalidArgumentError("spec: set one job spec (refine)");
+      return absl::InvalidArgumentError("spec: set one job spec (refine, flow)");
   }
   GF_ASSIGN_OR_RETURN(JobStatus status, jobs_->Start(kind, request.SerializeAsString(), std::move(run)));
   return ToProto(status);
@@ -119,6 +125,12 @@ absl::StatusOr<std::vector<v1::JobEvent>> JobHandlers::ReadEvents(const std::str
   for (const JobEvent& e : batch.events) out.push_back(ToProto(e, job_id));
   *end = batch.end;
   return out;
+}
+
+absl::StatusOr<v1::Job> JobHandlers::StartFlow(const v1::FlowJob& spec) {
+  v1::StartJobRequest request;
+  *request.mutable_flow() = spec;
+  return StartJob(request);
 }
 
 }  // namespace geomfit::server

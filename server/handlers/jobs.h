@@ -29,6 +29,8 @@ class JobHandlers {
                                                        std::function<void()> on_more = nullptr,
                                                        uint64_t* subscription = nullptr);
   JobManager* manager() { return jobs_; }
+  /// StartJob with a flow spec.
+  absl::StatusOr<v1::Job> StartFlow(const v1::FlowJob& spec);
 
  private:
   JobManager* jobs_;

@@ -185,7 +185,9 @@ absl::Status NoJobs() { return absl::UnimplementedError("this server runs no job
 
 grpc::ServerUnaryReactor* Service::StartJob(grpc::CallbackServerContext* ctx, const v1::StartJobRequest* request,
                                             v1::Job* response) {
-  Call call{"StartJob", request->has_refine() ? request->refine().mesh_id() : ""};
+  Call call{"StartJob", request->has_refine() ? request->refine().mesh_id()
+                        : request->has_flow() ? request->flow().mesh_id()
+                                              : ""};
   return Unary<v1::Job>(ctx, std::move(call), io_, response, [this, request]() -> absl::StatusOr<v1::Job> {
     if (jobs_ == nullptr) return NoJobs();
     return jobs_->StartJob(*request);
@@ -222,6 +224,28 @@ grpc::ServerUnaryReactor* Service::ListJobs(grpc::CallbackServerContext* ctx, co
                                        if (jobs_ == nullptr) return NoJobs();
                                        return jobs_->ListJobs(*request);
                                      });
+}
+
+grpc::ServerUnaryReactor* Service::StartFlow(grpc::CallbackServerContext* ctx, const v1::FlowJob* request,
+                                             v1::Job* response) {
+  return Unary<v1::Job>(ctx, {"StartFlow", request->mesh_id()}, io_, response,
+                        [this, request]() -> absl::StatusOr<v1::Job> {
+                          if (jobs_ == nullptr) return NoJobs();
+                          return jobs_->StartFlow(*request);
+                        });
+}
+
+grpc::ServerUnaryReactor* Service::ApplyOperator(grpc::CallbackServerContext* ctx,
+                                                 const v1::ApplyOperatorRequest* request,
+                                                 v1::ApplyOperatorResponse* response) {
+  return Unary<v1::ApplyOperatorResponse>(ctx, {"ApplyOperator", request->mesh_id()}, compute_, response,
+                                          [this, ctx, request] { return handlers_->ApplyOperator(*request, *TokenFor(ctx)); });
+}
+
+grpc::ServerUnaryReactor* Service::GetOperator(grpc::CallbackServerContext* ctx, const v1::GetOperatorRequest* request,
+                                               v1::GetOperatorResponse* response) {
+  return Unary<v1::GetOperatorResponse>(ctx, {"GetOperator", request->mesh_id()}, compute_, response,
+                                        [this, ctx, request] { return handlers_->GetOperator(*request, *TokenFor(ctx)); });
 }
 
 }  // namespace geomfit::server

@@ -73,6 +73,14 @@ class Service final : public v1::GeomFit::CallbackService {
                                      v1::ListJobsResponse* response) override;
   void SetJobs(JobHandlers* jobs) { jobs_ = jobs; }
 
+  // Flows and operators.
+  grpc::ServerUnaryReactor* StartFlow(grpc::CallbackServerContext* ctx, const v1::FlowJob* request,
+                                      v1::Job* response) override;
+  grpc::ServerUnaryReactor* ApplyOperator(grpc::CallbackServerContext* ctx, const v1::ApplyOperatorRequest* request,
+                                          v1::ApplyOperatorResponse* response) override;
+  grpc::ServerUnaryReactor* GetOperator(grpc::CallbackServerContext* ctx, const v1::GetOperatorRequest* request,
+                                        v1::GetOperatorResponse* response) override;
+
   /// What one call did, for the request log line.
   struct Call {
     const char* method;

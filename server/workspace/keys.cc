@@ -39,7 +39,8 @@ const char* TierName(Tier tier) {
 Tier CacheKey::tier() const {
   switch (kind) {
     case EntryKind::kTopology:
-    case EntryKind::kNeighborhoods: return Tier::kTopology;
+    case EntryKind::kNeighborhoods:
+    case EntryKind::kOperatorPattern: return Tier::kTopology;
     case EntryKind::kGeometry: return Tier::kGeometry;
     default: return Tier::kFitting;
   }
@@ -51,6 +52,18 @@ CacheKey NeighborhoodsKey(const std::string& id, const RingSpec& s) {
   return Key(id, 0, EntryKind::kNeighborhoods,
              {Bits(s.rings), s.adaptive, static_cast<uint64_t>(s.min_points),
               static_cast<uint64_t>(s.min_points_boundary), Bits(s.max_rings), static_cast<uint64_t>(s.max_points)});
+}
+
+CacheKey OperatorPatternKey(const std::string& id, const RingSpec& s) {
+  CacheKey k = NeighborhoodsKey(id, s);
+  k.kind = EntryKind::kOperatorPattern;
+  return k;
+}
+
+CacheKey OperatorKey(const std::string& id, int64_t revision, const FitOptions& options, int op) {
+  std::vector<uint64_t> p = FitParams(options, true);
+  p.push_back(static_cast<uint64_t>(op));
+  return Key(id, revision, EntryKind::kOperator, std::move(p));
 }
 
 CacheKey GeometryKey(const std::string& id, int64_t revision) { return Key(id, revision, EntryKind::kGeometry); }

@@ -27,6 +27,8 @@ enum class EntryKind : uint8_t {
   kFits,           ///< SurfaceFits of one revision and FitOptions
   kFeatureFits,    ///< SurfaceFits of the mesh split along feature edges
   kDifferentials,  ///< Differentials of a fit (quantity mask)
+  kOperatorPattern,  ///< OperatorAssembler of one RingSpec (every revision)
+  kOperator,         ///< a GFD operator matrix of one revision and FitOptions
 };
 
 struct CacheKey {
@@ -52,6 +54,11 @@ CacheKey FeatureFitKey(const std::string& mesh_id, int64_t revision, const std::
                        const FitOptions& options, bool stencils);
 /// The differential quantities `mask` of the fit `fit`.
 CacheKey DifferentialsKey(const CacheKey& fit, uint32_t mask);
+
+/// The operators' pattern over the stencils of `spec` (topology tier).
+CacheKey OperatorPatternKey(const std::string& mesh_id, const RingSpec& spec);
+/// The operator `op` (an OperatorKind value) of revision `revision` fitted under `options`.
+CacheKey OperatorKey(const std::string& mesh_id, int64_t revision, const FitOptions& options, int op);
 
 /// For logs and test messages only.
 std::string DebugString(const CacheKey& key);

@@ -172,16 +172,7 @@ absl::StatusOr<Fitted> Workspace::Fit(const Snapshot& s, const FitOptions& optio
                                                      " bytes; the cache budget is ", cache_->budget(),
                                                      " (--cache-bytes)"));
   }
-  const RingSpec spec = RingSpecFor(options);
-  GF_ASSIGN_OR_RETURN(
-      auto nbhd, cache_->Get<Neighborhoods>(
-                     NeighborhoodsKey(s.mesh_id, spec),
-                     [&]() -> Made<Neighborhoods> {
-                       auto n = std::make_shared<const Neighborhoods>(
-                           BuildNeighborhoods(*s.topology, *s.mesh, spec, ctx.threads()));
-                       return std::make_pair(n, static_cast<int64_t>(n->Bytes()));
-                     },
-                     ctx.token()));
+  GF_ASSIGN_OR_RETURN(auto nbhd, NeighborhoodsOf(s, RingSpecFor(options), ctx));
   f.key = FitKey(s.mesh_id, s.revision, options, stencils);
   Stopwatch watch;
   GF_ASSIGN_OR_RETURN(f.fits, cache_->Get<SurfaceFits>(
@@ -195,6 +186,46 @@ absl::StatusOr<Fitted> Workspace::Fit(const Snapshot& s, const FitOptions& optio
   f.ms = f.hit ? 0 : watch.Millis();
   GF_RETURN_IF_ERROR(ctx.Check());
   return f;
+}
+
+absl::StatusOr<std::shared_ptr<const Neighborhoods>> Workspace::NeighborhoodsOf(const Snapshot& s,
+                                                                                 const RingSpec& spec,
+                                                                                 const RunContext& ctx) {
+  return cache_->Get<Neighborhoods>(
+      NeighborhoodsKey(s.mesh_id, spec),
+      [&]() -> Made<Neighborhoods> {
+        auto n = std::make_shared<const Neighborhoods>(BuildNeighborhoods(*s.topology, *s.mesh, spec, ctx.threads()));
+        return std::make_pair(n, static_cast<int64_t>(n->Bytes()));
+      },
+      ctx.token());
+}
+
+absl::StatusOr<std::shared_ptr<const SparseMatrix>> Workspace::Operator(const Snapshot& s, const FitOptions& options,
+                                                                        OperatorKind kind, const RunContext& ctx) {
+  if (options.method != FitMethod::kLHF)
+    return absl::InvalidArgumentError("options.method: the GFD operators need LHF fits (height functions)");
+  if (const int64_t need = EstimateFitBytes(s.mesh->NumVertices(), options); need > cache_->budget())
+    return absl::ResourceExhaustedError(absl::StrCat("operators of ", s.mesh->NumVertices(), " vertices need about ",
+                                                     need, " bytes; the cache budget is ", cache_->budget()));
+  const RingSpec spec = RingSpecFor(options);
+  GF_ASSIGN_OR_RETURN(auto nbhd, NeighborhoodsOf(s, spec, ctx));
+  GF_ASSIGN_OR_RETURN(auto assembler, cache_->Get<OperatorAssembler>(
+                                          OperatorPatternKey(s.mesh_id, spec),
+                                          [&]() -> Made<OperatorAssembler> {
+                                            auto a = std::make_shared<const OperatorAssembler>(nbhd);
+                                            // slots, columns and offsets: ~2 ints per stencil point
+                                            return std::make_pair(a, static_cast<int64_t>(nbhd->Bytes()));
+                                          },
+                                          ctx.token()));
+  return cache_->Get<SparseMatrix>(
+      OperatorKey(s.mesh_id, s.revision, options, static_cast<int>(kind)),
+      [&]() -> Made<SparseMatrix> {
+        GF_ASSIGN_OR_RETURN(auto fits, FitForOperators(*s.mesh, *s.topology, options, nbhd, ctx));
+        GF_ASSIGN_OR_RETURN(SparseMatrix m, assembler->Assemble(kind, *fits, ctx));
+        const int64_t bytes = static_cast<int64_t>(m.nonZeros()) * 12 + (m.outerSize() + 1) * 4;
+        return std::make_pair(std::make_shared<const SparseMatrix>(std::move(m)), bytes);
+      },
+      ctx.token());
 }
 
 absl::StatusOr<Evaluated> Workspace::Evaluate(const Snapshot& s, const FitOptions& options, uint32_t mask,

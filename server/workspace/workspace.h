@@ -13,6 +13,7 @@
 #include "absl/status/statusor.h"
 #include "core/fitting/fit.h"
 #include "core/mesh/topology.h"
+#include "core/operators/operators.h"
 #include "core/reconstruction/features.h"
 #include "core/reconstruction/options.h"
 #include "core/reconstruction/surface.h"
@@ -109,12 +110,21 @@ class Workspace {
   absl::StatusOr<std::unique_ptr<Reconstructed>> Reconstruct(const Snapshot& s, const ReconstructionOptions& options,
                                                              bool stencils, const RunContext& ctx);
 
+  // GFD operators (chapter 5).
+  /// The operator `kind` of `s`'s LHF fits under `options`: the pattern (an
+  /// OperatorAssembler) from the topology tier, the matrix from the fitting tier.
+  absl::StatusOr<std::shared_ptr<const SparseMatrix>> Operator(const Snapshot& s, const FitOptions& options,
+                                                               OperatorKind kind, const RunContext& ctx);
+
   const Cache& cache() const { return *cache_; }
   MeshStore& store() const { return *store_; }
 
  private:
   absl::StatusOr<std::shared_ptr<const Mesh>> Geometry(const std::string& id, int64_t* revision);
   absl::StatusOr<std::shared_ptr<const Topology>> TopologyOf(const std::string& id, const Mesh& mesh);
+  /// The stencils of `s`'s mesh under `spec`, from the topology tier.
+  absl::StatusOr<std::shared_ptr<const Neighborhoods>> NeighborhoodsOf(const Snapshot& s, const RingSpec& spec,
+                                                                       const RunContext& ctx);
 
   struct Recipe {
     FitOptions options;

@@ -148,6 +148,8 @@ absl::Status RunProject(const std::vector<std::string>& args);    ///< reconstru
 absl::Status RunRefine(const std::vector<std::string>& args);     ///< reconstruct.cc
 absl::Status RunNodes(const std::vector<std::string>& args);      ///< reconstruct.cc
 absl::Status RunIntegrate(const std::vector<std::string>& args);  ///< reconstruct.cc
+absl::Status RunFlowCommand(const std::vector<std::string>& args);      ///< flow.cc
+absl::Status RunOperatorCommand(const std::vector<std::string>& args);  ///< flow.cc
 
 #ifdef GEOMFIT_WITH_CLIENT
 }  // namespace geomfit::cli

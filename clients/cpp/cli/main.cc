@@ -28,6 +28,8 @@ constexpr Command kCommands[] = {
     {"refine", "refine a mesh uniformly onto the reconstructed surface", RunRefine},
     {"nodes", "quadratic or cubic element nodes on the reconstructed surface", RunNodes},
     {"integrate", "high-order area, volume, scalar and flux integrals", RunIntegrate},
+    {"flow", "mean-curvature flow or surface diffusion (--server job or --local)", RunFlowCommand},
+    {"operator", "a GFD surface operator as a sparse matrix (--server)", RunOperatorCommand},
 };
 
 bool IsRemoteCommand(const std::string& name) {

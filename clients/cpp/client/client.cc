@@ -478,6 +478,7 @@ namespace geomfit {
 
 absl::StatusOr<v1::Job> Client::StartJob(v1::StartJobRequest request) {
   if (request.has_refine()) request.mutable_refine()->set_mesh_id(ResolveId(request.refine().mesh_id()));
+  if (request.has_flow()) request.mutable_flow()->set_mesh_id(ResolveId(request.flow().mesh_id()));
   v1::Job job;
   GF_RETURN_IF_ERROR(impl_->Call([&](grpc::ClientContext& ctx) { return impl_->stub->StartJob(&ctx, request, &job); }));
   return job;
@@ -574,6 +575,56 @@ absl::StatusOr<std::string> Client::CheckHealth(const std::string& service) {
   if (response_bytes.size() >= 2 && response_bytes[0] == '\x08') status = static_cast<unsigned char>(response_bytes[1]);
   static const char* const kNames[] = {"UNKNOWN", "SERVING", "NOT_SERVING", "SERVICE_UNKNOWN"};
   return status >= 0 && status < 4 ? std::string(kNames[status]) : absl::StrCat("STATUS_", status);
+}
+
+absl::StatusOr<v1::Job> Client::StartFlow(v1::FlowJob spec) {
+  spec.set_mesh_id(ResolveId(spec.mesh_id()));
+  v1::Job job;
+  GF_RETURN_IF_ERROR(impl_->Call([&](grpc::ClientContext& ctx) { return impl_->stub->StartFlow(&ctx, spec, &job); }));
+  return job;
+}
+
+absl::StatusOr<SparseMatrix> Client::GetOperator(const std::string& mesh_id, v1::OperatorKind kind,
+                                                 const v1::FitOptions& options) {
+  return WithMesh<SparseMatrix>(mesh_id, [&](const std::string& id) -> absl::StatusOr<SparseMatrix> {
+    v1::GetOperatorRequest request;
+    request.set_mesh_id(id);
+    request.set_operator_(kind);
+    *request.mutable_options() = options;
+    v1::GetOperatorResponse r;
+    GF_RETURN_IF_ERROR(
+        impl_->Call([&](grpc::ClientContext& ctx) { return impl_->stub->GetOperator(&ctx, request, &r); }, id));
+    if (r.shape_size() != 2) return absl::DataLossError("GetOperator: the response has no 2-D shape");
+    GF_ASSIGN_OR_RETURN(const wire::RowsXi offsets, wire::DecodeInts(r.row_offsets(), "row_offsets", {0}));
+    GF_ASSIGN_OR_RETURN(const wire::RowsXi columns, wire::DecodeInts(r.columns(), "columns", {0}));
+    GF_ASSIGN_OR_RETURN(const wire::RowsXd values, wire::DecodeDoubles(r.values(), "values", {0}));
+    const int64_t rows = r.shape(0), cols = r.shape(1), nnz = values.size();
+    if (offsets.size() != rows + 1 || columns.size() != nnz || offsets(offsets.size() - 1) != nnz)
+      return absl::DataLossError("GetOperator: inconsistent CSR arrays");
+    SparseMatrix m(rows, cols);
+    m.resizeNonZeros(nnz);
+    std::copy(offsets.data(), offsets.data() + rows + 1, m.outerIndexPtr());
+    std::copy(columns.data(), columns.data() + nnz, m.innerIndexPtr());
+    std::copy(values.data(), values.data() + nnz, m.valuePtr());
+    return m;
+  });
+}
+
+absl::StatusOr<Eigen::MatrixXd> Client::ApplyOperator(const std::string& mesh_id, v1::OperatorKind kind,
+                                                      const Eigen::MatrixXd& field, const v1::FitOptions& options) {
+  return WithMesh<Eigen::MatrixXd>(mesh_id, [&](const std::string& id) -> absl::StatusOr<Eigen::MatrixXd> {
+    v1::ApplyOperatorRequest request;
+    request.set_mesh_id(id);
+    request.set_operator_(kind);
+    *request.mutable_options() = options;
+    const wire::RowsXd f = field;
+    wire::EncodeDoubles(f.data(), f.rows(), f.cols(), request.mutable_field());
+    v1::ApplyOperatorResponse r;
+    GF_RETURN_IF_ERROR(
+        impl_->Call([&](grpc::ClientContext& ctx) { return impl_->stub->ApplyOperator(&ctx, request, &r); }, id));
+    GF_ASSIGN_OR_RETURN(const wire::RowsXd out, wire::DecodeDoubles(r.result(), "result", {1, 3, 9}));
+    return Eigen::MatrixXd(out);
+  });
 }
 
 }  // namespace geomfit

@@ -18,6 +18,7 @@
 #include "absl/status/statusor.h"
 #include "core/fitting/options.h"
 #include "core/mesh/mesh.h"
+#include "core/operators/operators.h"
 #include "core/integration/integrate.h"
 #include "core/quantities/differentials.h"
 #include "core/reconstruction/meshing.h"
@@ -129,6 +130,16 @@ class Client {
   absl::StatusOr<v1::Job> GetJob(const std::string& job_id);
   /// Every job (all pages), in creation order.
   absl::StatusOr<std::vector<v1::Job>> ListJobs();
+
+  // Flows and operators (chapter 5).
+  /// StartJob with a flow spec; watch it with WatchJob.
+  absl::StatusOr<v1::Job> StartFlow(v1::FlowJob spec);
+  /// The GFD operator `kind` of the mesh's LHF fits under `options`, as a CSR matrix.
+  absl::StatusOr<SparseMatrix> GetOperator(const std::string& mesh_id, v1::OperatorKind kind,
+                                           const v1::FitOptions& options = {});
+  /// The operator applied to `field` (n x 1 or n x 3 per vertex): n x k.
+  absl::StatusOr<Eigen::MatrixXd> ApplyOperator(const std::string& mesh_id, v1::OperatorKind kind,
+                                                const Eigen::MatrixXd& field, const v1::FitOptions& options = {});
 
   /// The server-side id currently standing for `mesh_id` (differs after a re-upload).
   std::string ResolveId(const std::string& mesh_id) const;

@@ -704,3 +704,80 @@ class Client:
         return self.start_job(refine=pb.RefineJob(
             mesh_id=mesh_id, revision=revision, levels=levels, factor=factor, name=name,
             options=self._surface(surface, degree, safeguard, feature_angle)))
+
+    # ------------------------------------------------------------------ flows and operators
+    def start_flow(self, mesh_id: str, dt: float, steps: int = 0, end_time: float = 0.0, kind: str = "mcf",
+                   scheme: str = "semi_implicit", degree: int = 0, solver: str = "", snapshot_every: int = 0,
+                   max_area_change: float = 0.0, max_volume_change: float = 0.0, send_positions: bool = False,
+                   revision: int = 0) -> "pb.Job":
+        """Starts a flow job (kind "mcf" or "surface_diffusion"; scheme "explicit",
+        "semi_implicit" or "bdf2"); degree 0 keeps the flow's default (4). Every
+        `snapshot_every` steps and at the end the positions become a new revision of the
+        mesh. Returns the job at once; watch_job(job.job_id) streams its events."""
+        spec = pb.FlowJob(mesh_id=mesh_id, revision=revision, kind=kind, scheme=scheme, dt=dt, steps=steps,
+                          end_time=end_time, solver=solver, snapshot_every=snapshot_every,
+                          max_area_change=max_area_change, max_volume_change=max_volume_change,
+                          send_positions=send_positions)
+        if degree:
+            spec.fit.degree = degree
+        return self._call(lambda: self._stub.StartFlow(spec, timeout=self.timeout))
+
+    def flow(self, mesh_id: str, dt: float, steps: int = 0, **options) -> Iterator["pb.JobEvent"]:
+        """Runs a flow (start_flow's options) and iterates over its job events as they
+        come: phase "step" (event.step, event.time, values area, volume, max_speed,
+        fit_ms, assemble_ms, solve_ms, step_ms; counts solver_iterations) and "snapshot"
+        (results: the stored revision; arrays "positions" with send_positions=True), then
+        the final event. A failed or cancelled job raises GeomfitError after its final
+        event; closing the iterator early (break) cancels the job."""
+        job = self.start_flow(mesh_id, dt, steps, **options)
+        finished = False
+        try:
+            for event in self.watch_job(job.job_id):
+                if event.final:
+                    finished = True
+                    yield event
+                    if event.state != pb.JOB_STATE_SUCCEEDED:
+                        raise GeomfitError(_STATUS_CODES.get(event.error_code, grpc.StatusCode.UNKNOWN),
+                                           event.message)
+                    return
+                yield event
+        finally:
+            if not finished:
+                try:
+                    self.cancel_job(job.job_id)
+                except GeomfitError:
+                    pass
+
+    _OPERATORS = {"gradient": 1, "divergence": 2, "laplace_beltrami": 3, "hessian": 4, "weingarten": 5}
+
+    @classmethod
+    def _operator_kind(cls, name: str) -> int:
+        if name not in cls._OPERATORS:
+            raise ValueError(f"operator {name!r}: expected one of {', '.join(cls._OPERATORS)}")
+        return cls._OPERATORS[name]
+
+    def operator(self, mesh_id: str, name: str = "laplace_beltrami", degree: int = 4, revision: int = 0):
+        """The GFD operator `name` (gradient 3n x n, divergence n x 3n, laplace_beltrami
+        n x n, hessian 9n x n, weingarten 3n x 3n) of the mesh's LHF fits: a
+        scipy.sparse.csr_matrix when scipy is importable, else a tuple (row_offsets,
+        columns, values, shape) of numpy arrays."""
+        request = pb.GetOperatorRequest(mesh_id=mesh_id, revision=revision, operator=self._operator_kind(name),
+                                        options=pb.FitOptions(degree=degree))
+        out = self._call(lambda: self._stub.GetOperator(request, timeout=self.timeout, metadata=_route(mesh_id)))
+        parts = (_decode(out.row_offsets, "<i4"), _decode(out.columns, "<i4"), _decode(out.values, "<f8"),
+                 tuple(out.shape))
+        try:
+            import scipy.sparse
+        except ImportError:
+            return parts
+        return scipy.sparse.csr_matrix((parts[2], parts[1], parts[0]), shape=parts[3])
+
+    def apply_operator(self, mesh_id: str, field: np.ndarray, name: str = "laplace_beltrami", degree: int = 4,
+                       revision: int = 0) -> np.ndarray:
+        """The operator `name` applied to a per-vertex field (n values for gradient,
+        laplace_beltrami and hessian; n x 3 for divergence and weingarten): n x k."""
+        request = pb.ApplyOperatorRequest(mesh_id=mesh_id, revision=revision, operator=self._operator_kind(name),
+                                          options=pb.FitOptions(degree=degree))
+        _encode(np.asarray(field), "<f8", request.field)
+        out = self._call(lambda: self._stub.ApplyOperator(request, timeout=self.timeout, metadata=_route(mesh_id)))
+        return _decode(out.result, "<f8")
