@@ -1,10 +1,10 @@
 // The cold path of a run on a fresh mesh: reading the file, BuildTopology and
 // BuildNeighborhoods, on the n = 168 torus (84,672 vertices, 169,344 triangles) as
 // generated (neighbours have near indices) and with its vertices shuffled (an external
-// mesher's order: neighbours anywhere in memory). One thread.
+// mesher's order: neighbours anywhere in memory). One thread unless stated.
 //
 //   BM_Topology/shuffled:<0|1>              BuildTopology
-//   BM_Neighborhoods/shuffled:<0|1>/deg:<d> BuildNeighborhoods(RingSpecFor(degree d)), 1 thread
+//   BM_Neighborhoods/shuffled:<0|1>/deg:<d>/threads:<t>  BuildNeighborhoods(RingSpecFor(degree d))
 //   BM_Parse/shuffled:<0|1>/fmt:<f>         ParseMesh of bytes in memory; f = 0 OBJ, 1 OFF,
 //                                           2 ascii PLY (%.17g coordinates, as FormatObj)
 //   BM_ReadObj/shuffled:<0|1>               ReadMesh of the OBJ file (file read + parse)
@@ -107,7 +107,7 @@ void BM_Neighborhoods(benchmark::State& state) {
   FitOptions o;
   o.degree = static_cast<int>(state.range(1));
   for (auto _ : state) {
-    Neighborhoods nb = BuildNeighborhoods(x.topo, x.mesh, RingSpecFor(o), 1);
+    Neighborhoods nb = BuildNeighborhoods(x.topo, x.mesh, RingSpecFor(o), static_cast<int>(state.range(2)));
     benchmark::DoNotOptimize(nb.indices.data());
     benchmark::ClobberMemory();
   }
@@ -141,8 +141,8 @@ void BM_ReadObj(benchmark::State& state) {
 
 BENCHMARK(BM_Topology)->ArgName("shuffled")->DenseRange(0, 1)->Unit(benchmark::kMillisecond)->UseRealTime();
 BENCHMARK(BM_Neighborhoods)
-    ->ArgNames({"shuffled", "deg"})
-    ->ArgsProduct({{0, 1}, {2, 4}})
+    ->ArgNames({"shuffled", "deg", "threads"})
+    ->ArgsProduct({{0, 1}, {2, 4}, {1, 2}})
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime();
 BENCHMARK(BM_Parse)

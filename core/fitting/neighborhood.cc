@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
 
 #include "core/util/parallel.h"
 
@@ -21,6 +22,45 @@ RingSpec RingSpecFor(const FitOptions& o) {
 
 namespace {
 
+// Mean index distance along edges below which a numbering counts as local: the
+// stencils of consecutive vertices then lie within a few hundred kB of each other.
+constexpr int64_t kLocalIndexGap = 4096;
+
+// The order to grow stencils in. Meshes numbered with locality (edges join near
+// indices: generators, most meshers) keep their order; others (an external mesher's
+// or a shuffled numbering) are grown in breadth-first order over the edges, from each
+// unvisited vertex in index order, so consecutive stencils share cache lines.
+std::vector<int32_t> GrowthOrder(const Topology& t) {
+  const int nv = t.num_vertices;
+  std::vector<int32_t> order;
+  order.reserve(nv);
+  int64_t gap = 0;  // sum over edges of |v - w|
+  for (int v = 0; v < nv; ++v)
+    for (int j = 0; j < t.NumNeighbors(v); ++j) gap += std::abs(v - t.Neighbors(v)[j]);
+  if (gap <= kLocalIndexGap * static_cast<int64_t>(t.vv.size())) {
+    for (int v = 0; v < nv; ++v) order.push_back(v);
+    return order;
+  }
+  std::vector<uint8_t> seen(nv, 0);
+  for (int s = 0; s < nv; ++s) {
+    if (seen[s]) continue;
+    seen[s] = 1;
+    size_t head = order.size();
+    order.push_back(s);
+    for (; head < order.size(); ++head) {
+      const int32_t v = order[head];
+      for (int j = 0; j < t.NumNeighbors(v); ++j) {
+        const int32_t w = t.Neighbors(v)[j];
+        if (!seen[w]) {
+          seen[w] = 1;
+          order.push_back(w);
+        }
+      }
+    }
+  }
+  return order;
+}
+
 // Each vertex's adjacency gathered in one span, built once per call: its edge
 // neighbours (topo.Neighbors order), then the corner rows (4 slots, -1 for triangles)
 // of its faces (topo.VertexFaces order). A stencil point's ring step then reads one
@@ -28,14 +68,20 @@ namespace {
 // vertex order was a cache miss each.
 class Spans {
  public:
-  Spans(const Topology& t, const Mesh& m, int threads) : offsets_(t.num_vertices + 1) {
+  /// Spans laid out in `order` (a permutation of the vertices).
+  Spans(const Topology& t, const Mesh& m, const std::vector<int32_t>& order, int threads)
+      : offsets_(t.num_vertices) {
     const int nv = t.num_vertices;
-    offsets_[0] = 0;
-    for (int v = 0; v < nv; ++v)
-      offsets_[v + 1] = offsets_[v] + 2 + t.NumNeighbors(v) + 4 * t.NumVertexFaces(v);
-    data_.resize(offsets_[nv]);
+    int64_t at = 0;
+    for (int i = 0; i < nv; ++i) {
+      const int v = order[i];
+      offsets_[v] = at;
+      at += 2 + t.NumNeighbors(v) + 4 * t.NumVertexFaces(v);
+    }
+    data_.resize(at);
     ParallelForBlocks(nv, threads, [&](int64_t begin, int64_t end, int) {
-      for (int64_t v = begin; v < end; ++v) {
+      for (int64_t i = begin; i < end; ++i) {
+        const int v = order[i];
         int32_t* out = data_.data() + offsets_[v];
         const int nn = t.NumNeighbors(v), nf = t.NumVertexFaces(v);
         *out++ = nn;
@@ -178,9 +224,13 @@ Neighborhoods BuildNeighborhoods(const Topology& topo, const Mesh& mesh, const R
                                  int num_threads) {
   const int nv = topo.num_vertices;
   const int threads = ResolveThreads(num_threads);
-  const Spans spans(topo, mesh, threads);
+  // Stencils are grown in GrowthOrder (each is independent of the order) and then
+  // copied to vertex order.
+  const std::vector<int32_t> order = GrowthOrder(topo);
+  const Spans spans(topo, mesh, order, threads);
   std::vector<std::vector<int32_t>> block_indices(threads);
-  std::vector<std::vector<int32_t>> block_sizes(threads);
+  std::vector<int32_t> sizes(nv);
+  std::vector<int64_t> start(nv);  // in the block's buffer, then final
   Neighborhoods nb;
   nb.rings.resize(nv);
   ParallelForBlocks(nv, threads, [&](int64_t begin, int64_t end, int b) {
@@ -188,23 +238,23 @@ Neighborhoods BuildNeighborhoods(const Topology& topo, const Mesh& mesh, const R
     std::vector<int32_t> stencil;
     auto& idx = block_indices[b];
     idx.reserve((end - begin) * 24);
-    block_sizes[b].reserve(end - begin);
-    for (int64_t v = begin; v < end; ++v) {
-      nb.rings[v] = grower.Grow(static_cast<int>(v), spec, stencil);
-      block_sizes[b].push_back(static_cast<int32_t>(stencil.size()));
+    for (int64_t i = begin; i < end; ++i) {
+      const int v = order[i];
+      nb.rings[v] = grower.Grow(v, spec, stencil);
+      sizes[v] = static_cast<int32_t>(stencil.size());
+      start[v] = static_cast<int64_t>(idx.size());
       idx.insert(idx.end(), stencil.begin(), stencil.end());
     }
   });
-  // Concatenate the blocks in order, each copied in parallel at its final offset.
-  std::vector<size_t> block_start(threads + 1, 0);
-  for (int b = 0; b < threads; ++b) block_start[b + 1] = block_start[b] + block_indices[b].size();
   nb.offsets.resize(nv + 1);
-  nb.indices.resize(block_start[threads]);
   nb.offsets[0] = 0;
-  ParallelForBlocks(nv, threads, [&](int64_t begin, int64_t, int b) {
-    int32_t at = static_cast<int32_t>(block_start[b]);
-    for (size_t i = 0; i < block_sizes[b].size(); ++i) nb.offsets[begin + i + 1] = at += block_sizes[b][i];
-    std::copy(block_indices[b].begin(), block_indices[b].end(), nb.indices.begin() + block_start[b]);
+  for (int v = 0; v < nv; ++v) nb.offsets[v + 1] = nb.offsets[v] + sizes[v];
+  nb.indices.resize(nb.offsets[nv]);
+  ParallelForBlocks(nv, threads, [&](int64_t begin, int64_t end, int b) {
+    for (int64_t i = begin; i < end; ++i) {
+      const int v = order[i];
+      std::copy_n(block_indices[b].begin() + start[v], sizes[v], nb.indices.begin() + nb.offsets[v]);
+    }
   });
   return nb;
 }

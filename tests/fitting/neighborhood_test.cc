@@ -1,11 +1,13 @@
 // k-rings and half rings (2.1, Table 2.1, Fig 2.2) and adaptive growth.
 #include <algorithm>
+#include <cstdlib>
 #include <set>
 
 #include <gtest/gtest.h>
 
 #include "core/fitting/neighborhood.h"
 #include "core/surfaces/analytic.h"
+#include "tests/mesh/make_mesh.h"
 
 namespace geomfit {
 namespace {
@@ -122,6 +124,43 @@ TEST(NeighborhoodTest, IdenticalForAnyThreadCount) {
     const Neighborhoods b = BuildNeighborhoods(t, m, RingSpecFor(o), threads);
     EXPECT_EQ(a.offsets, b.offsets);
     EXPECT_EQ(a.indices, b.indices);
+  }
+}
+
+// A mesh numbered at random (here 27,648 vertices, far from local) is grown in
+// breadth-first order: the stencils must be those of the same mesh in its generated
+// (local) order, relabelled, for any thread count.
+TEST(NeighborhoodTest, ShuffledNumberingGivesTheRelabelledStencils) {
+  GeneratorOptions g;
+  g.n = 96;
+  const Mesh m = GenerateTorusMesh(g);
+  std::vector<int32_t> perm;
+  const Mesh s = testing_util::ShuffleVertices(m, 3, &perm);
+  const Topology tm = BuildTopology(m).value(), ts = BuildTopology(s).value();
+  int64_t gap = 0;  // above kLocalIndexGap (4096) on average: the breadth-first path
+  for (int v = 0; v < ts.num_vertices; ++v)
+    for (int j = 0; j < ts.NumNeighbors(v); ++j) gap += std::abs(v - ts.Neighbors(v)[j]);
+  ASSERT_GT(gap / static_cast<int64_t>(ts.vv.size()), 4096);
+  for (int degree : {2, 4}) {
+    FitOptions o;
+    o.degree = degree;
+    const Neighborhoods a = BuildNeighborhoods(tm, m, RingSpecFor(o), 1);
+    const Neighborhoods b = BuildNeighborhoods(ts, s, RingSpecFor(o), 1);
+    const Neighborhoods b2 = BuildNeighborhoods(ts, s, RingSpecFor(o), 2);
+    EXPECT_EQ(b.offsets, b2.offsets);
+    EXPECT_EQ(b.indices, b2.indices);
+    int mismatches = 0;
+    for (int v = 0; v < m.NumVertices(); ++v) {
+      const int w = perm[v];
+      std::vector<int32_t> want;
+      for (int i = 0; i < a.Size(v); ++i) want.push_back(perm[a.Points(v)[i]]);
+      std::vector<int32_t> got(b.Points(w), b.Points(w) + b.Size(w));
+      mismatches += got.empty() || got[0] != w || b.rings[w] != a.rings[v];
+      std::sort(want.begin(), want.end());
+      std::sort(got.begin(), got.end());
+      mismatches += got != want;
+    }
+    EXPECT_EQ(mismatches, 0) << "degree " << degree;
   }
 }
 
