@@ -1,4 +1,6 @@
-// Integrate: surface integrals over the reconstructed surface (§4.3).
+// Integrate: surface integrals over the reconstructed surface (§4.3), sharp features
+// (feature_angle_deg / feature_edges) included: Workspace::Reconstruct builds the
+// FeatureSurface that core Integrate accepts.
 #include "absl/strings/str_cat.h"
 #include "core/integration/integrate.h"
 #include "core/integration/quadrature.h"
@@ -13,8 +15,6 @@ absl::StatusOr<v1::IntegrateResponse> Handlers::Integrate(const v1::IntegrateReq
   GF_RETURN_IF_ERROR(RequireId(request.mesh_id()));
   if (request.options().method() == v1::RECONSTRUCTION_CMF)
     return absl::InvalidArgumentError("options.method: integration supports WALF and LINEAR, not CMF");
-  if (request.options().feature_angle_deg() > 0 || request.options().feature_edges().shape_size() > 0)
-    return absl::InvalidArgumentError("options: integration does not support sharp features yet");
   GF_RETURN_IF_ERROR(CheckRange("quadrature_degree", request.quadrature_degree(), 0, kMaxQuadratureDegree));
   IntegrationInput in;
   in.quadrature_degree = request.quadrature_degree();

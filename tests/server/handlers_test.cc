@@ -12,6 +12,8 @@
 #include <gtest/gtest.h>
 
 #include "core/integration/integrate.h"
+#include "core/reconstruction/features.h"
+#include "core/surfaces/analytic.h"
 #include "core/quantities/differentials.h"
 #include "core/util/status_macros.h"
 #include "proto/wire.h"
@@ -715,6 +717,39 @@ TEST_F(HandlersTest, IntegrateMatchesCoreAndTheSphere) {
   auto flat = handlers_.Integrate(q, token);
   ASSERT_TRUE(flat.ok());
   EXPECT_GT(std::abs(flat->area() - 4 * M_PI), 100 * std::abs(r->area() - 4 * M_PI));
+}
+
+// Sharp features in integration (4.1.4, 4.3): the feature surface's integrals, equal to
+// the core's, beat the flat mesh and plain WALF on a cylinder with flat caps.
+TEST_F(HandlersTest, IntegrateOverSharpFeatures) {
+  const Mesh mesh = GenerateCylinderMesh(8);
+  auto info = Upload(mesh);
+  ASSERT_TRUE(info.ok());
+  CancellationToken token;
+  v1::IntegrateRequest q;
+  q.set_mesh_id(info->mesh_id());
+  *q.mutable_options() = Recon(3);
+  q.mutable_options()->set_feature_angle_deg(45);
+  auto feature = handlers_.Integrate(q, token);
+  ASSERT_TRUE(feature.ok()) << feature.status();
+  q.mutable_options()->set_feature_angle_deg(0);
+  auto walf = handlers_.Integrate(q, token);
+  *q.mutable_options() = Recon(3, v1::RECONSTRUCTION_LINEAR);
+  auto flat = handlers_.Integrate(q, token);
+  ASSERT_TRUE(walf.ok() && flat.ok());
+  const double area = 6 * M_PI;
+  EXPECT_LT(std::abs(feature->area() - area), std::abs(walf->area() - area) / 5);
+  EXPECT_LT(std::abs(feature->area() - area), std::abs(flat->area() - area) / 5);
+  // The same number as the core in process.
+  const Topology topo = BuildTopology(mesh).value();
+  FeatureOptions fo;
+  fo.angle_deg = 45;
+  auto features = std::make_shared<const Features>(DetectFeatures(mesh, topo, fo).value());
+  FitOptions o;
+  o.degree = 3;
+  auto fits = FitSurface(features->split, BuildTopology(features->split).value(), o).value();
+  const FeatureSurface surface(mesh, features, MakeSurface(ReconstructionMethod::kWalf, features->split, fits), 3);
+  EXPECT_DOUBLE_EQ(feature->area(), geomfit::Integrate(surface, {}, RunContext(nullptr, 1)).value().area);
 }
 
 TEST_F(HandlersTest, ProjectPointsEvaluatesFacePointsAndProjectsXyz) {

@@ -362,7 +362,9 @@ absl::Status RunIntegrate(const std::vector<std::string>& argv) {
               "High-order surface integrals (4.3): area, enclosed volume, and optionally the\n"
               "integral of a nodal scalar field (one value per vertex per line) and the flux\n"
               "of a nodal vector field (three values per line). --method linear gives the\n"
-              "flat-triangle baseline. Prints 'name value' lines.");
+              "flat-triangle baseline; --feature-angle / --feature-edges integrate over the surface\n"
+              "split along sharp edges, faces following the ridge curves (4.1.4). Prints 'name value'\n"
+              "lines.");
   AddSurfaceOptions(&p, &a);
   p.Int("quadrature", &quadrature, "quadrature degree (0 = degree + 2, at least 4; up to 30)")
       .String("scalar", &scalar, "nodal scalar field file", "FILE")
