@@ -58,7 +58,7 @@ M2<T> Inverse2(const M2<T>& m) {
 /// The reference side of a vertex, fixed during a solve.
 struct ReferenceGeometry {
   Jet5<double> x;
-  Eigen::Matrix2d G, Ginv, dGinv[2];
+  Eigen::Matrix2d G, Ginv, dG[2], dGinv[2];
 };
 
 inline ReferenceGeometry MakeReference(const Jet5<double>& x) {
@@ -66,7 +66,10 @@ inline ReferenceGeometry MakeReference(const Jet5<double>& x) {
   r.x = x;
   r.G = Metric(x);
   r.Ginv = Inverse2<double>(r.G);
-  for (int c = 0; c < 2; ++c) r.dGinv[c] = -r.Ginv * MetricDerivative(x, c) * r.Ginv;
+  for (int c = 0; c < 2; ++c) {
+    r.dG[c] = MetricDerivative(x, c);
+    r.dGinv[c] = -r.Ginv * r.dG[c] * r.Ginv;
+  }
   return r;
 }
 
@@ -115,7 +118,8 @@ V3<T> StressDivergence(const ReferenceGeometry& ref, const MembraneState<T>& s, 
     const M2<T> dg = MetricDerivative(y, c);
     const M2<T> dginv = -s.ginv * dg * s.ginv;
     const M2<T> dGi = ref.dGinv[c].template cast<T>();
-    const T dtr = T(0.5) * ((dGi * (s.g - ref.G.template cast<T>())).trace() + (Gi * dg).trace());
+    const T dtr =
+        T(0.5) * ((dGi * (s.g - ref.G.template cast<T>())).trace() + (Gi * (dg - ref.dG[c].template cast<T>())).trace());
     dS[c] = s.ginv * (lambda * dtr) + dginv * (lambda * s.tr_strain) + (dGi - dginv) * T(mu);
   }
   V3<T> dual[2];
