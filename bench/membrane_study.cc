@@ -3,8 +3,9 @@
 //                                      vertices): L2 / L-inf relative pressure errors and rates
 //   membrane_study throughput [threads] interface-pressure throughput at ~10k and ~100k
 //                                      vertices (reference fit and membrane evaluation apart)
-//   membrane_study newton [n] [degree] per-iteration cost of the pressure-load solve on the
-//                                      cubed sphere of level n (assembly, factorization)
+//   membrane_study newton [n] [degree] [solver]  the pressure-load solve of the unit sphere
+//                                      under [p] = 2 (cubed sphere of level n), one thread,
+//                                      time split (fit, assembly, factorization, solve)
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -93,7 +94,7 @@ void Throughput(int threads) {
   }
 }
 
-void Newton(int n, int degree) {
+void Newton(int n, int degree, const std::string& solver) {
   GeneratorOptions g;
   g.n = n;
   const Mesh m = GenerateSphereMesh(g);
@@ -101,15 +102,24 @@ void Newton(int n, int degree) {
   PressureSolveOptions o;
   o.material = Material();
   o.fit.degree = degree;
-  o.max_iterations = 2;
-  o.max_load_cuts = 0;
-  auto r = SolvePressureLoad(m, topo, Eigen::VectorXd::Constant(1, 0.01), o, RunContext().WithThreads(1),
+  o.solver.kind = ParseSolverKind(solver).value();
+  const Stopwatch w;
+  auto r = SolvePressureLoad(m, topo, Eigen::VectorXd::Constant(1, 2.0), o, RunContext().WithThreads(1),
                              [&](const NewtonIteration& it) {
-                               std::printf("  iteration %d: residual %.3e step %.3e\n", it.iteration, it.residual,
-                                           it.step);
+                               std::printf("  iteration %d: residual %.3e step %.3e (%.1f s)\n", it.iteration,
+                                           it.residual, it.step, w.Seconds());
                              });
-  std::printf("sphere %d vertices, degree %d: %s\n", m.NumVertices(), degree,
-              r.ok() ? "converged" : std::string(r.status().message()).substr(0, 120).c_str());
+  if (!r.ok()) {
+    std::printf("sphere %d vertices, degree %d: %s\n", m.NumVertices(), degree, r.status().ToString().c_str());
+    return;
+  }
+  double e = 0;
+  const double r1 = 1.0080320;
+  for (int i = 0; i < m.NumVertices(); ++i) e = std::max(e, std::abs(r->deformed.row(i).norm() - r1));
+  std::printf("sphere %d vertices, degree %d, %s: %.2f s total (fit %.2f, assemble %.2f, factorize %.2f, solve %.2f); "
+              "%d factorizations, residual %.2e, max |r - r1| %.2e\n",
+              m.NumVertices(), degree, solver.c_str(), w.Seconds(), r->fit_ms / 1e3, r->assemble_ms / 1e3,
+              r->factorize_ms / 1e3, r->solve_ms / 1e3, r->factorizations, r->residual, e);
 }
 
 }  // namespace
@@ -124,9 +134,9 @@ int main(int argc, char** argv) {
   } else if (what == "throughput") {
     Throughput(argc > 2 ? std::atoi(argv[2]) : 1);
   } else if (what == "newton") {
-    Newton(argc > 2 ? std::atoi(argv[2]) : 29, argc > 3 ? std::atoi(argv[3]) : 4);
+    Newton(argc > 2 ? std::atoi(argv[2]) : 29, argc > 3 ? std::atoi(argv[3]) : 4, argc > 4 ? argv[4] : "umfpack");
   } else {
-    std::fprintf(stderr, "usage: membrane_study torus [degrees] | throughput [threads] | newton [n] [degree]\n");
+    std::fprintf(stderr, "usage: membrane_study torus [degrees] | throughput [threads] | newton [n] [degree] [solver]\n");
     return 2;
   }
   return 0;

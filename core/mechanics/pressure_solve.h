@@ -7,10 +7,21 @@
 // = -tr(W tau^) = -[p]: the balloon r0 -> r1 of (6.3.4) solves it).
 //
 // Newton (the text's Picard iteration from phi = 0 leaves the linearization of grad phi^T
-// grad phi open): the residual at vertex i depends on y only through the reference
-// stencil's first and second derivatives of y at i, so the Jacobian has the
+// grad phi open): the residual at vertex i depends on y only through first and second
+// derivatives of y at i taken over i's reference stencil, so the Jacobian has the
 // neighbourhood pattern in 3 x 3 blocks; the local 3 x 15 derivative of the residual is
-// exact (forward-mode automatic differentiation of core/mechanics/membrane_kernel.h).
+// exact (forward-mode automatic differentiation of core/mechanics/membrane_kernel.h), the
+// global one its product with the stencil blocks (an analytic Jacobian, no coloring).
+// Derivatives of the displacement phi = y - x: tangential part T_k phi_k by the plain
+// stencil; the normal part w n by the product rule, (dw) n_i + w_i dn with dn the stencil
+// derivatives of the reference normals. The plain stencil of w_k n_k sees w only at the
+// neighbours (x_a . n_i = 0): odd-even modes of w then cost almost no strain, and the
+// Jacobian had near-null modes (smallest non-rigid singular value 0.55 / 0.15 at 218 / 866
+// vertices against ~450 for the breathing mode, falling like h^2) on which Newton stalled;
+// with the product rule it is 82 / 51. Start: every vertex moved along its normal to the
+// balloon radius of its mean curvature (exact on a sphere; a membrane in tension elsewhere).
+// Steps: backtracking on |F|; a step that does not descend is retried with diagonal
+// (Levenberg-Marquardt) damping.
 // Rigid modes: on a closed surface the six rigid motions are removed by a bordered system
 //   [ J  C ] [dy]   [ -(R + C lambda) ]        C: translations and rotations about the
 //   [ C^T 0 ] [dl] = [ -C^T (y - x)    ]        reference centroid (3n x 6)
@@ -55,6 +66,9 @@ struct PressureSolveOptions {
   double tolerance = 1e-10;   ///< on |F| / |[p] n| (2-norms over all vertices, full load)
   int max_iterations = 12;    ///< Newton iterations per load step
   int max_load_cuts = 6;      ///< halvings of the load step before giving up
+  /// Chord (frozen-Jacobian) steps reuse the last factorization while each cuts the
+  /// residual by this factor or more; 0 refactorizes every iteration (plain Newton).
+  double chord_ratio = 0.1;
   SolverOptions solver;       ///< kAuto: UMFPACK if linked, else SparseLU (direct only)
 };
 absl::Status ValidatePressureSolveOptions(const PressureSolveOptions& o);
