@@ -102,7 +102,9 @@ void Newton(int n, int degree, const std::string& solver) {
   PressureSolveOptions o;
   o.material = Material();
   o.fit.degree = degree;
-  o.solver.kind = ParseSolverKind(solver).value();
+  const bool ilut = solver == "bicgstab-ilut";
+  o.solver.kind = ParseSolverKind(ilut ? "bicgstab" : solver).value();
+  if (ilut) o.solver.preconditioner = Preconditioner::kIlut;
   const Stopwatch w;
   auto r = SolvePressureLoad(m, topo, Eigen::VectorXd::Constant(1, 2.0), o, RunContext().WithThreads(1),
                              [&](const NewtonIteration& it) {

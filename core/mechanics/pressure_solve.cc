@@ -42,8 +42,8 @@ absl::Status ValidatePressureSolveOptions(const PressureSolveOptions& o) {
   if (o.max_load_cuts < 0) return absl::InvalidArgumentError("max_load_cuts must be >= 0");
   if (!(o.chord_ratio >= 0 && o.chord_ratio < 1))
     return absl::InvalidArgumentError(absl::StrFormat("chord_ratio %g must lie in [0, 1)", o.chord_ratio));
-  if (o.solver.kind == SolverKind::kBiCGSTAB)
-    return absl::InvalidArgumentError("solver: the pressure-load solve takes a direct solver (sparselu, umfpack, klu)");
+  if (o.solver.kind == SolverKind::kBiCGSTAB && o.solver.preconditioner != Preconditioner::kIlut)
+    return absl::InvalidArgumentError("solver: BiCGSTAB needs the ILUT preconditioner here (or a direct solver)");
   return ValidateSolverOptions(o.solver);
 }
 
