@@ -5,6 +5,7 @@
 #include <random>
 #include <set>
 #include <tuple>
+#include <vector>
 
 #include <Eigen/Cholesky>
 
@@ -210,6 +211,55 @@ Mesh GenerateTorusMesh(const GeneratorOptions& o, double R, double r) {
         r * std::sin(v);
   }
   return m;
+}
+
+namespace {
+// Keeps the faces `keep` accepts and the vertices they use (renumbered in order).
+template <typename Keep>
+Mesh CompactFaces(const Mesh& in, Keep&& keep) {
+  std::vector<int> map(in.NumVertices(), -1);
+  std::vector<int> faces;
+  for (int f = 0; f < in.NumFaces(); ++f)
+    if (keep(f)) faces.push_back(f);
+  Mesh m;
+  m.faces.resize(static_cast<Eigen::Index>(faces.size()), 4);
+  int nv = 0;
+  for (size_t k = 0; k < faces.size(); ++k)
+    for (int c = 0; c < 4; ++c) {
+      const int v = in.faces(faces[k], c);
+      if (v >= 0 && map[v] < 0) map[v] = nv++;
+      m.faces(static_cast<Eigen::Index>(k), c) = v < 0 ? -1 : map[v];
+    }
+  m.positions.resize(nv, 3);
+  for (int v = 0; v < in.NumVertices(); ++v)
+    if (map[v] >= 0) m.positions.row(map[v]) = in.positions.row(v);
+  return m;
+}
+}  // namespace
+
+Mesh GenerateOpenCylinderMesh(const GeneratorOptions& o, double radius) {
+  const int nu = 4 * o.n, nv = 2 * o.n;
+  const ParamGrid g = MakeParamGrid(nu, nv, /*periodic=*/false, o);
+  Mesh m;
+  m.faces = g.faces;
+  for (int f = 0; f < m.NumFaces(); ++f)  // weld the seam: column nu onto column 0
+    for (int c = 0; c < 4; ++c)
+      if (m.faces(f, c) >= 0 && m.faces(f, c) % (nu + 1) == nu) m.faces(f, c) -= nu;
+  m.positions.resize(g.params.size(), 3);
+  for (size_t i = 0; i < g.params.size(); ++i) {
+    const double t = 2 * M_PI * g.params[i].x();
+    m.positions.row(i) << radius * std::cos(t), radius * std::sin(t), 2 * g.params[i].y() - 1;
+  }
+  return CompactFaces(m, [](int) { return true; });
+}
+
+Mesh GenerateHemisphereMesh(const GeneratorOptions& o, double radius) {
+  const Mesh s = GenerateSphereMesh(o, radius);
+  return CompactFaces(s, [&](int f) {
+    double z = 0;
+    for (int c = 0; c < s.FaceSize(f); ++c) z += s.positions(s.faces(f, c), 2);
+    return z > 0;
+  });
 }
 
 Mesh GenerateBumpMesh(const GeneratorOptions& o) {

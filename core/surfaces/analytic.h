@@ -50,6 +50,12 @@ Mesh GenerateTorusMesh(const GeneratorOptions& o, double R = 1.0, double r = 0.3
 Mesh GenerateEllipsoidMesh(const GeneratorOptions& o, double a, double b, double c);
 Mesh GenerateBumpMesh(const GeneratorOptions& o);  ///< open graph over [0,1]^2, n x n cells
 
+/// The open cylinder x^2 + y^2 = radius^2, |z| <= 1: 4n x 2n jittered cells (membranes, 6.3.7).
+Mesh GenerateOpenCylinderMesh(const GeneratorOptions& o, double radius = 1.0);
+/// The faces of the cubed sphere whose centroids have z > 0 (an open half sphere with a
+/// jagged rim), vertices renumbered.
+Mesh GenerateHemisphereMesh(const GeneratorOptions& o, double radius = 1.0);
+
 /// A closed cylinder x^2 + y^2 = 1, |z| <= 1, with flat caps: sharp circular edges
 /// (4.1.4). 4n segments around, 2n rows on the side, n rings per cap.
 Mesh GenerateCylinderMesh(int n);

@@ -1,0 +1,109 @@
+#pragma once
+// The pressure-load problem of §6.4.2, eq. (6.4.1): find the deformed positions y of a
+// membrane (reference x, material E, nu) on which the stress balances a pressure jump
+// [p] (inside minus outside, a constant or per vertex, carried by the vertices):
+//   div sigma(y) + [p] n(y) = 0   at every vertex
+// (the text's div sigma = [p] n with the project's outward normal, so that n . div sigma
+// = -tr(W tau^) = -[p]: the balloon r0 -> r1 of (6.3.4) solves it).
+//
+// Newton (the text's Picard iteration from phi = 0 leaves the linearization of grad phi^T
+// grad phi open): the residual at vertex i depends on y only through first and second
+// derivatives of y at i taken over i's reference stencil, so the Jacobian has the
+// neighbourhood pattern in 3 x 3 blocks; the local 3 x 15 derivative of the residual is
+// exact (forward-mode automatic differentiation of core/mechanics/membrane_kernel.h), the
+// global one its product with the stencil blocks (an analytic Jacobian, no coloring).
+// Derivatives of the displacement phi = y - x: tangential part T_k phi_k by the plain
+// stencil; the normal part w n by the product rule, (dw) n_i + w_i dn with dn the stencil
+// derivatives of the reference normals. The plain stencil of w_k n_k sees w only at the
+// neighbours (x_a . n_i = 0): odd-even modes of w then cost almost no strain, and the
+// Jacobian had near-null modes (smallest non-rigid singular value 0.55 / 0.15 at 218 / 866
+// vertices against ~450 for the breathing mode, falling like h^2) on which Newton stalled;
+// with the product rule it is 82 / 51. Start: every vertex moved along its normal to the
+// balloon radius of its mean curvature (exact on a sphere; a membrane in tension elsewhere).
+// Steps: backtracking on |F|; a step that does not descend is retried with diagonal
+// (Levenberg-Marquardt) damping.
+// Rigid modes: on a closed surface the six rigid motions are removed by a bordered system
+//   [ J  C ] [dy]   [ -(R + C lambda) ]        C: translations and rotations about the
+//   [ C^T 0 ] [dl] = [ -C^T (y - x)    ]        reference centroid (3n x 6)
+// i.e. the mean displacement and the mean rotation (sum (x_i - c) x phi_i) are zero and
+// six multipliers absorb the discrete net force and torque (O(h^{d-1})). On an open
+// surface the boundary vertices are clamped (y_i = x_i). Linear systems: a sparse direct
+// solver (core/linalg: UMFPACK when linked, else SparseLU), one factorization per Newton
+// iteration, the symbolic analysis reused. Load stepping: when Newton does not converge
+// at the full load, the load is approached in steps halved on failure and doubled after
+// success.
+#include <functional>
+#include <vector>
+
+#include <Eigen/Core>
+
+#include "absl/status/statusor.h"
+#include "core/fitting/options.h"
+#include "core/linalg/sparse_solver.h"
+#include "core/mechanics/membrane.h"
+#include "core/mesh/mesh.h"
+#include "core/mesh/topology.h"
+#include "core/util/run_context.h"
+
+namespace geomfit {
+
+/// Boundary vertices of an open membrane. No default: an open mesh needs one.
+enum class BoundaryCondition {
+  kUnset,    ///< closed surfaces only (an open mesh is INVALID_ARGUMENT)
+  kClamped,  ///< boundary vertices stay at their reference positions
+  kFree,     ///< traction-free edges: not implemented (UNIMPLEMENTED)
+};
+const char* BoundaryConditionName(BoundaryCondition bc);
+
+struct PressureSolveOptions {
+  MembraneOptions material;  ///< E, nu (required)
+  FitOptions fit = [] {      ///< reference fits (LHF); degree 4 by default
+    FitOptions f;
+    f.degree = 4;
+    return f;
+  }();
+  BoundaryCondition boundary = BoundaryCondition::kUnset;
+  double tolerance = 1e-10;   ///< on |F| / |[p] n| (2-norms over all vertices, full load)
+  int max_iterations = 12;    ///< Newton iterations per load step
+  int max_load_cuts = 6;      ///< halvings of the load step before giving up
+  /// Chord (frozen-Jacobian) steps reuse the last factorization while each cuts the
+  /// residual by this factor or more; 0 refactorizes every iteration (plain Newton).
+  double chord_ratio = 0.1;
+  /// kAuto: UMFPACK if linked, else SparseLU. BiCGSTAB + ILUT also converges (2x slower
+  /// than UMFPACK at 5k vertices, bench/README.md "Membranes").
+  SolverOptions solver;
+};
+absl::Status ValidatePressureSolveOptions(const PressureSolveOptions& o);
+
+/// One Newton iteration (also the callback's argument).
+struct NewtonIteration {
+  int load_step = 0;       ///< 0-based load step
+  double load = 1;         ///< fraction of the pressure of this step
+  int iteration = 0;       ///< 1-based within the load step
+  double residual = 0;     ///< |F| / |[p] n| after the iteration
+  double step = 0;         ///< max_i |dy_i| of the iteration
+};
+using NewtonCallback = std::function<void(const NewtonIteration&)>;
+
+struct PressureSolution {
+  Positions deformed;      ///< y
+  Positions displacement;  ///< y - x
+  std::vector<NewtonIteration> history;
+  double residual = 0;     ///< final relative residual
+  int factorizations = 0;
+  int load_steps = 0;
+  double fit_ms = 0, assemble_ms = 0, factorize_ms = 0, solve_ms = 0;
+};
+
+/// Solves (6.4.1) for `reference` under `pressure` (1 value, or one per vertex).
+/// Errors: INVALID_ARGUMENT for bad options, a pressure of the wrong length or not
+/// finite, an open mesh without `boundary`; UNIMPLEMENTED for free boundaries;
+/// FAILED_PRECONDITION when Newton does not converge (the message holds the residual
+/// history); CANCELLED / DEADLINE_EXCEEDED from `ctx` (polled every iteration).
+absl::StatusOr<PressureSolution> SolvePressureLoad(const Mesh& reference, const Topology& topo,
+                                                   const Eigen::VectorXd& pressure,
+                                                   const PressureSolveOptions& options,
+                                                   const RunContext& ctx = RunContext(),
+                                                   const NewtonCallback& on_iteration = nullptr);
+
+}  // namespace geomfit
