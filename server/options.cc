@@ -55,6 +55,14 @@ Setter IntSetter(T ServerOptions::*field, const char* name, int64_t lo, int64_t 
   };
 }
 
+/// A file path; empty leaves the option off.
+Setter PathSetter(std::string ServerOptions::*field) {
+  return [=](const std::string& v, ServerOptions* o) {
+    o->*field = v;
+    return absl::OkStatus();
+  };
+}
+
 const std::vector<Flag>& Flags() {
   static const auto* flags = new std::vector<Flag>{
       {"host", "listen address (use 127.0.0.1 for local-only)",
@@ -107,6 +115,11 @@ const std::vector<Flag>& Flags() {
        IntSetter(&ServerOptions::job_threads, "job-threads", 1, 256)},
       {"max-jobs", "pending + running jobs beyond which StartJob is RESOURCE_EXHAUSTED",
        IntSetter(&ServerOptions::max_jobs, "max-jobs", 1, 1 << 20)},
+      {"tls-cert", "PEM certificate (chain): serve gRPC over TLS (metrics stay plaintext); without it, plaintext",
+       PathSetter(&ServerOptions::tls_cert)},
+      {"tls-key", "PEM private key of --tls-cert", PathSetter(&ServerOptions::tls_key)},
+      {"tls-client-ca", "PEM CA bundle: require client certificates signed by it (mTLS; needs --tls-cert)",
+       PathSetter(&ServerOptions::tls_client_ca)},
       {"log-level", "trace|debug|info|warn|error|off",
        [](const std::string& v, ServerOptions* o) {
          for (const char* level : {"trace", "debug", "info", "warn", "error", "off"}) {
@@ -176,6 +189,9 @@ absl::StatusOr<ServerOptions> ParseServerOptions(const std::vector<std::string>&
     if (f == nullptr) return absl::InvalidArgumentError("unknown flag --" + name + " (see --help)");
     GF_RETURN_IF_ERROR(f->set(value, &o));
   }
+  if (o.tls_cert.empty() != o.tls_key.empty()) return absl::InvalidArgumentError("--tls-cert and --tls-key go together");
+  if (!o.tls_client_ca.empty() && o.tls_cert.empty())
+    return absl::InvalidArgumentError("--tls-client-ca needs --tls-cert and --tls-key");
   return o;
 }
 

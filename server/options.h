@@ -30,6 +30,9 @@ struct ServerOptions {
   int spin_us = 1000;                      ///< one idle compute worker polls this long before sleeping
   int job_threads = 1;                     ///< jobs running at once (own threads, apart from the pools)
   int max_jobs = 16;                       ///< pending + running jobs beyond which StartJob is RESOURCE_EXHAUSTED
+  std::string tls_cert;                    ///< PEM certificate chain: serve gRPC over TLS (not metrics)
+  std::string tls_key;                     ///< PEM private key of tls_cert
+  std::string tls_client_ca;               ///< PEM CA bundle: require and verify client certificates (mTLS)
 
   std::string Address() const { return host + ":" + std::to_string(port); }
 };

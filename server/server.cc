@@ -17,6 +17,7 @@
 #include "server/request_stats.h"
 #include "server/rpc/service.h"
 #include "server/thread_pool.h"
+#include "server/tls.h"
 #include "server/workspace/cache.h"
 #include "server/workspace/workspace.h"
 
@@ -64,7 +65,8 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   builder.AddChannelArgument(GRPC_ARG_ALLOW_REUSEPORT, 0);
   builder.SetMaxReceiveMessageSize(static_cast<int>(options.max_message_bytes));
   builder.SetMaxSendMessageSize(static_cast<int>(options.max_message_bytes));
-  builder.AddListeningPort(options.Address(), grpc::InsecureServerCredentials(), &s->port_);
+  GF_ASSIGN_OR_RETURN(const std::shared_ptr<grpc::ServerCredentials> credentials, ServerCredentialsFor(options));
+  builder.AddListeningPort(options.Address(), credentials, &s->port_);
   builder.RegisterService(s->service_.get());
   s->grpc_server_ = builder.BuildAndStart();
   if (s->grpc_server_ == nullptr || s->port_ == 0) {
@@ -79,11 +81,16 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
     } catch (const std::exception& e) {
       return absl::UnavailableError(absl::StrCat("metrics: cannot listen on port ", options.metrics_port, ": ", e.what()));
     }
+    if (!options.tls_cert.empty()) {
+      spdlog::warn("metrics on port {} are plaintext HTTP (no TLS, see server/tls.h): keep them on a private "
+                   "address or behind a TLS proxy", options.metrics_port);
+    }
     s->metrics_ = std::make_shared<MetricsCollectable>(s->stats_.get(), s->cache_.get(), s->store_.get());
     s->exposer_->RegisterCollectable(s->metrics_);
   }
-  spdlog::info("geomfit-server listening on {}:{} (store={} data-dir={} cache-bytes={} workers={} metrics-port={})",
-               options.host, s->port_, options.store, options.data_dir, options.cache_bytes, options.workers,
+  spdlog::info("geomfit-server listening on {}:{} ({}, store={} data-dir={} cache-bytes={} workers={} metrics-port={})",
+               options.host, s->port_,
+               options.tls_cert.empty() ? "plaintext" : options.tls_client_ca.empty() ? "TLS" : "mTLS", options.store, options.data_dir, options.cache_bytes, options.workers,
                options.metrics_port);
   return s;
 }

@@ -14,6 +14,9 @@ namespace geomfit::cli {
 std::unique_ptr<Client> ConnectTo(const std::string& server) {
   ClientOptions o;
   o.target = server;
+  o.tls_ca = Transport().tls_ca;
+  o.tls_cert = Transport().tls_cert;
+  o.tls_key = Transport().tls_key;
   return Client::Connect(o);
 }
 
@@ -60,7 +63,7 @@ absl::Status Upload(const std::vector<std::string>& args) {
   std::string server, path, name, labels_text;
   ArgParser p("geomfit upload", "--server HOST:PORT MESH [--name NAME] [--labels K=V,...]",
               "Uploads a mesh file; prints its id and info (idempotent for identical content).");
-  p.String("server", &server, "geomfit server", "HOST:PORT")
+  p.Server(&server, "geomfit server")
       .Positional("MESH", &path, "mesh file (.obj .off .ply .stl)")
       .String("name", &name, "mesh name (default: the file name)", "NAME")
       .String("labels", &labels_text, "comma-separated KEY=VALUE labels", "LABELS");
@@ -79,7 +82,7 @@ absl::Status Update(const std::vector<std::string>& args) {
   ArgParser p("geomfit update", "--server HOST:PORT MESH_ID MESH [--expected-revision R]",
               "Replaces the positions of a stored mesh by those of a mesh file with the same\n"
               "connectivity; prints the new revision.");
-  p.String("server", &server, "geomfit server", "HOST:PORT")
+  p.Server(&server, "geomfit server")
       .Positional("MESH_ID", &id, "id of the stored mesh")
       .Positional("MESH", &path, "mesh file with the new positions")
       .Int("expected-revision", &expected, "fail (ABORTED) unless the mesh is at this revision; 0 = any");
@@ -95,7 +98,7 @@ absl::Status Update(const std::vector<std::string>& args) {
 absl::Status Info(const std::vector<std::string>& args) {
   std::string server, id;
   ArgParser p("geomfit info", "--server HOST:PORT MESH_ID", "Prints what the server stores about a mesh.");
-  p.String("server", &server, "geomfit server", "HOST:PORT").Positional("MESH_ID", &id, "id of the stored mesh");
+  p.Server(&server, "geomfit server").Positional("MESH_ID", &id, "id of the stored mesh");
   GF_ASSIGN_OR_RETURN(bool run, ParseRemote(p, args, server));
   if (!run) return absl::OkStatus();
   GF_ASSIGN_OR_RETURN(RemoteMesh info, ConnectTo(server)->GetMesh(id));
@@ -105,7 +108,7 @@ absl::Status Info(const std::vector<std::string>& args) {
 absl::Status List(const std::vector<std::string>& args) {
   std::string server;
   ArgParser p("geomfit list", "--server HOST:PORT", "Lists the stored meshes.");
-  p.String("server", &server, "geomfit server", "HOST:PORT");
+  p.Server(&server, "geomfit server");
   GF_ASSIGN_OR_RETURN(bool run, ParseRemote(p, args, server));
   if (!run) return absl::OkStatus();
   GF_ASSIGN_OR_RETURN(std::vector<RemoteMesh> meshes, ConnectTo(server)->ListMeshes());
@@ -115,7 +118,7 @@ absl::Status List(const std::vector<std::string>& args) {
 absl::Status Delete(const std::vector<std::string>& args) {
   std::string server, id;
   ArgParser p("geomfit delete", "--server HOST:PORT MESH_ID", "Deletes a stored mesh.");
-  p.String("server", &server, "geomfit server", "HOST:PORT").Positional("MESH_ID", &id, "id of the stored mesh");
+  p.Server(&server, "geomfit server").Positional("MESH_ID", &id, "id of the stored mesh");
   GF_ASSIGN_OR_RETURN(bool run, ParseRemote(p, args, server));
   if (!run) return absl::OkStatus();
   return ConnectTo(server)->DeleteMesh(id);
@@ -129,7 +132,7 @@ absl::Status Health(const std::vector<std::string>& args) {
   ArgParser p("geomfit health", "--server HOST:PORT [--service NAME] [--timeout SECONDS]",
               "Asks the server's grpc.health.v1 service; prints SERVING, NOT_SERVING (draining), ...\n"
               "Exit status 0 only when SERVING.");
-  p.String("server", &server, "geomfit server", "HOST:PORT")
+  p.Server(&server, "geomfit server")
       .String("service", &service, "service name; empty = the whole server (geomfit.v1.GeomFit also works)", "NAME")
       .Double("timeout", &timeout, "seconds to wait for the answer");
   GF_ASSIGN_OR_RETURN(bool run, ParseRemote(p, args, server));
