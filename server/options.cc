@@ -120,6 +120,9 @@ const std::vector<Flag>& Flags() {
       {"tls-key", "PEM private key of --tls-cert", PathSetter(&ServerOptions::tls_key)},
       {"tls-client-ca", "PEM CA bundle: require client certificates signed by it (mTLS; needs --tls-cert)",
        PathSetter(&ServerOptions::tls_client_ca)},
+      {"auth-tokens", "file of `TOKEN TENANT` lines: calls need 'authorization: Bearer TOKEN' and see only "
+                      "their tenant's meshes and jobs (reloaded on SIGHUP); without it, one tenant, no authentication",
+       PathSetter(&ServerOptions::auth_tokens)},
       {"log-level", "trace|debug|info|warn|error|off",
        [](const std::string& v, ServerOptions* o) {
          for (const char* level : {"trace", "debug", "info", "warn", "error", "off"}) {

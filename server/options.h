@@ -32,6 +32,7 @@ struct ServerOptions {
   int max_jobs = 16;                       ///< pending + running jobs beyond which StartJob is RESOURCE_EXHAUSTED
   std::string tls_cert;                    ///< PEM certificate chain: serve gRPC over TLS (not metrics)
   std::string tls_key;                     ///< PEM private key of tls_cert
+  std::string auth_tokens;                 ///< `TOKEN TENANT` lines: bearer tokens, one namespace per tenant
   std::string tls_client_ca;               ///< PEM CA bundle: require and verify client certificates (mTLS)
 
   std::string Address() const { return host + ":" + std::to_string(port); }

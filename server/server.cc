@@ -9,6 +9,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "core/util/status_macros.h"
+#include "server/auth.h"
 #include "server/handlers/handlers.h"
 #include "server/handlers/jobs.h"
 #include "server/jobs/job_manager.h"
@@ -58,6 +59,10 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   GF_ASSIGN_OR_RETURN(s->jobs_, JobManager::Create(s->store_.get(), jobs));
   s->job_handlers_ = std::make_unique<JobHandlers>(s->jobs_.get(), s->handlers_.get(), options.max_vertices);
   s->service_->SetJobs(s->job_handlers_.get());
+  if (!options.auth_tokens.empty()) {
+    GF_ASSIGN_OR_RETURN(s->tokens_, TokenTable::Load(options.auth_tokens));
+    s->service_->SetTokens(s->tokens_.get());
+  }
 
   grpc::EnableDefaultHealthCheckService(true);
   grpc::reflection::InitProtoReflectionServerBuilderPlugin();
@@ -90,7 +95,8 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   }
   spdlog::info("geomfit-server listening on {}:{} ({}, store={} data-dir={} cache-bytes={} workers={} metrics-port={})",
                options.host, s->port_,
-               options.tls_cert.empty() ? "plaintext" : options.tls_client_ca.empty() ? "TLS" : "mTLS", options.store, options.data_dir, options.cache_bytes, options.workers,
+               absl::StrCat(options.tls_cert.empty() ? "plaintext" : options.tls_client_ca.empty() ? "TLS" : "mTLS",
+                            options.auth_tokens.empty() ? "" : ", bearer tokens"), options.store, options.data_dir, options.cache_bytes, options.workers,
                options.metrics_port);
   return s;
 }
@@ -118,6 +124,13 @@ void Server::Shutdown(double drain_seconds) {
   grpc_server_->Wait();
   exposer_.reset();
   spdlog::info("stopped");
+}
+
+absl::Status Server::ReloadTokens() {
+  if (tokens_ == nullptr) return absl::OkStatus();
+  GF_RETURN_IF_ERROR(tokens_->Reload());
+  spdlog::info("auth tokens reloaded: {} tokens", tokens_->size());
+  return absl::OkStatus();
 }
 
 Server::~Server() { Shutdown(0); }

@@ -37,9 +37,11 @@ absl::Status RequireId(const std::string& id) {
 Handlers::Handlers(Workspace* workspace, const RequestStats* stats, HandlerOptions options)
     : ws_(workspace), stats_(stats), options_(options) {}
 
-absl::StatusOr<v1::MeshInfo> Handlers::UploadMesh(const UploadAssembler& upload) {
+absl::StatusOr<v1::MeshInfo> Handlers::UploadMesh(const UploadAssembler& upload, const std::string& tenant) {
   GF_ASSIGN_OR_RETURN(Mesh mesh, upload.Finish());
-  return Wire(ws_->AddMesh(std::move(mesh), MetaOf(upload.header())));
+  MeshMeta meta = MetaOf(upload.header());
+  meta.tenant = tenant;
+  return Wire(ws_->AddMesh(std::move(mesh), meta));
 }
 
 absl::StatusOr<v1::MeshInfo> Handlers::UpdatePositions(const PositionsAssembler& update) {

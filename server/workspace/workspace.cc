@@ -41,6 +41,13 @@ int64_t MeshBytes(const Mesh& m) {
 Workspace::Workspace(MeshStore* store, Cache* cache, WorkspaceOptions options)
     : store_(store), cache_(cache), options_(options) {}
 
+std::string TenantPrefix(absl::string_view tenant) { return tenant.empty() ? "" : absl::StrCat(tenant, "/"); }
+
+std::string TenantOfId(absl::string_view stored_id) {
+  const size_t slash = stored_id.find('/');
+  return slash == absl::string_view::npos ? "" : std::string(stored_id.substr(0, slash));
+}
+
 absl::StatusOr<MeshRecord> Workspace::AddMesh(Mesh mesh, const MeshMeta& meta) {
   GF_ASSIGN_OR_RETURN(Topology topo, ValidateMesh(mesh));
   const int64_t bytes = MeshBytes(mesh) + static_cast<int64_t>(topo.Bytes());
@@ -50,7 +57,7 @@ absl::StatusOr<MeshRecord> Workspace::AddMesh(Mesh mesh, const MeshMeta& meta) {
   }
   MeshRecord info;
   info.content_hash = MeshContentHash(mesh, meta.name, meta.labels);  // the clients compute it too
-  info.mesh_id = MeshIdOf(info.content_hash);
+  info.mesh_id = TenantPrefix(meta.tenant) + MeshIdOf(info.content_hash);
   info.num_vertices = mesh.NumVertices();
   info.num_faces = mesh.NumFaces();
   info.face_kind = FaceKindOf(mesh);

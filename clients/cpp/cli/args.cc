@@ -35,7 +35,9 @@ ArgParser& ArgParser::Server(std::string* out, const std::string& help) {
   return String("server", out, help, "HOST:PORT")
       .String("tls-ca", &t.tls_ca, "connect with TLS, verifying the server against this PEM CA bundle", "FILE")
       .String("tls-cert", &t.tls_cert, "PEM client certificate for mTLS (with --tls-key; implies TLS)", "FILE")
-      .String("tls-key", &t.tls_key, "PEM private key of --tls-cert", "FILE");
+      .String("tls-key", &t.tls_key, "PEM private key of --tls-cert", "FILE")
+      .String("token-file", &t.token_file,
+              "file holding the bearer token for a server with --auth-tokens (default: $GEOMFIT_TOKEN)", "FILE");
 }
 
 bool IsUsageError(const absl::Status& status) {

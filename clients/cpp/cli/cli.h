@@ -38,6 +38,7 @@ bool IsUsageError(const absl::Status& status);
 /// service command (set by the flags ArgParser::Server adds; read by ConnectTo).
 struct RemoteTransport {
   std::string tls_ca, tls_cert, tls_key;
+  std::string token_file;  ///< else $GEOMFIT_TOKEN
 };
 RemoteTransport& Transport();
 
@@ -52,8 +53,8 @@ class ArgParser {
   ArgParser& Double(const std::string& name, double* out, const std::string& help);
   ArgParser& String(const std::string& name, std::string* out, const std::string& help,
                     const std::string& value_name = "VALUE");
-  /// --server HOST:PORT and the transport flags (--tls-ca, --tls-cert, --tls-key)
-  /// filling Transport().
+  /// --server HOST:PORT and the transport flags (--tls-ca, --tls-cert, --tls-key,
+  /// --token-file) filling Transport().
   ArgParser& Server(std::string* out, const std::string& help);
   /// A required positional argument (in registration order).
   ArgParser& Positional(const std::string& name, std::string* out, const std::string& help);

@@ -1,7 +1,9 @@
 // Service mode of the `geomfit` tool (--server HOST:PORT): upload, update, info,
 // list, delete, and curvature on a geomfit server, with the local output formats.
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
+#include <fstream>
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
@@ -17,6 +19,12 @@ std::unique_ptr<Client> ConnectTo(const std::string& server) {
   o.tls_ca = Transport().tls_ca;
   o.tls_cert = Transport().tls_cert;
   o.tls_key = Transport().tls_key;
+  if (!Transport().token_file.empty()) {
+    std::ifstream in(Transport().token_file);
+    std::getline(in, o.token);  // an unreadable file sends no token: UNAUTHENTICATED names the problem
+  } else if (const char* token = std::getenv("GEOMFIT_TOKEN"); token != nullptr) {
+    o.token = token;
+  }
   return Client::Connect(o);
 }
 

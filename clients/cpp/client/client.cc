@@ -118,6 +118,10 @@ struct Client::Impl {
   mutable std::mutex mu;
   std::map<std::string, Kept> kept;
 
+  void Authorize(grpc::ClientContext& ctx) const {
+    if (!options.token.empty()) ctx.AddMetadata("authorization", "Bearer " + options.token);
+  }
+
   /// Runs one call (a fresh context with the deadline per attempt), retrying
   /// UNAVAILABLE with exponential backoff. A mesh-scoped call names its mesh in
   /// `x-mesh-id` metadata, the key of cache-affine routers (deploy/router).
@@ -130,6 +134,7 @@ struct Client::Impl {
       grpc::ClientContext ctx;
       ctx.set_deadline(std::chrono::system_clock::now() + options.deadline);
       if (!mesh_id.empty()) ctx.AddMetadata(wire::kMeshIdMetadata, mesh_id);
+      Authorize(ctx);
       s = fn(ctx);
       if (s.error_code() != grpc::StatusCode::UNAVAILABLE || attempt == options.max_attempts) break;
       std::this_thread::sleep_for(backoff);
@@ -532,6 +537,7 @@ absl::Status Client::WatchJob(const std::string& job_id, int64_t from_event,
   auto backoff = impl_->options.initial_backoff;
   while (true) {
     grpc::ClientContext ctx;
+    impl_->Authorize(ctx);
     v1::WatchJobRequest request;
     request.set_job_id(job_id);
     request.set_from_event(next);

@@ -41,6 +41,8 @@ struct ClientOptions {
   /// and `tls_key` present a client certificate (mTLS).
   bool tls = false;
   std::string tls_ca, tls_cert, tls_key;
+  /// Bearer token (server --auth-tokens): sent as `authorization: Bearer TOKEN`.
+  std::string token;
 };
 
 /// What the server knows about a stored mesh.

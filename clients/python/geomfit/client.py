@@ -309,6 +309,29 @@ def read_mesh_file(path: str) -> Tuple[np.ndarray, np.ndarray]:
     return positions, padded
 
 
+class _BearerToken(grpc.UnaryUnaryClientInterceptor, grpc.UnaryStreamClientInterceptor,
+                   grpc.StreamUnaryClientInterceptor, grpc.StreamStreamClientInterceptor):
+    """Adds `authorization: Bearer TOKEN` to every call of a channel."""
+
+    def __init__(self, token: str):
+        self._metadata = ("authorization", "Bearer " + token)
+
+    def _details(self, d):
+        return d._replace(metadata=list(d.metadata or []) + [self._metadata])
+
+    def intercept_unary_unary(self, continuation, d, request):
+        return continuation(self._details(d), request)
+
+    def intercept_unary_stream(self, continuation, d, request):
+        return continuation(self._details(d), request)
+
+    def intercept_stream_unary(self, continuation, d, requests):
+        return continuation(self._details(d), requests)
+
+    def intercept_stream_stream(self, continuation, d, requests):
+        return continuation(self._details(d), requests)
+
+
 class Client:
     """Client of a geomfit server. Every call has a deadline (`timeout` seconds);
     UNAVAILABLE is retried `max_attempts` times with exponential backoff. Errors
@@ -323,13 +346,14 @@ class Client:
     TLS: `tls_ca` (PEM file of the CA that signed the server's certificate), and for
     mTLS `tls_cert` + `tls_key` (PEM files of the client certificate); `tls=True` alone
     uses the system's roots. Both transports use the same credentials (the native one
-    gets the file paths).
+    gets the file paths). `token`: the bearer token of a server run with --auth-tokens
+    (sent on every call by both transports).
     """
 
     def __init__(self, target: str = "127.0.0.1:50051", timeout: float = 120.0, max_attempts: int = 4,
                  backoff: float = 0.1, chunk_rows: int = 0, max_message_bytes: int = 64 << 20,
                  transport: str = "auto", tls: bool = False, tls_ca: Optional[str] = None,
-                 tls_cert: Optional[str] = None, tls_key: Optional[str] = None):
+                 tls_cert: Optional[str] = None, tls_key: Optional[str] = None, token: Optional[str] = None):
         if transport not in _TRANSPORTS:
             raise ValueError("transport must be one of %s, got %r" % (_TRANSPORTS, transport))
         if transport == "native" and _native is None:
@@ -366,6 +390,9 @@ class Client:
             self._channel = grpc.secure_channel(target, credentials, options=channel_options)
         else:
             self._channel = grpc.insecure_channel(target, options=channel_options)
+        self._raw_channel = self._channel
+        if token:
+            self._channel = grpc.intercept_channel(self._channel, _BearerToken(token))
         self._stub = pb_grpc.GeomFitStub(self._channel)
         self._stream_updates = False
         # ComputeDifferentials requests come serialized (_compute_request); responses are
@@ -385,10 +412,11 @@ class Client:
             self._native = _native.Client(
                 target, timeout, self.max_attempts, backoff, max_message_bytes,
                 chunk_rows=chunk_rows if chunk_rows > 0 else max(1, max_message_bytes // 4 // 24),
-                tls=self.tls, tls_ca=self._tls_files[0], tls_cert=self._tls_files[1], tls_key=self._tls_files[2])
+                tls=self.tls, tls_ca=self._tls_files[0], tls_cert=self._tls_files[1], tls_key=self._tls_files[2],
+                token=token or "")
 
     def close(self) -> None:
-        self._channel.close()
+        self._raw_channel.close()
         self._native = None  # the C++ client's channel goes with it
 
     def __enter__(self) -> "Client":

@@ -72,7 +72,7 @@ class NativeClient {
  public:
   NativeClient(const std::string& target, std::optional<double> timeout, int max_attempts, double backoff,
                int64_t max_message_bytes, int64_t chunk_rows, bool tls, const std::string& tls_ca,
-               const std::string& tls_cert, const std::string& tls_key) {
+               const std::string& tls_cert, const std::string& tls_key, const std::string& token) {
     ClientOptions o;
     o.target = target;
     o.deadline = Millis(timeout);
@@ -84,6 +84,7 @@ class NativeClient {
     o.tls_ca = tls_ca;
     o.tls_cert = tls_cert;
     o.tls_key = tls_key;
+    o.token = token;
     auto client = Client::Create(o);
     if (!client.ok()) throw std::invalid_argument(std::string(client.status().message()));
     client_ = *std::move(client);
@@ -168,9 +169,9 @@ PYBIND11_MODULE(_native, m) {
 
   py::class_<NativeClient>(m, "Client")
       .def(py::init<const std::string&, std::optional<double>, int, double, int64_t, int64_t, bool, const std::string&,
-                    const std::string&, const std::string&>(),
+                    const std::string&, const std::string&, const std::string&>(),
            "target"_a, "timeout"_a, "max_attempts"_a, "backoff"_a, "max_message_bytes"_a, "chunk_rows"_a = 16384,
-           "tls"_a = false, "tls_ca"_a = "", "tls_cert"_a = "", "tls_key"_a = "",
+           "tls"_a = false, "tls_ca"_a = "", "tls_cert"_a = "", "tls_key"_a = "", "token"_a = "",
            "Creates the channel (does not wait for the server). Per-attempt deadline `timeout` "
            "seconds (None: none); UNAVAILABLE is retried max_attempts times from `backoff` seconds on. "
            "TLS when any tls_* PEM path is given (tls_ca: the server's CA; tls_cert/tls_key: mTLS).")
