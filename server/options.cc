@@ -65,7 +65,7 @@ Setter PathSetter(std::string ServerOptions::*field) {
 
 const std::vector<Flag>& Flags() {
   static const auto* flags = new std::vector<Flag>{
-      {"host", "listen address (use 127.0.0.1 for local-only)",
+      {"host", "listen address; the default is loopback only: 0.0.0.0 serves every interface (use TLS)",
        [](const std::string& v, ServerOptions* o) { o->host = v; return absl::OkStatus(); }},
       {"port", "gRPC port; 0 picks a free one", IntSetter(&ServerOptions::port, "port", 0, 65535)},
       {"store", "mesh store: sqlite (durable) or memory",
@@ -94,6 +94,8 @@ const std::vector<Flag>& Flags() {
        IntSetter(&ServerOptions::queue, "queue", 1, 1 << 20)},
       {"metrics-port", "Prometheus /metrics port; 0 = off",
        IntSetter(&ServerOptions::metrics_port, "metrics-port", 0, 65535)},
+      {"metrics-host", "metrics listen address (default: --host)",
+       [](const std::string& v, ServerOptions* o) { o->metrics_host = v; return absl::OkStatus(); }},
       {"drain-seconds", "on SIGTERM/SIGINT, stop within this many seconds",
        [](const std::string& v, ServerOptions* o) {
          double s = 0;
@@ -155,11 +157,15 @@ const Flag* Find(const std::string& name) {
 
 }  // namespace
 
+bool ServerOptions::IsLoopback(const std::string& host) {
+  return host == "localhost" || host == "::1" || host == "[::1]" || absl::StartsWith(host, "127.");
+}
+
 std::string ServerUsage() {
   ServerOptions d;
   std::string s = "usage: geomfit-server [--flag=value ...]\n       geomfit-server --version\n";
   for (const Flag& f : Flags()) absl::StrAppend(&s, "  --", f.name, "  (", EnvName(f.name), ")  ", f.help, "\n");
-  absl::StrAppend(&s, "defaults: --port=", d.port, " --store=", d.store, " --data-dir=", d.data_dir,
+  absl::StrAppend(&s, "defaults: --host=", d.host, " --port=", d.port, " --store=", d.store, " --data-dir=", d.data_dir,
                   " --cache-bytes=", d.cache_bytes, " --max-message-bytes=", d.max_message_bytes,
                   " --max-vertices=", d.max_vertices, " --workers=", d.workers, " --drain-seconds=",
                   d.drain_seconds, " --chunk-bytes=", d.chunk_bytes, "\n");

@@ -82,7 +82,8 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
 
   if (options.metrics_port > 0) {
     try {
-      s->exposer_ = std::make_unique<prometheus::Exposer>(absl::StrCat(options.host, ":", options.metrics_port));
+      s->exposer_ = std::make_unique<prometheus::Exposer>(
+          absl::StrCat(options.metrics_host.empty() ? options.host : options.metrics_host, ":", options.metrics_port));
     } catch (const std::exception& e) {
       return absl::UnavailableError(absl::StrCat("metrics: cannot listen on port ", options.metrics_port, ": ", e.what()));
     }
@@ -92,6 +93,10 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
     }
     s->metrics_ = std::make_shared<MetricsCollectable>(s->stats_.get(), s->cache_.get(), s->store_.get());
     s->exposer_->RegisterCollectable(s->metrics_);
+  }
+  if (!ServerOptions::IsLoopback(options.host) && options.tls_cert.empty()) {
+    spdlog::warn("listening on {} without TLS: anyone on the network can read and change the meshes "
+                 "(use --tls-cert/--tls-key, and --auth-tokens)", options.host);
   }
   spdlog::info("geomfit-server listening on {}:{} ({}, store={} data-dir={} cache-bytes={} workers={} metrics-port={})",
                options.host, s->port_,

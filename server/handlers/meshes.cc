@@ -103,8 +103,18 @@ absl::StatusOr<v1::ListMeshesResponse> Handlers::ListMeshes(const v1::ListMeshes
   const int page = request.page_size() == 0 ? 100 : request.page_size();
   GF_ASSIGN_OR_RETURN(std::vector<MeshRecord> meshes, ws_->List(request.page_token(), page + 1));
   v1::ListMeshesResponse response;
-  for (int i = 0; i < static_cast<int>(meshes.size()) && i < page; ++i) *response.add_meshes() = ToProto(meshes[i]);
-  if (static_cast<int>(meshes.size()) > page) response.set_next_page_token(response.meshes(page - 1).mesh_id());
+  // Pages end by count or by bytes (half the message limit), whichever comes first.
+  const int64_t budget = options_.max_message_bytes / 2;
+  int64_t bytes = 0;
+  for (int i = 0; i < static_cast<int>(meshes.size()) && i < page; ++i) {
+    v1::MeshInfo info = ToProto(meshes[i]);
+    bytes += static_cast<int64_t>(info.ByteSizeLong()) + 8;
+    if (i > 0 && bytes > budget) break;
+    *response.add_meshes() = std::move(info);
+  }
+  if (static_cast<int>(meshes.size()) > response.meshes_size()) {
+    response.set_next_page_token(response.meshes(response.meshes_size() - 1).mesh_id());
+  }
   return response;
 }
 

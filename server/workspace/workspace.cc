@@ -48,7 +48,23 @@ std::string TenantOfId(absl::string_view stored_id) {
   return slash == absl::string_view::npos ? "" : std::string(stored_id.substr(0, slash));
 }
 
+absl::Status CheckMeshMeta(const MeshMeta& meta) {
+  if (meta.name.size() > kMaxNameBytes)
+    return absl::InvalidArgumentError(absl::StrCat("name: ", meta.name.size(), " bytes, at most ", kMaxNameBytes));
+  if (meta.labels.size() > kMaxLabels)
+    return absl::InvalidArgumentError(absl::StrCat("labels: ", meta.labels.size(), ", at most ", kMaxLabels));
+  for (const auto& [key, value] : meta.labels) {
+    if (key.empty() || key.size() > kMaxLabelKeyBytes || value.size() > kMaxLabelValueBytes) {
+      return absl::InvalidArgumentError(absl::StrCat("labels: a key of ", key.size(), " bytes (1..", kMaxLabelKeyBytes,
+                                                     ") or a value of ", value.size(), " bytes (at most ",
+                                                     kMaxLabelValueBytes, ")"));
+    }
+  }
+  return absl::OkStatus();
+}
+
 absl::StatusOr<MeshRecord> Workspace::AddMesh(Mesh mesh, const MeshMeta& meta) {
+  GF_RETURN_IF_ERROR(CheckMeshMeta(meta));
   GF_ASSIGN_OR_RETURN(Topology topo, ValidateMesh(mesh));
   const int64_t bytes = MeshBytes(mesh) + static_cast<int64_t>(topo.Bytes());
   if (bytes > cache_->budget()) {

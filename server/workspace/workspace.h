@@ -34,8 +34,13 @@ struct WorkspaceOptions {
 struct MeshMeta {
   std::string name;
   std::map<std::string, std::string> labels;
-  std::string tenant;  ///< the id namespace: "" = the single tenant (ids are content hashes)
+  std::string tenant{};  ///< the id namespace: "" = the single tenant (ids are content hashes)
 };
+
+/// Limits of a mesh's name and labels (bytes): a listing stays small.
+constexpr size_t kMaxNameBytes = 256, kMaxLabels = 32, kMaxLabelKeyBytes = 64, kMaxLabelValueBytes = 256;
+/// INVALID_ARGUMENT naming the limit a name or label exceeds (never echoing them).
+absl::Status CheckMeshMeta(const MeshMeta& meta);
 
 /// Tenant namespaces of stored ids: tenant T's mesh X is stored as "T/X" (the service
 /// scopes ids on the way in and out, server/rpc/tenancy.h), so identical uploads by two

@@ -75,3 +75,23 @@ def test_metrics_stay_plaintext_with_tls(certs):
         assert b"geomfit_" in body
     finally:
         s.kill(signal.SIGTERM)
+
+
+def test_warns_when_serving_other_hosts_without_tls(tmp_path):
+    """The default listens on loopback; --host=0.0.0.0 without TLS logs a warning line."""
+    binary = os.environ["GEOMFIT_SERVER_BINARY"]
+    err = tmp_path / "stderr.txt"
+    for args, warned in ((["--host=0.0.0.0"], True), ([], False)):
+        with open(err, "w") as f:
+            p = subprocess.Popen([binary, "--port=0", "--store=memory", *args], stdout=subprocess.PIPE,
+                                 stderr=f, text=True)
+            try:
+                line = p.stdout.readline()
+                assert "listening on port" in line
+            finally:
+                p.send_signal(signal.SIGTERM)
+                p.wait(timeout=30)
+        text = err.read_text()
+        assert ("without TLS" in text) == warned, text
+        if not warned:
+            assert "listening on 127.0.0.1:" in text
