@@ -13,8 +13,13 @@ int64_t NowUnixMs() {
       .count();
 }
 
+std::string Bounded(const std::string& client_text) {
+  constexpr size_t kMax = 80;  // error messages echo at most this much of a client's id
+  return client_text.size() <= kMax ? client_text : absl::StrCat(client_text.substr(0, kMax), "...");
+}
+
 absl::Status MeshNotFound(const std::string& id) {
-  return absl::NotFoundError(absl::StrCat("mesh '", id, "' not found"));
+  return absl::NotFoundError(absl::StrCat("mesh '", Bounded(id), "' not found"));
 }
 
 absl::Status StaleRevision(const std::string& id, int64_t expected, int64_t actual) {
@@ -29,7 +34,7 @@ absl::Status CheckVertexCount(const std::string& id, int64_t rows, int64_t num_v
 }
 
 absl::Status JobNotFound(const std::string& job_id) {
-  return absl::NotFoundError(absl::StrCat("job '", job_id, "' not found"));
+  return absl::NotFoundError(absl::StrCat("job '", Bounded(job_id), "' not found"));
 }
 
 absl::Status MeshStore::PutJob(const JobRecord&) {

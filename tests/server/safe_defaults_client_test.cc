@@ -50,6 +50,16 @@ TEST(SafeDefaultsTest, NamesAndLabelsAreBoundedWithoutEchoingThem) {
   EXPECT_EQ(c->ListMeshes()->size(), 1u);  // nothing else was stored
 }
 
+TEST(SafeDefaultsTest, ErrorsEchoABoundedPrefixOfClientIds) {
+  InProcessServer server;
+  auto c = ClientFor(server.port());
+  const std::string id(4000, 'i');  // within gRPC's metadata limit (the client sends it as x-mesh-id)
+  for (const absl::Status& s : {c->GetMesh(id).status(), c->GetJob(id).status()}) {
+    EXPECT_EQ(s.code(), absl::StatusCode::kNotFound);
+    EXPECT_LT(s.message().size(), 120u) << s.message().substr(0, 200);
+  }
+}
+
 TEST(SafeDefaultsTest, ListMeshesPagesByBytes) {
   server::ServerOptions o = server::testing::LoopbackOptions();
   o.max_message_bytes = 1 << 16;  // pages of at most 32 KiB
