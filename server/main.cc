@@ -33,6 +33,7 @@ int main(int argc, char** argv) {
   sigemptyset(&signals);
   sigaddset(&signals, SIGINT);
   sigaddset(&signals, SIGTERM);
+  sigaddset(&signals, SIGHUP);
   pthread_sigmask(SIG_BLOCK, &signals, nullptr);
 
   // Logs go to stderr; stdout carries only the "listening on port N" line. A thread of
@@ -52,12 +53,17 @@ int main(int argc, char** argv) {
   std::fflush(stdout);
 
   int sig = 0;
-  sigwait(&signals, &sig);
+  while (sigwait(&signals, &sig) == 0 && sig == SIGHUP) {  // SIGHUP: re-read --auth-tokens
+    if (absl::Status s = (*server)->ReloadTokens(); !s.ok()) {
+      spdlog::error("SIGHUP: keeping the old tokens: {}", std::string(s.message()));
+    }
+  }
   spdlog::info("received signal {}", sig);
   const bool json = options->log_format == "json";
   std::thread([&signals, json] {  // a second signal stops at once
     int again = 0;
-    sigwait(&signals, &again);
+    while (sigwait(&signals, &again) == 0 && again == SIGHUP) {
+    }
     if (json) {
       std::fprintf(stderr, "{\"level\":\"critical\",\"logger\":\"geomfit-server\",\"message\":\"second signal %d: "
                            "exiting without draining\"}\n", again);

@@ -7,6 +7,11 @@
 
 namespace geomfit::server {
 
+std::string Bounded(const std::string& client_text) {
+  constexpr size_t kMax = 80;  // error messages echo at most this much of a client's id
+  return client_text.size() <= kMax ? client_text : absl::StrCat(client_text.substr(0, kMax), "...");
+}
+
 int64_t NowUnixMs() {
   return std::chrono::duration_cast<std::chrono::milliseconds>(
              std::chrono::system_clock::now().time_since_epoch())
@@ -14,7 +19,7 @@ int64_t NowUnixMs() {
 }
 
 absl::Status MeshNotFound(const std::string& id) {
-  return absl::NotFoundError(absl::StrCat("mesh '", id, "' not found"));
+  return absl::NotFoundError(absl::StrCat("mesh '", Bounded(id), "' not found"));
 }
 
 absl::Status StaleRevision(const std::string& id, int64_t expected, int64_t actual) {
@@ -29,7 +34,7 @@ absl::Status CheckVertexCount(const std::string& id, int64_t rows, int64_t num_v
 }
 
 absl::Status JobNotFound(const std::string& job_id) {
-  return absl::NotFoundError(absl::StrCat("job '", job_id, "' not found"));
+  return absl::NotFoundError(absl::StrCat("job '", Bounded(job_id), "' not found"));
 }
 
 absl::Status MeshStore::PutJob(const JobRecord&) {

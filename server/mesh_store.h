@@ -86,6 +86,8 @@ absl::StatusOr<std::unique_ptr<MeshStore>> OpenSqliteStore(const std::string& da
 void AmendForPositions(const Positions& positions, int64_t revision, MeshRecord* info);
 int64_t NowUnixMs();
 /// NOT_FOUND naming the mesh.
+/// At most 80 bytes of a client-supplied id or name, for error messages.
+std::string Bounded(const std::string& client_text);
 absl::Status MeshNotFound(const std::string& id);
 absl::Status StaleRevision(const std::string& id, int64_t expected, int64_t actual);
 /// INVALID_ARGUMENT unless an update carries one row per vertex.

@@ -55,9 +55,17 @@ Setter IntSetter(T ServerOptions::*field, const char* name, int64_t lo, int64_t 
   };
 }
 
+/// A file path; empty leaves the option off.
+Setter PathSetter(std::string ServerOptions::*field) {
+  return [=](const std::string& v, ServerOptions* o) {
+    o->*field = v;
+    return absl::OkStatus();
+  };
+}
+
 const std::vector<Flag>& Flags() {
   static const auto* flags = new std::vector<Flag>{
-      {"host", "listen address (use 127.0.0.1 for local-only)",
+      {"host", "listen address; the default is loopback only: 0.0.0.0 serves every interface (use TLS)",
        [](const std::string& v, ServerOptions* o) { o->host = v; return absl::OkStatus(); }},
       {"port", "gRPC port; 0 picks a free one", IntSetter(&ServerOptions::port, "port", 0, 65535)},
       {"store", "mesh store: sqlite (durable) or memory",
@@ -86,6 +94,8 @@ const std::vector<Flag>& Flags() {
        IntSetter(&ServerOptions::queue, "queue", 1, 1 << 20)},
       {"metrics-port", "Prometheus /metrics port; 0 = off",
        IntSetter(&ServerOptions::metrics_port, "metrics-port", 0, 65535)},
+      {"metrics-host", "metrics listen address (default: --host)",
+       [](const std::string& v, ServerOptions* o) { o->metrics_host = v; return absl::OkStatus(); }},
       {"drain-seconds", "on SIGTERM/SIGINT, stop within this many seconds",
        [](const std::string& v, ServerOptions* o) {
          double s = 0;
@@ -107,6 +117,14 @@ const std::vector<Flag>& Flags() {
        IntSetter(&ServerOptions::job_threads, "job-threads", 1, 256)},
       {"max-jobs", "pending + running jobs beyond which StartJob is RESOURCE_EXHAUSTED",
        IntSetter(&ServerOptions::max_jobs, "max-jobs", 1, 1 << 20)},
+      {"tls-cert", "PEM certificate (chain): serve gRPC over TLS (metrics stay plaintext); without it, plaintext",
+       PathSetter(&ServerOptions::tls_cert)},
+      {"tls-key", "PEM private key of --tls-cert", PathSetter(&ServerOptions::tls_key)},
+      {"tls-client-ca", "PEM CA bundle: require client certificates signed by it (mTLS; needs --tls-cert)",
+       PathSetter(&ServerOptions::tls_client_ca)},
+      {"auth-tokens", "file of `TOKEN TENANT` lines: calls need 'authorization: Bearer TOKEN' and see only "
+                      "their tenant's meshes and jobs (reloaded on SIGHUP); without it, one tenant, no authentication",
+       PathSetter(&ServerOptions::auth_tokens)},
       {"log-level", "trace|debug|info|warn|error|off",
        [](const std::string& v, ServerOptions* o) {
          for (const char* level : {"trace", "debug", "info", "warn", "error", "off"}) {
@@ -139,11 +157,15 @@ const Flag* Find(const std::string& name) {
 
 }  // namespace
 
+bool ServerOptions::IsLoopback(const std::string& host) {
+  return host == "localhost" || host == "::1" || host == "[::1]" || absl::StartsWith(host, "127.");
+}
+
 std::string ServerUsage() {
   ServerOptions d;
   std::string s = "usage: geomfit-server [--flag=value ...]\n       geomfit-server --version\n";
   for (const Flag& f : Flags()) absl::StrAppend(&s, "  --", f.name, "  (", EnvName(f.name), ")  ", f.help, "\n");
-  absl::StrAppend(&s, "defaults: --port=", d.port, " --store=", d.store, " --data-dir=", d.data_dir,
+  absl::StrAppend(&s, "defaults: --host=", d.host, " --port=", d.port, " --store=", d.store, " --data-dir=", d.data_dir,
                   " --cache-bytes=", d.cache_bytes, " --max-message-bytes=", d.max_message_bytes,
                   " --max-vertices=", d.max_vertices, " --workers=", d.workers, " --drain-seconds=",
                   d.drain_seconds, " --chunk-bytes=", d.chunk_bytes, "\n");
@@ -176,6 +198,9 @@ absl::StatusOr<ServerOptions> ParseServerOptions(const std::vector<std::string>&
     if (f == nullptr) return absl::InvalidArgumentError("unknown flag --" + name + " (see --help)");
     GF_RETURN_IF_ERROR(f->set(value, &o));
   }
+  if (o.tls_cert.empty() != o.tls_key.empty()) return absl::InvalidArgumentError("--tls-cert and --tls-key go together");
+  if (!o.tls_client_ca.empty() && o.tls_cert.empty())
+    return absl::InvalidArgumentError("--tls-client-ca needs --tls-cert and --tls-key");
   return o;
 }
 

@@ -10,7 +10,7 @@ namespace geomfit::server {
 /// Server configuration. Every field has a flag (--port) and an environment variable
 /// (GEOMFIT_PORT); flags win over the environment, which wins over the defaults.
 struct ServerOptions {
-  std::string host = "0.0.0.0";
+  std::string host = "127.0.0.1";          ///< loopback: other hosts need --host 0.0.0.0 (with TLS)
   int port = 50051;                        ///< 0 = pick a free port (reported at start)
   std::string store = "sqlite";            ///< sqlite | memory
   std::string data_dir = "geomfit-data";   ///< SQLite database directory
@@ -21,6 +21,7 @@ struct ServerOptions {
   int workers = 2;                         ///< compute pool size (concurrent computations)
   int queue = 256;                         ///< pending tasks beyond which RESOURCE_EXHAUSTED
   int metrics_port = 0;                    ///< Prometheus exposition port; 0 = off
+  std::string metrics_host;                ///< metrics listen address; "" = --host
   double drain_seconds = 10;               ///< SIGTERM: finish in-flight calls within this
   int64_t chunk_rows = 0;                  ///< rows per streamed response chunk; 0 = by chunk_bytes
   int64_t chunk_bytes = 128 << 10;         ///< target bytes per streamed chunk when chunk_rows = 0
@@ -30,8 +31,14 @@ struct ServerOptions {
   int spin_us = 1000;                      ///< one idle compute worker polls this long before sleeping
   int job_threads = 1;                     ///< jobs running at once (own threads, apart from the pools)
   int max_jobs = 16;                       ///< pending + running jobs beyond which StartJob is RESOURCE_EXHAUSTED
+  std::string tls_cert;                    ///< PEM certificate chain: serve gRPC over TLS (not metrics)
+  std::string tls_key;                     ///< PEM private key of tls_cert
+  std::string auth_tokens;                 ///< `TOKEN TENANT` lines: bearer tokens, one namespace per tenant
+  std::string tls_client_ca;               ///< PEM CA bundle: require and verify client certificates (mTLS)
 
   std::string Address() const { return host + ":" + std::to_string(port); }
+  /// True for 127.0.0.0/8, ::1 and localhost.
+  static bool IsLoopback(const std::string& host);
 };
 
 /// Usage text listing every flag, its variable and default.

@@ -9,6 +9,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "core/util/status_macros.h"
+#include "server/auth.h"
 #include "server/handlers/handlers.h"
 #include "server/handlers/jobs.h"
 #include "server/jobs/job_manager.h"
@@ -17,6 +18,7 @@
 #include "server/request_stats.h"
 #include "server/rpc/service.h"
 #include "server/thread_pool.h"
+#include "server/tls.h"
 #include "server/workspace/cache.h"
 #include "server/workspace/workspace.h"
 
@@ -57,6 +59,10 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   GF_ASSIGN_OR_RETURN(s->jobs_, JobManager::Create(s->store_.get(), jobs));
   s->job_handlers_ = std::make_unique<JobHandlers>(s->jobs_.get(), s->handlers_.get(), options.max_vertices);
   s->service_->SetJobs(s->job_handlers_.get());
+  if (!options.auth_tokens.empty()) {
+    GF_ASSIGN_OR_RETURN(s->tokens_, TokenTable::Load(options.auth_tokens));
+    s->service_->SetTokens(s->tokens_.get());
+  }
 
   grpc::EnableDefaultHealthCheckService(true);
   grpc::reflection::InitProtoReflectionServerBuilderPlugin();
@@ -64,7 +70,8 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   builder.AddChannelArgument(GRPC_ARG_ALLOW_REUSEPORT, 0);
   builder.SetMaxReceiveMessageSize(static_cast<int>(options.max_message_bytes));
   builder.SetMaxSendMessageSize(static_cast<int>(options.max_message_bytes));
-  builder.AddListeningPort(options.Address(), grpc::InsecureServerCredentials(), &s->port_);
+  GF_ASSIGN_OR_RETURN(const std::shared_ptr<grpc::ServerCredentials> credentials, ServerCredentialsFor(options));
+  builder.AddListeningPort(options.Address(), credentials, &s->port_);
   builder.RegisterService(s->service_.get());
   s->grpc_server_ = builder.BuildAndStart();
   if (s->grpc_server_ == nullptr || s->port_ == 0) {
@@ -75,15 +82,26 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
 
   if (options.metrics_port > 0) {
     try {
-      s->exposer_ = std::make_unique<prometheus::Exposer>(absl::StrCat(options.host, ":", options.metrics_port));
+      s->exposer_ = std::make_unique<prometheus::Exposer>(
+          absl::StrCat(options.metrics_host.empty() ? options.host : options.metrics_host, ":", options.metrics_port));
     } catch (const std::exception& e) {
       return absl::UnavailableError(absl::StrCat("metrics: cannot listen on port ", options.metrics_port, ": ", e.what()));
+    }
+    if (!options.tls_cert.empty()) {
+      spdlog::warn("metrics on port {} are plaintext HTTP (no TLS, see server/tls.h): keep them on a private "
+                   "address or behind a TLS proxy", options.metrics_port);
     }
     s->metrics_ = std::make_shared<MetricsCollectable>(s->stats_.get(), s->cache_.get(), s->store_.get());
     s->exposer_->RegisterCollectable(s->metrics_);
   }
-  spdlog::info("geomfit-server listening on {}:{} (store={} data-dir={} cache-bytes={} workers={} metrics-port={})",
-               options.host, s->port_, options.store, options.data_dir, options.cache_bytes, options.workers,
+  if (!ServerOptions::IsLoopback(options.host) && options.tls_cert.empty()) {
+    spdlog::warn("listening on {} without TLS: anyone on the network can read and change the meshes "
+                 "(use --tls-cert/--tls-key, and --auth-tokens)", options.host);
+  }
+  spdlog::info("geomfit-server listening on {}:{} ({}, store={} data-dir={} cache-bytes={} workers={} metrics-port={})",
+               options.host, s->port_,
+               absl::StrCat(options.tls_cert.empty() ? "plaintext" : options.tls_client_ca.empty() ? "TLS" : "mTLS",
+                            options.auth_tokens.empty() ? "" : ", bearer tokens"), options.store, options.data_dir, options.cache_bytes, options.workers,
                options.metrics_port);
   return s;
 }
@@ -111,6 +129,13 @@ void Server::Shutdown(double drain_seconds) {
   grpc_server_->Wait();
   exposer_.reset();
   spdlog::info("stopped");
+}
+
+absl::Status Server::ReloadTokens() {
+  if (tokens_ == nullptr) return absl::OkStatus();
+  GF_RETURN_IF_ERROR(tokens_->Reload());
+  spdlog::info("auth tokens reloaded: {} tokens", tokens_->size());
+  return absl::OkStatus();
 }
 
 Server::~Server() { Shutdown(0); }

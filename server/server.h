@@ -21,6 +21,7 @@ class MeshStore;
 class MetricsCollectable;
 class RequestStats;
 class Service;
+class TokenTable;
 class ThreadPool;
 
 /// A running geomfit server: store, caches, pools, gRPC service with health and
@@ -36,6 +37,8 @@ class Server {
   /// FAILED, "interrupted by server shutdown"), in-flight calls get `drain_seconds` to
   /// finish (then they are cancelled), pools stop. Idempotent.
   void Shutdown(double drain_seconds);
+  /// Re-reads --auth-tokens (SIGHUP); on error the old tokens stay. OK without a file.
+  absl::Status ReloadTokens();
 
  private:
   Server() = default;
@@ -51,6 +54,7 @@ class Server {
   std::unique_ptr<grpc::Server> grpc_server_;
   std::shared_ptr<MetricsCollectable> metrics_;
   std::unique_ptr<prometheus::Exposer> exposer_;
+  std::unique_ptr<TokenTable> tokens_;
   std::unique_ptr<JobManager> jobs_;  // last: shut down first (its jobs use the handlers)
   std::unique_ptr<JobHandlers> job_handlers_;
   int port_ = 0;

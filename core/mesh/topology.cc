@@ -226,6 +226,16 @@ absl::Status FaceError(const Mesh& mesh, int f) {
   for (int i = 0; i < mesh.FaceSize(f); ++i)
     if (mesh.faces(f, i) < 0 || mesh.faces(f, i) >= mesh.NumVertices())
       return absl::InvalidArgumentError(absl::StrFormat("face %d: vertex index out of range", f));
+  // The area test squares squared lengths: edges beyond ~1e75 overflow it.
+  for (int i = 0; i < mesh.FaceSize(f); ++i) {
+    const auto a = mesh.positions.row(mesh.faces(f, i));
+    const auto b = mesh.positions.row(mesh.faces(f, (i + 1) % mesh.FaceSize(f)));
+    const double e2 = (b - a).squaredNorm();
+    if (!std::isfinite(e2 * e2)) {
+      return absl::InvalidArgumentError(absl::StrFormat(
+          "face %d: coordinates too large (the area test overflows for edges longer than ~1e75)", f));
+    }
+  }
   return absl::InvalidArgumentError(
       absl::StrFormat("face %d has zero area (its corners are collinear or coincide)", f));
 }

@@ -51,7 +51,8 @@ class Handlers {
   Handlers(Workspace* workspace, const RequestStats* stats, HandlerOptions options);
 
   // Meshes (meshes.cc).
-  absl::StatusOr<v1::MeshInfo> UploadMesh(const UploadAssembler& upload);
+  /// Stores the upload in `tenant`'s id namespace (Workspace TenantPrefix).
+  absl::StatusOr<v1::MeshInfo> UploadMesh(const UploadAssembler& upload, const std::string& tenant = "");
   absl::StatusOr<v1::MeshInfo> UpdatePositions(const PositionsAssembler& update);
   /// UpdatePositions in one message, decoded straight into the positions.
   absl::StatusOr<v1::MeshInfo> SetPositions(const v1::SetPositionsRequest& request);

@@ -37,9 +37,11 @@ absl::Status RequireId(const std::string& id) {
 Handlers::Handlers(Workspace* workspace, const RequestStats* stats, HandlerOptions options)
     : ws_(workspace), stats_(stats), options_(options) {}
 
-absl::StatusOr<v1::MeshInfo> Handlers::UploadMesh(const UploadAssembler& upload) {
+absl::StatusOr<v1::MeshInfo> Handlers::UploadMesh(const UploadAssembler& upload, const std::string& tenant) {
   GF_ASSIGN_OR_RETURN(Mesh mesh, upload.Finish());
-  return Wire(ws_->AddMesh(std::move(mesh), MetaOf(upload.header())));
+  MeshMeta meta = MetaOf(upload.header());
+  meta.tenant = tenant;
+  return Wire(ws_->AddMesh(std::move(mesh), meta));
 }
 
 absl::StatusOr<v1::MeshInfo> Handlers::UpdatePositions(const PositionsAssembler& update) {
@@ -101,8 +103,18 @@ absl::StatusOr<v1::ListMeshesResponse> Handlers::ListMeshes(const v1::ListMeshes
   const int page = request.page_size() == 0 ? 100 : request.page_size();
   GF_ASSIGN_OR_RETURN(std::vector<MeshRecord> meshes, ws_->List(request.page_token(), page + 1));
   v1::ListMeshesResponse response;
-  for (int i = 0; i < static_cast<int>(meshes.size()) && i < page; ++i) *response.add_meshes() = ToProto(meshes[i]);
-  if (static_cast<int>(meshes.size()) > page) response.set_next_page_token(response.meshes(page - 1).mesh_id());
+  // Pages end by count or by bytes (half the message limit), whichever comes first.
+  const int64_t budget = options_.max_message_bytes / 2;
+  int64_t bytes = 0;
+  for (int i = 0; i < static_cast<int>(meshes.size()) && i < page; ++i) {
+    v1::MeshInfo info = ToProto(meshes[i]);
+    bytes += static_cast<int64_t>(info.ByteSizeLong()) + 8;
+    if (i > 0 && bytes > budget) break;
+    *response.add_meshes() = std::move(info);
+  }
+  if (static_cast<int>(meshes.size()) > response.meshes_size()) {
+    response.set_next_page_token(response.meshes(response.meshes_size() - 1).mesh_id());
+  }
   return response;
 }
 

@@ -113,7 +113,8 @@ absl::StatusOr<v1::MeshInfo> Handlers::RefineMesh(const v1::RefineMeshRequest& r
   MeshMeta meta;
   GF_ASSIGN_OR_RETURN(const MeshRecord source, ws_->Info(request.mesh_id()));
   meta.name = request.name().empty() ? absl::StrCat(source.name, " refined x", factor) : request.name();
-  meta.labels["refined_from"] = request.mesh_id();
+  meta.tenant = TenantOfId(request.mesh_id());  // a derived mesh is its source's tenant's
+  meta.labels["refined_from"] = request.mesh_id().substr(TenantPrefix(meta.tenant).size());
   GF_ASSIGN_OR_RETURN(MeshRecord stored, ws_->AddMesh(std::move(refined), meta));
   return ToProto(stored);
 }

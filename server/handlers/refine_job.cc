@@ -72,7 +72,8 @@ absl::StatusOr<JobRunFn> MakeRefineJob(Workspace* ws, v1::RefineJob spec, int64_
       if (absl::Status s = ctx.Check(); !s.ok()) return fail(s);  // a cancelled level stores nothing
       MeshMeta meta;
       meta.name = absl::StrCat(base, " L", level);
-      meta.labels["refined_from"] = current.mesh_id;
+      meta.tenant = TenantOfId(current.mesh_id);  // a derived mesh is its source's tenant's
+      meta.labels["refined_from"] = current.mesh_id.substr(TenantPrefix(meta.tenant).size());
       const int64_t started = NowUnixMs();
       absl::StatusOr<MeshRecord> stored = ws->AddMesh(*std::move(refined), meta);
       if (!stored.ok()) return fail(stored.status());

@@ -15,6 +15,7 @@
 #include "core/util/cancel.h"
 #include "server/handlers/handlers.h"
 #include "server/rpc/service.h"
+#include "server/rpc/tenancy.h"
 #include "server/thread_pool.h"
 
 namespace geomfit::server {
@@ -46,7 +47,7 @@ inline std::unique_ptr<CancellationToken> TokenFor(grpc::CallbackServerContext* 
 template <typename Request, typename Assembler>
 class ReadReactor final : public grpc::ServerReadReactor<Request> {
  public:
-  using FinishFn = std::function<absl::StatusOr<v1::MeshInfo>(const Assembler&)>;
+  using FinishFn = std::function<absl::StatusOr<v1::MeshInfo>(const Assembler&, const CallContext&)>;
   /// Runs on the compute thread once the call is answered (OK only).
   using AfterFn = std::function<void(const v1::MeshInfo&)>;
 
@@ -56,15 +57,18 @@ class ReadReactor final : public grpc::ServerReadReactor<Request> {
         finish_(std::move(finish)), after_(std::move(after)) {
     service_->Begin();
     call_.method = method;
-    if (absl::Status s = service_->Admit(); !s.ok()) {
-      Done(s);
+    absl::StatusOr<CallContext> who = service_->Admit(ctx);
+    if (!who.ok()) {
+      Done(who.status());
       return;
     }
+    who_ = *std::move(who);
     this->StartRead(&request_);
   }
 
   void OnReadDone(bool ok) override {
     if (ok) {
+      ScopeIds(who_.tenant, &request_);
       absl::Status s = assembler_.Add(request_);
       if (!s.ok()) return Done(s);
       request_.Clear();
@@ -74,7 +78,8 @@ class ReadReactor final : public grpc::ServerReadReactor<Request> {
     if (ctx_->IsCancelled()) return Done(absl::CancelledError("client cancelled the stream; nothing stored"));
     call_.bytes_in = assembler_.bytes();
     const bool queued = service_->compute()->TrySubmit([this] {
-      absl::StatusOr<v1::MeshInfo> info = finish_(assembler_);
+      absl::StatusOr<v1::MeshInfo> info = finish_(assembler_, who_);
+      if (info.ok()) UnscopeIds(who_.tenant, &*info);
       if (info.ok()) {
         call_.mesh_id = info->mesh_id();
         *response_ = *info;
@@ -101,6 +106,7 @@ class ReadReactor final : public grpc::ServerReadReactor<Request> {
   Assembler assembler_;
   FinishFn finish_;
   AfterFn after_;
+  CallContext who_;
   Service::Call call_{};
 };
 
@@ -116,14 +122,19 @@ class WriteReactor final : public grpc::ServerWriteReactor<Response>, private Ch
  public:
   using WorkFn = std::function<absl::Status(const CancellationToken&, ChunkSink<Response>*)>;
 
+  /// `request`'s mesh ids are scoped to the caller's tenant before `work` runs (gRPC
+  /// hands the request over for the call's lifetime); the chunks' are unscoped.
   WriteReactor(Service* service, grpc::CallbackServerContext* ctx, ThreadPool* pool, Service::Call call,
-               WorkFn work)
+               const google::protobuf::Message* request, WorkFn work)
       : service_(service), token_(TokenFor(ctx)), work_(std::move(work)), call_(std::move(call)) {
     service_->Begin();
-    if (absl::Status s = service_->Admit(); !s.ok()) {
-      Done(s);
+    absl::StatusOr<CallContext> who = service_->Admit(ctx);
+    if (!who.ok()) {
+      Done(who.status());
       return;
     }
+    tenant_ = who->tenant;
+    ScopeIds(tenant_, const_cast<google::protobuf::Message*>(request));
     working_ = true;
     if (!pool->TrySubmit([this] { Run(); })) {
       working_ = false;
@@ -185,6 +196,7 @@ class WriteReactor final : public grpc::ServerWriteReactor<Response>, private Ch
       const bool final = last_queued_ && queue_.size() == 1;
       current_ = std::move(queue_.front());
       queue_.pop_front();
+      UnscopeIds(tenant_, &current_);
       writing_ = true;
       finished_ = final;
       call_.bytes_out += static_cast<int64_t>(current_.ByteSizeLong());
@@ -202,6 +214,7 @@ class WriteReactor final : public grpc::ServerWriteReactor<Response>, private Ch
   std::unique_ptr<CancellationToken> token_;
   WorkFn work_;
   Service::Call call_;
+  std::string tenant_;
   std::mutex mu_;
   std::deque<Response> queue_;
   Response current_;

@@ -9,14 +9,22 @@
 #include <spdlog/spdlog.h>
 
 #include "absl/status/status.h"
+#include "core/util/status_macros.h"
+#include "server/mesh_store.h"
 #include "server/rpc/grpc_status.h"
 #include "server/rpc/reactors.h"
 #include "server/rpc/watch_job_reactor.h"
 
 namespace geomfit::server {
-absl::Status Service::Admit() const {
+absl::StatusOr<CallContext> Service::Admit(const grpc::CallbackServerContext* ctx) const {
   if (draining()) return absl::UnavailableError("server is shutting down; retry on another replica or later");
-  return absl::OkStatus();
+  CallContext call;
+  if (tokens_ == nullptr) return call;
+  const auto& metadata = ctx->client_metadata();
+  const auto it = metadata.find("authorization");
+  const absl::string_view value = it == metadata.end() ? "" : absl::string_view(it->second.data(), it->second.size());
+  GF_ASSIGN_OR_RETURN(call.tenant, Authenticate(*tokens_, value));
+  return call;
 }
 
 grpc::Status Service::Finish(const Call& call, const absl::Status& status) {
@@ -36,12 +44,19 @@ grpc::Status Service::Finish(const Call& call, const absl::Status& status) {
 
 template <typename Response>
 grpc::ServerUnaryReactor* Service::Unary(grpc::CallbackServerContext* ctx, Call call, ThreadPool* pool,
-                                         Response* response, std::function<absl::StatusOr<Response>()> work,
+                                         const google::protobuf::Message* request, Response* response,
+                                         std::function<absl::StatusOr<Response>(const CallContext&)> work,
                                          std::function<void(const Response&)> after) {
   grpc::ServerUnaryReactor* reactor = ctx->DefaultReactor();
   Begin();
-  auto run = [this, reactor, response, work = std::move(work), after = std::move(after), call]() mutable {
-    absl::StatusOr<Response> r = work();
+  absl::StatusOr<CallContext> who = Admit(ctx);
+  // gRPC hands the request over for the call's lifetime: scoping it in place spares a
+  // copy of large requests (SetPositions).
+  if (who.ok() && request != nullptr) ScopeIds(who->tenant, const_cast<google::protobuf::Message*>(request));
+  auto run = [this, reactor, response, work = std::move(work), after = std::move(after), call,
+              who = who.ok() ? *who : CallContext()]() mutable {
+    absl::StatusOr<Response> r = work(who);
+    if (r.ok()) UnscopeIds(who.tenant, &*r);
     if (r.ok()) {
       call.bytes_out = static_cast<int64_t>(r->ByteSizeLong());
       if (after) {
@@ -53,8 +68,8 @@ grpc::ServerUnaryReactor* Service::Unary(grpc::CallbackServerContext* ctx, Call 
     reactor->Finish(Finish(call, r.status()));
     if (after && r.ok()) after(*r);
   };
-  if (absl::Status s = Admit(); !s.ok()) {
-    reactor->Finish(Finish(call, s));
+  if (!who.ok()) {
+    reactor->Finish(Finish(call, who.status()));
   } else if (pool == nullptr) {
     run();
   } else if (!pool->TrySubmit(std::move(run))) {
@@ -66,7 +81,7 @@ grpc::ServerUnaryReactor* Service::Unary(grpc::CallbackServerContext* ctx, Call 
 grpc::ServerReadReactor<v1::UploadMeshRequest>* Service::UploadMesh(grpc::CallbackServerContext* ctx,
                                                                     v1::MeshInfo* response) {
   return new ReadReactor<v1::UploadMeshRequest, UploadAssembler>(
-      this, ctx, response, "UploadMesh", [this](const UploadAssembler& a) { return handlers_->UploadMesh(a); });
+      this, ctx, response, "UploadMesh", [this](const UploadAssembler& a, const CallContext& who) { return handlers_->UploadMesh(a, who.tenant); });
 }
 
 grpc::ServerReadReactor<v1::UpdatePositionsRequest>* Service::UpdatePositions(grpc::CallbackServerContext* ctx,
@@ -74,7 +89,9 @@ grpc::ServerReadReactor<v1::UpdatePositionsRequest>* Service::UpdatePositions(gr
   auto next = std::make_shared<std::unique_ptr<Workspace::PendingPrefetch>>();
   return new ReadReactor<v1::UpdatePositionsRequest, PositionsAssembler>(
       this, ctx, response, "UpdatePositions",
-      [this, next](const PositionsAssembler& a) { return Updated(handlers_->UpdatePositions(a), next.get()); },
+      [this, next](const PositionsAssembler& a, const CallContext&) {
+        return Updated(handlers_->UpdatePositions(a), next.get());
+      },
       [this, next](const v1::MeshInfo&) { RunPrefetch(next.get()); });
 }
 
@@ -84,8 +101,8 @@ grpc::ServerUnaryReactor* Service::SetPositions(grpc::CallbackServerContext* ctx
   call.bytes_in = static_cast<int64_t>(request->ByteSizeLong());
   auto next = std::make_shared<std::unique_ptr<Workspace::PendingPrefetch>>();
   return Unary<v1::MeshInfo>(
-      ctx, std::move(call), compute_, response,
-      [this, request, next] { return Updated(handlers_->SetPositions(*request), next.get()); },
+      ctx, std::move(call), compute_, request, response,
+      [this, request, next](const CallContext&) { return Updated(handlers_->SetPositions(*request), next.get()); },
       [this, next](const v1::MeshInfo&) { RunPrefetch(next.get()); });
 }
 
@@ -105,34 +122,51 @@ void Service::RunPrefetch(std::unique_ptr<Workspace::PendingPrefetch>* next) {
 
 grpc::ServerUnaryReactor* Service::GetMesh(grpc::CallbackServerContext* ctx, const v1::GetMeshRequest* request,
                                            v1::MeshInfo* response) {
-  return Unary<v1::MeshInfo>(ctx, {"GetMesh", request->mesh_id()}, io_, response,
-                             [this, request] { return handlers_->GetMesh(*request); });
+  return Unary<v1::MeshInfo>(ctx, {"GetMesh", request->mesh_id()}, io_, request, response,
+                             [this, request](const CallContext&) { return handlers_->GetMesh(*request); });
 }
 
 grpc::ServerWriteReactor<v1::DownloadMeshResponse>* Service::DownloadMesh(grpc::CallbackServerContext* ctx,
                                                                           const v1::DownloadMeshRequest* request) {
   return new WriteReactor<v1::DownloadMeshResponse>(
-      this, ctx, io_, {"DownloadMesh", request->mesh_id()},
+      this, ctx, io_, {"DownloadMesh", request->mesh_id()}, request,
       AllAtOnce<v1::DownloadMeshResponse>(
           [this, request](const CancellationToken&) { return handlers_->DownloadMesh(*request); }));
 }
 
 grpc::ServerUnaryReactor* Service::ListMeshes(grpc::CallbackServerContext* ctx, const v1::ListMeshesRequest* request,
                                               v1::ListMeshesResponse* response) {
-  return Unary<v1::ListMeshesResponse>(ctx, {"ListMeshes", ""}, io_, response,
-                                       [this, request] { return handlers_->ListMeshes(*request); });
+  return Unary<v1::ListMeshesResponse>(ctx, {"ListMeshes", ""}, io_, request, response,
+                                       [this, request](const CallContext& who) { return ListMeshesOf(who, *request); });
+}
+
+absl::StatusOr<v1::ListMeshesResponse> Service::ListMeshesOf(const CallContext& who,
+                                                             const v1::ListMeshesRequest& request) {
+  if (who.tenant.empty()) return handlers_->ListMeshes(request);
+  // The tenant's ids are contiguous in id order, from its prefix on.
+  const std::string prefix = TenantPrefix(who.tenant);
+  v1::ListMeshesRequest scoped = request;
+  scoped.set_page_token(prefix + request.page_token());
+  GF_ASSIGN_OR_RETURN(v1::ListMeshesResponse page, handlers_->ListMeshes(scoped));
+  v1::ListMeshesResponse mine;
+  for (const v1::MeshInfo& m : page.meshes()) {
+    if (!Owns(who.tenant, m.mesh_id())) return mine;  // past the tenant's last mesh
+    *mine.add_meshes() = m;
+  }
+  if (!page.next_page_token().empty()) mine.set_next_page_token(page.next_page_token().substr(prefix.size()));
+  return mine;
 }
 
 grpc::ServerUnaryReactor* Service::DeleteMesh(grpc::CallbackServerContext* ctx, const v1::DeleteMeshRequest* request,
                                               v1::DeleteMeshResponse* response) {
-  return Unary<v1::DeleteMeshResponse>(ctx, {"DeleteMesh", request->mesh_id()}, io_, response,
-                                       [this, request] { return handlers_->DeleteMesh(*request); });
+  return Unary<v1::DeleteMeshResponse>(ctx, {"DeleteMesh", request->mesh_id()}, io_, request, response,
+                                       [this, request](const CallContext&) { return handlers_->DeleteMesh(*request); });
 }
 
 grpc::ServerWriteReactor<v1::ComputeDifferentialsResponse>* Service::ComputeDifferentials(
     grpc::CallbackServerContext* ctx, const v1::ComputeDifferentialsRequest* request) {
   return new WriteReactor<v1::ComputeDifferentialsResponse>(
-      this, ctx, compute_, {"ComputeDifferentials", request->mesh_id()},
+      this, ctx, compute_, {"ComputeDifferentials", request->mesh_id()}, request,
       [this, request](const CancellationToken& cancel, ChunkSink<v1::ComputeDifferentialsResponse>* sink) {
         return handlers_->ComputeDifferentials(*request, cancel, sink);
       });
@@ -140,20 +174,20 @@ grpc::ServerWriteReactor<v1::ComputeDifferentialsResponse>* Service::ComputeDiff
 
 grpc::ServerUnaryReactor* Service::GetServerInfo(grpc::CallbackServerContext* ctx, const v1::GetServerInfoRequest*,
                                                  v1::ServerInfo* response) {
-  return Unary<v1::ServerInfo>(ctx, {"GetServerInfo", ""}, nullptr, response,
-                               [this]() -> absl::StatusOr<v1::ServerInfo> { return handlers_->GetServerInfo(); });
+  return Unary<v1::ServerInfo>(ctx, {"GetServerInfo", ""}, nullptr, nullptr, response,
+                               [this](const CallContext&) -> absl::StatusOr<v1::ServerInfo> { return handlers_->GetServerInfo(); });
 }
 
 grpc::ServerUnaryReactor* Service::GetStatistics(grpc::CallbackServerContext* ctx, const v1::GetStatisticsRequest*,
                                                  v1::Statistics* response) {
-  return Unary<v1::Statistics>(ctx, {"GetStatistics", ""}, io_, response,
-                               [this]() -> absl::StatusOr<v1::Statistics> { return handlers_->GetStatistics(); });
+  return Unary<v1::Statistics>(ctx, {"GetStatistics", ""}, io_, nullptr, response,
+                               [this](const CallContext&) -> absl::StatusOr<v1::Statistics> { return handlers_->GetStatistics(); });
 }
 
 grpc::ServerWriteReactor<v1::ProjectPointsResponse>* Service::ProjectPoints(grpc::CallbackServerContext* ctx,
                                                                             const v1::ProjectPointsRequest* request) {
   return new WriteReactor<v1::ProjectPointsResponse>(
-      this, ctx, compute_, {"ProjectPoints", request->mesh_id()},
+      this, ctx, compute_, {"ProjectPoints", request->mesh_id()}, request,
       AllAtOnce<v1::ProjectPointsResponse>(
           [this, request](const CancellationToken& cancel) { return handlers_->ProjectPoints(*request, cancel); }));
 }
@@ -161,20 +195,20 @@ grpc::ServerWriteReactor<v1::ProjectPointsResponse>* Service::ProjectPoints(grpc
 grpc::ServerUnaryReactor* Service::HighOrderNodes(grpc::CallbackServerContext* ctx,
                                                   const v1::HighOrderNodesRequest* request,
                                                   v1::HighOrderNodesResponse* response) {
-  return Unary<v1::HighOrderNodesResponse>(ctx, {"HighOrderNodes", request->mesh_id()}, compute_, response,
-                                           [this, ctx, request] { return handlers_->HighOrderNodes(*request, *TokenFor(ctx)); });
+  return Unary<v1::HighOrderNodesResponse>(ctx, {"HighOrderNodes", request->mesh_id()}, compute_, request, response,
+                                           [this, ctx, request](const CallContext&) { return handlers_->HighOrderNodes(*request, *TokenFor(ctx)); });
 }
 
 grpc::ServerUnaryReactor* Service::RefineMesh(grpc::CallbackServerContext* ctx, const v1::RefineMeshRequest* request,
                                               v1::MeshInfo* response) {
-  return Unary<v1::MeshInfo>(ctx, {"RefineMesh", request->mesh_id()}, compute_, response,
-                             [this, ctx, request] { return handlers_->RefineMesh(*request, *TokenFor(ctx)); });
+  return Unary<v1::MeshInfo>(ctx, {"RefineMesh", request->mesh_id()}, compute_, request, response,
+                             [this, ctx, request](const CallContext&) { return handlers_->RefineMesh(*request, *TokenFor(ctx)); });
 }
 
 grpc::ServerUnaryReactor* Service::Integrate(grpc::CallbackServerContext* ctx, const v1::IntegrateRequest* request,
                                              v1::IntegrateResponse* response) {
-  return Unary<v1::IntegrateResponse>(ctx, {"Integrate", request->mesh_id()}, compute_, response,
-                                      [this, ctx, request] { return handlers_->Integrate(*request, *TokenFor(ctx)); });
+  return Unary<v1::IntegrateResponse>(ctx, {"Integrate", request->mesh_id()}, compute_, request, response,
+                                      [this, ctx, request](const CallContext&) { return handlers_->Integrate(*request, *TokenFor(ctx)); });
 }
 
 // ---- Jobs ------------------------------------------------------------------------------
@@ -183,53 +217,74 @@ namespace {
 absl::Status NoJobs() { return absl::UnimplementedError("this server runs no jobs"); }
 }  // namespace
 
+std::string JobMeshId(const v1::Job& job) { return job.request().refine().mesh_id(); }
+
+absl::Status Service::OwnJob(const CallContext& who, const std::string& job_id) const {
+  if (who.tenant.empty() || jobs_ == nullptr) return absl::OkStatus();
+  v1::GetJobRequest get;
+  get.set_job_id(job_id);
+  absl::StatusOr<v1::Job> job = jobs_->GetJob(get);
+  if (!job.ok()) return job.status();
+  if (!Owns(who.tenant, JobMeshId(*job))) return JobNotFound(job_id);
+  return absl::OkStatus();
+}
+
 grpc::ServerUnaryReactor* Service::StartJob(grpc::CallbackServerContext* ctx, const v1::StartJobRequest* request,
                                             v1::Job* response) {
   Call call{"StartJob", request->has_refine() ? request->refine().mesh_id()
                         : request->has_flow() ? request->flow().mesh_id()
                                               : ""};
-  return Unary<v1::Job>(ctx, std::move(call), io_, response, [this, request]() -> absl::StatusOr<v1::Job> {
+  return Unary<v1::Job>(ctx, std::move(call), io_, request, response, [this, request](const CallContext&) -> absl::StatusOr<v1::Job> {
     if (jobs_ == nullptr) return NoJobs();
-    return jobs_->StartJob(*request);
+    return jobs_->StartJob(*request);  // its mesh id is scoped: the job is the tenant's
   });
 }
 
-grpc::ServerWriteReactor<v1::JobEvent>* Service::WatchJob(grpc::CallbackServerContext*,
+grpc::ServerWriteReactor<v1::JobEvent>* Service::WatchJob(grpc::CallbackServerContext* ctx,
                                                           const v1::WatchJobRequest* request) {
-  return new WatchJobReactor(this, jobs_, *request);
+  return new WatchJobReactor(this, ctx, jobs_, *request);
 }
 
 grpc::ServerUnaryReactor* Service::CancelJob(grpc::CallbackServerContext* ctx, const v1::CancelJobRequest* request,
                                              v1::Job* response) {
-  return Unary<v1::Job>(ctx, {"CancelJob", request->job_id()}, io_, response,
-                        [this, request]() -> absl::StatusOr<v1::Job> {
+  return Unary<v1::Job>(ctx, {"CancelJob", request->job_id()}, io_, request, response,
+                        [this, request](const CallContext& who) -> absl::StatusOr<v1::Job> {
                           if (jobs_ == nullptr) return NoJobs();
+                          GF_RETURN_IF_ERROR(OwnJob(who, request->job_id()));
                           return jobs_->CancelJob(*request);
                         });
 }
 
 grpc::ServerUnaryReactor* Service::GetJob(grpc::CallbackServerContext* ctx, const v1::GetJobRequest* request,
                                           v1::Job* response) {
-  return Unary<v1::Job>(ctx, {"GetJob", request->job_id()}, io_, response,
-                        [this, request]() -> absl::StatusOr<v1::Job> {
+  return Unary<v1::Job>(ctx, {"GetJob", request->job_id()}, io_, request, response,
+                        [this, request](const CallContext& who) -> absl::StatusOr<v1::Job> {
                           if (jobs_ == nullptr) return NoJobs();
+                          GF_RETURN_IF_ERROR(OwnJob(who, request->job_id()));
                           return jobs_->GetJob(*request);
                         });
 }
 
 grpc::ServerUnaryReactor* Service::ListJobs(grpc::CallbackServerContext* ctx, const v1::ListJobsRequest* request,
                                             v1::ListJobsResponse* response) {
-  return Unary<v1::ListJobsResponse>(ctx, {"ListJobs", ""}, io_, response,
-                                     [this, request]() -> absl::StatusOr<v1::ListJobsResponse> {
+  return Unary<v1::ListJobsResponse>(ctx, {"ListJobs", ""}, io_, request, response,
+                                     [this, request](const CallContext& who) -> absl::StatusOr<v1::ListJobsResponse> {
                                        if (jobs_ == nullptr) return NoJobs();
-                                       return jobs_->ListJobs(*request);
+                                       GF_ASSIGN_OR_RETURN(v1::ListJobsResponse all, jobs_->ListJobs(*request));
+                                       if (who.tenant.empty()) return all;
+                                       v1::ListJobsResponse mine = all;
+                                       mine.clear_jobs();
+                                       for (const v1::Job& job : all.jobs()) {
+                                         if (Owns(who.tenant, JobMeshId(job))) *mine.add_jobs() = job;
+                                       }
+                                       return mine;
                                      });
 }
 
 grpc::ServerUnaryReactor* Service::StartFlow(grpc::CallbackServerContext* ctx, const v1::FlowJob* request,
                                              v1::Job* response) {
-  return Unary<v1::Job>(ctx, {"StartFlow", request->mesh_id()}, io_, response,
-                        [this, request]() -> absl::StatusOr<v1::Job> {
+  return Unary<v1::Job>(ctx, {"StartFlow", request->mesh_id()}, io_, request, response,
+                        [this, request](const CallContext&) -> absl::StatusOr<v1::Job> {
                           if (jobs_ == nullptr) return NoJobs();
                           return jobs_->StartFlow(*request);
                         });
@@ -238,14 +293,14 @@ grpc::ServerUnaryReactor* Service::StartFlow(grpc::CallbackServerContext* ctx, c
 grpc::ServerUnaryReactor* Service::ApplyOperator(grpc::CallbackServerContext* ctx,
                                                  const v1::ApplyOperatorRequest* request,
                                                  v1::ApplyOperatorResponse* response) {
-  return Unary<v1::ApplyOperatorResponse>(ctx, {"ApplyOperator", request->mesh_id()}, compute_, response,
-                                          [this, ctx, request] { return handlers_->ApplyOperator(*request, *TokenFor(ctx)); });
+  return Unary<v1::ApplyOperatorResponse>(ctx, {"ApplyOperator", request->mesh_id()}, compute_, request, response,
+                                          [this, ctx, request](const CallContext&) { return handlers_->ApplyOperator(*request, *TokenFor(ctx)); });
 }
 
 grpc::ServerUnaryReactor* Service::GetOperator(grpc::CallbackServerContext* ctx, const v1::GetOperatorRequest* request,
                                                v1::GetOperatorResponse* response) {
-  return Unary<v1::GetOperatorResponse>(ctx, {"GetOperator", request->mesh_id()}, compute_, response,
-                                        [this, ctx, request] { return handlers_->GetOperator(*request, *TokenFor(ctx)); });
+  return Unary<v1::GetOperatorResponse>(ctx, {"GetOperator", request->mesh_id()}, compute_, request, response,
+                                        [this, ctx, request](const CallContext&) { return handlers_->GetOperator(*request, *TokenFor(ctx)); });
 }
 
 }  // namespace geomfit::server

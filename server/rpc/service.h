@@ -10,10 +10,15 @@
 #include "geomfit/v1/geomfit.grpc.pb.h"
 #include "server/handlers/handlers.h"
 #include "server/handlers/jobs.h"
+#include "server/auth.h"
 #include "server/request_stats.h"
+#include "server/rpc/tenancy.h"
 #include "server/thread_pool.h"
 
 namespace geomfit::server {
+
+/// The mesh a job works on (its spec's), as stored: the job belongs to its tenant.
+std::string JobMeshId(const v1::Job& job);
 
 /// Thin adapter from the gRPC callback API to Handlers. gRPC threads only move
 /// messages: every handler runs on a pool (compute: uploads, updates, fits; io:
@@ -91,22 +96,33 @@ class Service final : public v1::GeomFit::CallbackService {
   /// Logs and records `call` (begun with Begin), returning the mapped status to
   /// finish the RPC with.
   grpc::Status Finish(const Call& call, const absl::Status& status);
-  /// UNAVAILABLE while draining, else OK.
-  absl::Status Admit() const;
+  /// UNAVAILABLE while draining; with a token table, UNAUTHENTICATED without a valid
+  /// `authorization: Bearer TOKEN`; else the caller (the one place that reads auth
+  /// metadata).
+  absl::StatusOr<CallContext> Admit(const grpc::CallbackServerContext* ctx) const;
+  /// Multi-tenant mode (--auth-tokens); null: single tenant, no authentication.
+  void SetTokens(const TokenTable* tokens) { tokens_ = tokens; }
+  /// NOT_FOUND unless job `job_id` is the caller's (its input mesh is).
+  absl::Status OwnJob(const CallContext& who, const std::string& job_id) const;
   Handlers* handlers() { return handlers_; }
   ThreadPool* compute() { return compute_; }
   ThreadPool* io() { return io_; }
 
  private:
-  /// `after` (optional) runs on the pool thread once an OK response is sent.
+  /// A unary call: admitted, `request`'s mesh ids scoped to the caller's tenant, `work`
+  /// on `pool` (null: inline), the response's ids unscoped. `after` (optional) runs on
+  /// the pool thread once an OK response is sent.
   template <typename Response>
   grpc::ServerUnaryReactor* Unary(grpc::CallbackServerContext* ctx, Call call, ThreadPool* pool,
-                                  Response* response, std::function<absl::StatusOr<Response>()> work,
+                                  const google::protobuf::Message* request, Response* response,
+                                  std::function<absl::StatusOr<Response>(const CallContext&)> work,
                                   std::function<void(const Response&)> after = nullptr);
   /// After an update is stored, before it is acknowledged: registers the next step's
   /// prefetch (Workspace::PlanPrefetch) in `next`.
   absl::StatusOr<v1::MeshInfo> Updated(absl::StatusOr<v1::MeshInfo> info,
                                        std::unique_ptr<Workspace::PendingPrefetch>* next);
+  /// ListMeshes of the caller's meshes only.
+  absl::StatusOr<v1::ListMeshesResponse> ListMeshesOf(const CallContext& who, const v1::ListMeshesRequest& request);
   /// Once the update is acknowledged: runs the prefetch `next` holds, if any.
   void RunPrefetch(std::unique_ptr<Workspace::PendingPrefetch>* next);
 
@@ -117,6 +133,7 @@ class Service final : public v1::GeomFit::CallbackService {
   std::atomic<bool> draining_{false};
   std::atomic<int> in_flight_{0};
   JobHandlers* jobs_ = nullptr;
+  const TokenTable* tokens_ = nullptr;
 };
 
 }  // namespace geomfit::server

@@ -14,6 +14,7 @@
 #include "geomfit/v1/geomfit.pb.h"
 #include "server/handlers/jobs.h"
 #include "server/rpc/service.h"
+#include "server/rpc/tenancy.h"
 
 namespace geomfit::server {
 
@@ -22,13 +23,19 @@ class WatchJobReactor final : public grpc::ServerWriteReactor<v1::JobEvent> {
   /// Events read per visit to the log.
   static constexpr int kBatch = 64;
 
-  WatchJobReactor(Service* service, JobHandlers* jobs, const v1::WatchJobRequest& request)
+  WatchJobReactor(Service* service, grpc::CallbackServerContext* ctx, JobHandlers* jobs,
+                  const v1::WatchJobRequest& request)
       : service_(service), jobs_(jobs), job_id_(request.job_id()), next_(request.from_event()) {
     call_.method = "WatchJob";
     call_.mesh_id = job_id_;
     service_->Begin();
-    absl::Status s = service_->Admit();
+    absl::StatusOr<CallContext> who = service_->Admit(ctx);
+    absl::Status s = who.status();
     if (s.ok() && jobs_ == nullptr) s = absl::UnimplementedError("this server runs no jobs");
+    if (s.ok()) {
+      tenant_ = who->tenant;
+      s = service_->OwnJob(*who, job_id_);
+    }
     std::unique_lock<std::mutex> lock(mu_);
     if (!s.ok()) {
       finished_ = true;
@@ -105,6 +112,7 @@ class WatchJobReactor final : public grpc::ServerWriteReactor<v1::JobEvent> {
     }
     current_ = std::move(queue_.front());
     queue_.pop_front();
+    UnscopeIds(tenant_, &current_);
     writing_ = true;
     call_.bytes_out += static_cast<int64_t>(current_.ByteSizeLong());
     if (current_.final()) {
@@ -120,6 +128,7 @@ class WatchJobReactor final : public grpc::ServerWriteReactor<v1::JobEvent> {
   Service* service_;
   JobHandlers* jobs_;
   const std::string job_id_;
+  std::string tenant_;
   int64_t next_;
   Service::Call call_{};
   std::mutex mu_;

@@ -41,7 +41,30 @@ int64_t MeshBytes(const Mesh& m) {
 Workspace::Workspace(MeshStore* store, Cache* cache, WorkspaceOptions options)
     : store_(store), cache_(cache), options_(options) {}
 
+std::string TenantPrefix(absl::string_view tenant) { return tenant.empty() ? "" : absl::StrCat(tenant, "/"); }
+
+std::string TenantOfId(absl::string_view stored_id) {
+  const size_t slash = stored_id.find('/');
+  return slash == absl::string_view::npos ? "" : std::string(stored_id.substr(0, slash));
+}
+
+absl::Status CheckMeshMeta(const MeshMeta& meta) {
+  if (meta.name.size() > kMaxNameBytes)
+    return absl::InvalidArgumentError(absl::StrCat("name: ", meta.name.size(), " bytes, at most ", kMaxNameBytes));
+  if (meta.labels.size() > kMaxLabels)
+    return absl::InvalidArgumentError(absl::StrCat("labels: ", meta.labels.size(), ", at most ", kMaxLabels));
+  for (const auto& [key, value] : meta.labels) {
+    if (key.empty() || key.size() > kMaxLabelKeyBytes || value.size() > kMaxLabelValueBytes) {
+      return absl::InvalidArgumentError(absl::StrCat("labels: a key of ", key.size(), " bytes (1..", kMaxLabelKeyBytes,
+                                                     ") or a value of ", value.size(), " bytes (at most ",
+                                                     kMaxLabelValueBytes, ")"));
+    }
+  }
+  return absl::OkStatus();
+}
+
 absl::StatusOr<MeshRecord> Workspace::AddMesh(Mesh mesh, const MeshMeta& meta) {
+  GF_RETURN_IF_ERROR(CheckMeshMeta(meta));
   GF_ASSIGN_OR_RETURN(Topology topo, ValidateMesh(mesh));
   const int64_t bytes = MeshBytes(mesh) + static_cast<int64_t>(topo.Bytes());
   if (bytes > cache_->budget()) {
@@ -50,7 +73,7 @@ absl::StatusOr<MeshRecord> Workspace::AddMesh(Mesh mesh, const MeshMeta& meta) {
   }
   MeshRecord info;
   info.content_hash = MeshContentHash(mesh, meta.name, meta.labels);  // the clients compute it too
-  info.mesh_id = MeshIdOf(info.content_hash);
+  info.mesh_id = TenantPrefix(meta.tenant) + MeshIdOf(info.content_hash);
   info.num_vertices = mesh.NumVertices();
   info.num_faces = mesh.NumFaces();
   info.face_kind = FaceKindOf(mesh);

@@ -35,7 +35,20 @@ struct WorkspaceOptions {
 struct MeshMeta {
   std::string name;
   std::map<std::string, std::string> labels;
+  std::string tenant{};  ///< the id namespace: "" = the single tenant (ids are content hashes)
 };
+
+/// Limits of a mesh's name and labels (bytes): a listing stays small.
+constexpr size_t kMaxNameBytes = 256, kMaxLabels = 32, kMaxLabelKeyBytes = 64, kMaxLabelValueBytes = 256;
+/// INVALID_ARGUMENT naming the limit a name or label exceeds (never echoing them).
+absl::Status CheckMeshMeta(const MeshMeta& meta);
+
+/// Tenant namespaces of stored ids: tenant T's mesh X is stored as "T/X" (the service
+/// scopes ids on the way in and out, server/rpc/tenancy.h), so identical uploads by two
+/// tenants are two meshes; the single tenant's ids are the bare content-hash ids.
+std::string TenantPrefix(absl::string_view tenant);
+/// The tenant of a stored id ("" if unscoped): meshes derived from it live there too.
+std::string TenantOfId(absl::string_view stored_id);
 
 /// One revision of a mesh with its topology: acquired once by a request and held to
 /// its end, so an update or a cache eviction meanwhile cannot take it away.

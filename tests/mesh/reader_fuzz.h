@@ -207,7 +207,7 @@ inline bool ConnectivityOk(const Mesh& m, std::string* why) {
 
 /// ValidateMesh's messages for what readers pass on by design.
 inline bool IsPassedOnProblem(const absl::Status& s) {
-  for (const char* what : {"not finite", "zero area", "appears twice", "non-manifold",
+  for (const char* what : {"not finite", "zero area", "too large", "appears twice", "non-manifold",
                            "inconsistent orientation", "no vertices", "no faces"})
     if (absl::StrContains(s.message(), what)) return true;
   return false;

@@ -243,6 +243,11 @@ TEST(TopologyErrorTest, ZeroAreaFace) {
   ExpectInvalid(ValidateMesh(m).status(), {"face 1", "zero area"});
 }
 
+TEST(TopologyErrorTest, HugeCoordinatesAreReportedAsOverflow) {
+  const Mesh m = MakeMesh({{0, 0, 0}, {1e300, 0, 0}, {0, 1e300, 0}}, {{0, 1, 2}});
+  ExpectInvalid(ValidateGeometry(m), {"face 0", "too large", "overflow"});
+}
+
 TEST(TopologyErrorTest, TinyWellShapedFacesAreNotZeroArea) {
   // Marching cubes makes faces with edges ~1e-7 in meshes of size ~1: valid.
   const double e = 2e-7;

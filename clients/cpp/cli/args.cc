@@ -25,6 +25,21 @@ absl::Status UsageError(absl::string_view message) {
   return s;
 }
 
+RemoteTransport& Transport() {
+  static RemoteTransport transport;
+  return transport;
+}
+
+ArgParser& ArgParser::Server(std::string* out, const std::string& help) {
+  RemoteTransport& t = Transport();
+  return String("server", out, help, "HOST:PORT")
+      .String("tls-ca", &t.tls_ca, "connect with TLS, verifying the server against this PEM CA bundle", "FILE")
+      .String("tls-cert", &t.tls_cert, "PEM client certificate for mTLS (with --tls-key; implies TLS)", "FILE")
+      .String("tls-key", &t.tls_key, "PEM private key of --tls-cert", "FILE")
+      .String("token-file", &t.token_file,
+              "file holding the bearer token for a server with --auth-tokens (default: $GEOMFIT_TOKEN)", "FILE");
+}
+
 bool IsUsageError(const absl::Status& status) {
   return status.GetPayload(kUsagePayload).has_value();
 }
@@ -173,7 +188,7 @@ std::string ArgParser::Usage() const {
 void AddCurvatureOptions(ArgParser* p, CurvatureArgs* a) {
   FitOptions& f = a->fit;
   p->Flag("local", &a->local, "compute in this process (the default without --server)")
-      .String("server", &a->server, "compute on a geomfit server", "HOST:PORT")
+      .Server(&a->server, "compute on a geomfit server")
       .Int("degree", &f.degree, "fitting degree, 1..6")
       .Double("rings", &f.rings,
               "starting k-ring size in half steps (1, 1.5, 2, ...); 0 = (degree+1)/2")

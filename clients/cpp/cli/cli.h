@@ -34,6 +34,14 @@ bool IsUsageError(const absl::Status& status);
 /// `--name=value`, boolean `--flag`, positionals in order, `--` ends options,
 /// `-h`/`--help`. Values are stored straight into the caller's variables, whose
 /// values at registration are shown as defaults in Usage().
+/// How the CLI reaches a server: TLS files and the bearer token, shared by every
+/// service command (set by the flags ArgParser::Server adds; read by ConnectTo).
+struct RemoteTransport {
+  std::string tls_ca, tls_cert, tls_key;
+  std::string token_file;  ///< else $GEOMFIT_TOKEN
+};
+RemoteTransport& Transport();
+
 class ArgParser {
  public:
   /// `command` is e.g. "geomfit curvature"; `synopsis` follows it in the usage line.
@@ -45,6 +53,9 @@ class ArgParser {
   ArgParser& Double(const std::string& name, double* out, const std::string& help);
   ArgParser& String(const std::string& name, std::string* out, const std::string& help,
                     const std::string& value_name = "VALUE");
+  /// --server HOST:PORT and the transport flags (--tls-ca, --tls-cert, --tls-key,
+  /// --token-file) filling Transport().
+  ArgParser& Server(std::string* out, const std::string& help);
   /// A required positional argument (in registration order).
   ArgParser& Positional(const std::string& name, std::string* out, const std::string& help);
 

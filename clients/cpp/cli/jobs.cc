@@ -74,7 +74,7 @@ absl::Status RunJobs(const std::vector<std::string>& args) {
   std::string server, id;
   if (sub == "list") {
     ArgParser p("geomfit jobs list", "--server HOST:PORT", "Lists the server's jobs in creation order.");
-    p.String("server", &server, "geomfit server", "HOST:PORT");
+    p.Server(&server, "geomfit server");
     GF_ASSIGN_OR_RETURN(bool run, ParseRemote(p, rest, server));
     if (!run) return absl::OkStatus();
     GF_ASSIGN_OR_RETURN(std::vector<v1::Job> jobs, ConnectTo(server)->ListJobs());
@@ -83,7 +83,7 @@ absl::Status RunJobs(const std::vector<std::string>& args) {
   if (sub == "get" || sub == "cancel") {
     ArgParser p("geomfit jobs " + sub, "--server HOST:PORT JOB_ID",
                 sub == "get" ? "Prints one job." : "Cancels a job; prints it (CANCELLED once it stopped).");
-    p.String("server", &server, "geomfit server", "HOST:PORT").Positional("JOB_ID", &id, "the job");
+    p.Server(&server, "geomfit server").Positional("JOB_ID", &id, "the job");
     GF_ASSIGN_OR_RETURN(bool run, ParseRemote(p, rest, server));
     if (!run) return absl::OkStatus();
     std::unique_ptr<Client> client = ConnectTo(server);
@@ -95,7 +95,7 @@ absl::Status RunJobs(const std::vector<std::string>& args) {
     ArgParser p("geomfit jobs watch", "--server HOST:PORT JOB_ID [--from N]",
                 "Prints the job's events, one line each, as they come; ends with the job (exit 1\n"
                 "unless it SUCCEEDED). After a disconnect, --from LAST+1 resumes.");
-    p.String("server", &server, "geomfit server", "HOST:PORT")
+    p.Server(&server, "geomfit server")
         .Positional("JOB_ID", &id, "the job")
         .Int("from", &from, "first event (seq) to print; 0 = from the beginning");
     GF_ASSIGN_OR_RETURN(bool run, ParseRemote(p, rest, server));

@@ -37,7 +37,7 @@ void AddSurfaceOptions(ArgParser* p, SurfaceArgs* a) {
       .String("feature-edges", &a->feature_edges, "file of user-marked feature edges 'a b' (vertex ids)", "FILE")
       .Int("threads", &a->threads, "threads (0 = all cores)")
       .String("output", &a->output, "output file", "FILE")
-      .String("server", &a->server, "compute on a geomfit server (MESH: a file to upload or a mesh id)", "HOST:PORT")
+      .Server(&a->server, "compute on a geomfit server (MESH: a file to upload or a mesh id)")
       .Flag("verbose", &a->verbose, "print timings to stderr");
 }
 

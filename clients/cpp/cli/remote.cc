@@ -1,7 +1,9 @@
 // Service mode of the `geomfit` tool (--server HOST:PORT): upload, update, info,
 // list, delete, and curvature on a geomfit server, with the local output formats.
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
+#include <fstream>
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
@@ -15,6 +17,15 @@ namespace geomfit::cli {
 std::unique_ptr<Client> ConnectTo(const std::string& server) {
   ClientOptions o;
   o.target = server;
+  o.tls_ca = Transport().tls_ca;
+  o.tls_cert = Transport().tls_cert;
+  o.tls_key = Transport().tls_key;
+  if (!Transport().token_file.empty()) {
+    std::ifstream in(Transport().token_file);
+    std::getline(in, o.token);  // an unreadable file sends no token: UNAUTHENTICATED names the problem
+  } else if (const char* token = std::getenv("GEOMFIT_TOKEN"); token != nullptr) {
+    o.token = token;
+  }
   return Client::Connect(o);
 }
 
@@ -61,7 +72,7 @@ absl::Status Upload(const std::vector<std::string>& args) {
   std::string server, path, name, labels_text;
   ArgParser p("geomfit upload", "--server HOST:PORT MESH [--name NAME] [--labels K=V,...]",
               "Uploads a mesh file; prints its id and info (idempotent for identical content).");
-  p.String("server", &server, "geomfit server", "HOST:PORT")
+  p.Server(&server, "geomfit server")
       .Positional("MESH", &path, "mesh file (.obj .off .ply .stl)")
       .String("name", &name, "mesh name (default: the file name)", "NAME")
       .String("labels", &labels_text, "comma-separated KEY=VALUE labels", "LABELS");
@@ -80,7 +91,7 @@ absl::Status Update(const std::vector<std::string>& args) {
   ArgParser p("geomfit update", "--server HOST:PORT MESH_ID MESH [--expected-revision R]",
               "Replaces the positions of a stored mesh by those of a mesh file with the same\n"
               "connectivity; prints the new revision.");
-  p.String("server", &server, "geomfit server", "HOST:PORT")
+  p.Server(&server, "geomfit server")
       .Positional("MESH_ID", &id, "id of the stored mesh")
       .Positional("MESH", &path, "mesh file with the new positions")
       .Int("expected-revision", &expected, "fail (ABORTED) unless the mesh is at this revision; 0 = any");
@@ -98,7 +109,7 @@ absl::Status Info(const std::vector<std::string>& args) {
   ArgParser p("geomfit info", "--server HOST:PORT MESH|MESH_ID",
               "Prints what the server stores about a mesh: a stored mesh's id, or a mesh file\n"
               "(uploaded, idempotently, as every command taking MESH does).");
-  p.String("server", &server, "geomfit server", "HOST:PORT")
+  p.Server(&server, "geomfit server")
       .Positional("MESH", &id, "mesh file (.obj .off .ply .stl) or id of a stored mesh");
   GF_ASSIGN_OR_RETURN(bool run, ParseRemote(p, args, server));
   if (!run) return absl::OkStatus();
@@ -112,7 +123,7 @@ absl::Status Info(const std::vector<std::string>& args) {
 absl::Status List(const std::vector<std::string>& args) {
   std::string server;
   ArgParser p("geomfit list", "--server HOST:PORT", "Lists the stored meshes.");
-  p.String("server", &server, "geomfit server", "HOST:PORT");
+  p.Server(&server, "geomfit server");
   GF_ASSIGN_OR_RETURN(bool run, ParseRemote(p, args, server));
   if (!run) return absl::OkStatus();
   GF_ASSIGN_OR_RETURN(std::vector<RemoteMesh> meshes, ConnectTo(server)->ListMeshes());
@@ -122,7 +133,7 @@ absl::Status List(const std::vector<std::string>& args) {
 absl::Status Delete(const std::vector<std::string>& args) {
   std::string server, id;
   ArgParser p("geomfit delete", "--server HOST:PORT MESH_ID", "Deletes a stored mesh.");
-  p.String("server", &server, "geomfit server", "HOST:PORT").Positional("MESH_ID", &id, "id of the stored mesh");
+  p.Server(&server, "geomfit server").Positional("MESH_ID", &id, "id of the stored mesh");
   GF_ASSIGN_OR_RETURN(bool run, ParseRemote(p, args, server));
   if (!run) return absl::OkStatus();
   return ConnectTo(server)->DeleteMesh(id);
@@ -136,7 +147,7 @@ absl::Status Health(const std::vector<std::string>& args) {
   ArgParser p("geomfit health", "--server HOST:PORT [--service NAME] [--timeout SECONDS]",
               "Asks the server's grpc.health.v1 service; prints SERVING, NOT_SERVING (draining), ...\n"
               "Exit status 0 only when SERVING.");
-  p.String("server", &server, "geomfit server", "HOST:PORT")
+  p.Server(&server, "geomfit server")
       .String("service", &service, "service name; empty = the whole server (geomfit.v1.GeomFit also works)", "NAME")
       .Double("timeout", &timeout, "seconds to wait for the answer");
   GF_ASSIGN_OR_RETURN(bool run, ParseRemote(p, args, server));

@@ -1,6 +1,8 @@
 #include "clients/cpp/client/client.h"
 
 #include <atomic>
+#include <fstream>
+#include <sstream>
 #include <thread>
 
 #include <grpcpp/grpcpp.h>
@@ -14,6 +16,31 @@
 
 namespace geomfit {
 namespace {
+
+absl::StatusOr<std::string> ReadCredential(const char* what, const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return absl::NotFoundError(absl::StrCat(what, ": cannot read ", path));
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+/// Insecure credentials unless the options ask for TLS.
+absl::StatusOr<std::shared_ptr<grpc::ChannelCredentials>> ChannelCredentialsFor(const ClientOptions& o) {
+  if (!o.tls && o.tls_ca.empty() && o.tls_cert.empty() && o.tls_key.empty()) {
+    return grpc::InsecureChannelCredentials();
+  }
+  if (o.tls_cert.empty() != o.tls_key.empty()) return absl::InvalidArgumentError("tls_cert and tls_key go together");
+  grpc::SslCredentialsOptions ssl;
+  if (!o.tls_ca.empty()) {
+    GF_ASSIGN_OR_RETURN(ssl.pem_root_certs, ReadCredential("tls_ca", o.tls_ca));
+  }
+  if (!o.tls_cert.empty()) {
+    GF_ASSIGN_OR_RETURN(ssl.pem_cert_chain, ReadCredential("tls_cert", o.tls_cert));
+    GF_ASSIGN_OR_RETURN(ssl.pem_private_key, ReadCredential("tls_key", o.tls_key));
+  }
+  return grpc::SslCredentials(ssl);
+}
 
 /// Writes a client stream and finishes it. Every chunk but the last may be buffered,
 /// and the last carries the half-close, so a one-chunk update is a single flush.
@@ -84,23 +111,30 @@ struct Client::Impl {
   };
 
   ClientOptions options;
+  absl::Status init_error;  ///< Connect's failure, returned by every call
   std::shared_ptr<grpc::Channel> channel;
   std::unique_ptr<v1::GeomFit::Stub> stub;
   std::atomic<bool> stream_updates{false};  ///< the server lacks SetPositions
   mutable std::mutex mu;
   std::map<std::string, Kept> kept;
 
+  void Authorize(grpc::ClientContext& ctx) const {
+    if (!options.token.empty()) ctx.AddMetadata("authorization", "Bearer " + options.token);
+  }
+
   /// Runs one call (a fresh context with the deadline per attempt), retrying
   /// UNAVAILABLE with exponential backoff. A mesh-scoped call names its mesh in
   /// `x-mesh-id` metadata, the key of cache-affine routers (deploy/router).
   absl::Status Call(const std::function<grpc::Status(grpc::ClientContext&)>& fn,
                     const std::string& mesh_id = "") const {
+    GF_RETURN_IF_ERROR(init_error);
     auto backoff = options.initial_backoff;
     grpc::Status s;
     for (int attempt = 1; attempt <= std::max(1, options.max_attempts); ++attempt) {
       grpc::ClientContext ctx;
       ctx.set_deadline(std::chrono::system_clock::now() + options.deadline);
       if (!mesh_id.empty()) ctx.AddMetadata(wire::kMeshIdMetadata, mesh_id);
+      Authorize(ctx);
       s = fn(ctx);
       if (s.error_code() != grpc::StatusCode::UNAVAILABLE || attempt == options.max_attempts) break;
       std::this_thread::sleep_for(backoff);
@@ -130,15 +164,27 @@ struct Client::Impl {
 Client::Client(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
 Client::~Client() = default;
 
-std::unique_ptr<Client> Client::Connect(const ClientOptions& options) {
+absl::StatusOr<std::unique_ptr<Client>> Client::Create(const ClientOptions& options) {
+  GF_ASSIGN_OR_RETURN(const std::shared_ptr<grpc::ChannelCredentials> credentials, ChannelCredentialsFor(options));
   auto impl = std::make_unique<Impl>();
   impl->options = options;
   grpc::ChannelArguments args;
   args.SetMaxReceiveMessageSize(static_cast<int>(options.max_message_bytes));
   args.SetMaxSendMessageSize(static_cast<int>(options.max_message_bytes));
-  impl->channel = grpc::CreateCustomChannel(options.target, grpc::InsecureChannelCredentials(), args);
+  impl->channel = grpc::CreateCustomChannel(options.target, credentials, args);
   impl->stub = v1::GeomFit::NewStub(impl->channel);
   return std::unique_ptr<Client>(new Client(std::move(impl)));
+}
+
+std::unique_ptr<Client> Client::Connect(const ClientOptions& options) {
+  absl::StatusOr<std::unique_ptr<Client>> client = Create(options);
+  if (client.ok()) return *std::move(client);
+  ClientOptions plain = options;  // a channel that is never used: every call fails first
+  plain.tls = false;
+  plain.tls_ca = plain.tls_cert = plain.tls_key = "";
+  std::unique_ptr<Client> failed = *Create(plain);
+  failed->impl_->init_error = client.status();
+  return failed;
 }
 
 std::string Client::ResolveId(const std::string& mesh_id) const {
@@ -486,11 +532,13 @@ absl::StatusOr<v1::Job> Client::StartJob(v1::StartJobRequest request) {
 
 absl::Status Client::WatchJob(const std::string& job_id, int64_t from_event,
                               const std::function<bool(const v1::JobEvent&)>& on_event) {
+  GF_RETURN_IF_ERROR(impl_->init_error);
   int64_t next = from_event;
   int failures = 0;
   auto backoff = impl_->options.initial_backoff;
   while (true) {
     grpc::ClientContext ctx;
+    impl_->Authorize(ctx);
     v1::WatchJobRequest request;
     request.set_job_id(job_id);
     request.set_from_event(next);

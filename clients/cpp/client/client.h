@@ -37,6 +37,13 @@ struct ClientOptions {
   bool reupload_on_not_found = false;
   int64_t chunk_rows = 16384;               ///< rows per upload chunk (384 KiB of positions)
   int64_t max_message_bytes = int64_t{64} << 20;
+  /// Transport security (PEM file paths). TLS is on when `tls` is set or any of these
+  /// is given; `tls_ca` verifies the server (empty: the system's roots); `tls_cert`
+  /// and `tls_key` present a client certificate (mTLS).
+  bool tls = false;
+  std::string tls_ca, tls_cert, tls_key;
+  /// Bearer token (server --auth-tokens): sent as `authorization: Bearer TOKEN`.
+  std::string token;
 };
 
 /// What the server knows about a stored mesh.
@@ -68,7 +75,10 @@ struct RemoteDifferentials {
 
 class Client {
  public:
-  /// Creates the channel (does not wait for the server).
+  /// Creates the channel (does not wait for the server). A credential file that cannot
+  /// be read fails here.
+  static absl::StatusOr<std::unique_ptr<Client>> Create(const ClientOptions& options);
+  /// Create, with an error from it returned by every call of the client instead.
   static std::unique_ptr<Client> Connect(const ClientOptions& options);
   ~Client();
 

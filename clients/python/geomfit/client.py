@@ -291,6 +291,29 @@ def _parse_chunk(raw: bytes) -> dict:
     return out
 
 
+class _BearerToken(grpc.UnaryUnaryClientInterceptor, grpc.UnaryStreamClientInterceptor,
+                   grpc.StreamUnaryClientInterceptor, grpc.StreamStreamClientInterceptor):
+    """Adds `authorization: Bearer TOKEN` to every call of a channel."""
+
+    def __init__(self, token: str):
+        self._metadata = ("authorization", "Bearer " + token)
+
+    def _details(self, d):
+        return d._replace(metadata=list(d.metadata or []) + [self._metadata])
+
+    def intercept_unary_unary(self, continuation, d, request):
+        return continuation(self._details(d), request)
+
+    def intercept_unary_stream(self, continuation, d, request):
+        return continuation(self._details(d), request)
+
+    def intercept_stream_unary(self, continuation, d, requests):
+        return continuation(self._details(d), requests)
+
+    def intercept_stream_stream(self, continuation, d, requests):
+        return continuation(self._details(d), requests)
+
+
 class Client:
     """Client of a geomfit server. Every call has a deadline (`timeout` seconds);
     UNAVAILABLE is retried `max_attempts` times with exponential backoff. Errors
@@ -301,11 +324,18 @@ class Client:
     module geomfit._native, built by CMake target geomfit_native), "grpcio" through
     grpcio like every other call, "auto" (the default) natively when the module is
     built. Both give the same results; `client.transport` says which one is in use.
+
+    TLS: `tls_ca` (PEM file of the CA that signed the server's certificate), and for
+    mTLS `tls_cert` + `tls_key` (PEM files of the client certificate); `tls=True` alone
+    uses the system's roots. Both transports use the same credentials (the native one
+    gets the file paths). `token`: the bearer token of a server run with --auth-tokens
+    (sent on every call by both transports).
     """
 
     def __init__(self, target: str = "127.0.0.1:50051", timeout: float = 120.0, max_attempts: int = 4,
                  backoff: float = 0.1, chunk_rows: int = 0, max_message_bytes: int = 64 << 20,
-                 transport: str = "auto"):
+                 transport: str = "auto", tls: bool = False, tls_ca: Optional[str] = None,
+                 tls_cert: Optional[str] = None, tls_key: Optional[str] = None, token: Optional[str] = None):
         if transport not in _TRANSPORTS:
             raise ValueError("transport must be one of %s, got %r" % (_TRANSPORTS, transport))
         if transport == "native" and _native is None:
@@ -321,12 +351,30 @@ class Client:
         # this client's and the server's message limits (grpcio pays per message sent).
         self._chunk_rows = chunk_rows if chunk_rows > 0 else None
         self._max_message_bytes = max_message_bytes
-        self._channel = grpc.insecure_channel(target, options=[
+        channel_options = [
             ("grpc.max_receive_message_length", max_message_bytes),
             ("grpc.max_send_message_length", max_message_bytes),
             # Server-streaming calls run on the calling thread: no hand-off per call.
             (grpc.experimental.ChannelOptions.SingleThreadedUnaryStream, 1),
-        ])
+        ]
+        if bool(tls_cert) != bool(tls_key):
+            raise ValueError("tls_cert and tls_key go together")
+        self._tls_files = (tls_ca or "", tls_cert or "", tls_key or "")
+        self.tls = bool(tls or any(self._tls_files))
+        if self.tls:
+            def read(path):
+                with open(path, "rb") as f:
+                    return f.read()
+            credentials = grpc.ssl_channel_credentials(
+                root_certificates=read(tls_ca) if tls_ca else None,
+                private_key=read(tls_key) if tls_key else None,
+                certificate_chain=read(tls_cert) if tls_cert else None)
+            self._channel = grpc.secure_channel(target, credentials, options=channel_options)
+        else:
+            self._channel = grpc.insecure_channel(target, options=channel_options)
+        self._raw_channel = self._channel
+        if token:
+            self._channel = grpc.intercept_channel(self._channel, _BearerToken(token))
         self._stub = pb_grpc.GeomFitStub(self._channel)
         self._stream_updates = False
         # ComputeDifferentials requests come serialized (_compute_request); responses are
@@ -345,11 +393,13 @@ class Client:
             # message too: its chunk_rows is at least this client's.
             self._native = _native.Client(
                 target, timeout, self.max_attempts, backoff, max_message_bytes,
-                chunk_rows=chunk_rows if chunk_rows > 0 else max(1, max_message_bytes // 4 // 24))
+                chunk_rows=chunk_rows if chunk_rows > 0 else max(1, max_message_bytes // 4 // 24),
+                tls=self.tls, tls_ca=self._tls_files[0], tls_cert=self._tls_files[1], tls_key=self._tls_files[2],
+                token=token or "")
 
     def close(self) -> None:
         """Closes the channel (and the native client's). The client is unusable after."""
-        self._channel.close()
+        self._raw_channel.close()
         self._native = None  # the C++ client's channel goes with it
 
     def __enter__(self) -> "Client":

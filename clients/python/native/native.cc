@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <cmath>
 #include <optional>
+#include <stdexcept>
 #include <string>
 #include <utility>
 
@@ -71,7 +72,8 @@ py::object DiagnosticsArrays(const std::vector<VertexDiagnostics>& d) {
 class NativeClient {
  public:
   NativeClient(const std::string& target, std::optional<double> timeout, int max_attempts, double backoff,
-               int64_t max_message_bytes, int64_t chunk_rows) {
+               int64_t max_message_bytes, int64_t chunk_rows, bool tls, const std::string& tls_ca,
+               const std::string& tls_cert, const std::string& tls_key, const std::string& token) {
     ClientOptions o;
     o.target = target;
     o.deadline = Millis(timeout);
@@ -79,7 +81,14 @@ class NativeClient {
     o.initial_backoff = Millis(backoff);
     o.max_message_bytes = max_message_bytes;
     o.chunk_rows = chunk_rows;
-    client_ = Client::Connect(o);
+    o.tls = tls;
+    o.tls_ca = tls_ca;
+    o.tls_cert = tls_cert;
+    o.tls_key = tls_key;
+    o.token = token;
+    auto client = Client::Create(o);
+    if (!client.ok()) throw std::invalid_argument(std::string(client.status().message()));
+    client_ = *std::move(client);
   }
 
   /// UpdatePositions; returns the serialized MeshInfo.
@@ -176,10 +185,13 @@ PYBIND11_MODULE(_native, m) {
   m.add_object("RpcError", py::handle(geomfit::rpc_error));  // the module holds a reference too
 
   py::class_<NativeClient>(m, "Client")
-      .def(py::init<const std::string&, std::optional<double>, int, double, int64_t, int64_t>(), "target"_a, "timeout"_a,
-           "max_attempts"_a, "backoff"_a, "max_message_bytes"_a, "chunk_rows"_a = 16384,
+      .def(py::init<const std::string&, std::optional<double>, int, double, int64_t, int64_t, bool, const std::string&,
+                    const std::string&, const std::string&, const std::string&>(),
+           "target"_a, "timeout"_a, "max_attempts"_a, "backoff"_a, "max_message_bytes"_a, "chunk_rows"_a = 16384,
+           "tls"_a = false, "tls_ca"_a = "", "tls_cert"_a = "", "tls_key"_a = "", "token"_a = "",
            "Creates the channel (does not wait for the server). Per-attempt deadline `timeout` "
-           "seconds (None: none); UNAVAILABLE is retried max_attempts times from `backoff` seconds on.")
+           "seconds (None: none); UNAVAILABLE is retried max_attempts times from `backoff` seconds on. "
+           "TLS when any tls_* PEM path is given (tls_ca: the server's CA; tls_cert/tls_key: mTLS).")
       .def("set_positions", &NativeClient::SetPositions, "mesh_id"_a, "positions"_a,
            "expected_revision"_a = py::none(),
            "New positions (#V x 3 float64, read in place when C-contiguous: do not modify the "
