@@ -123,11 +123,7 @@ TEST(FlowJobsTest, CancelStopsTheFlow) {
   bool cancelled = false;
   ASSERT_TRUE(WatchJob(server.stub(), job->job_id(), 0, &all, [&](const v1::JobEvent& e) {
                 if (!cancelled && e.phase() == "step" && e.step() == 3) {
-                  grpc::ClientContext ctx;
-                  v1::CancelJobRequest c;
-                  c.set_job_id(e.job_id());
-                  v1::Job j;
-                  EXPECT_TRUE(server.stub().CancelJob(&ctx, c, &j).ok());
+                  EXPECT_TRUE(testing::CancelJob(server.stub(), e.job_id()).ok());
                   cancelled = true;
                 }
                 return false;

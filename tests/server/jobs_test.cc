@@ -118,11 +118,7 @@ TEST(JobsTest, ReconnectThenCancelStoresNothing) {
   bool cancelled = false;
   ASSERT_TRUE(WatchJob(server.stub(), job->job_id(), k, &rest, [&](const v1::JobEvent& e) {
                 if (!cancelled) {
-                  grpc::ClientContext ctx;
-                  v1::CancelJobRequest c;
-                  c.set_job_id(e.job_id());
-                  v1::Job j;
-                  EXPECT_TRUE(server.stub().CancelJob(&ctx, c, &j).ok());
+                  EXPECT_TRUE(testing::CancelJob(server.stub(), e.job_id()).ok());
                   cancelled = true;
                 }
                 return false;

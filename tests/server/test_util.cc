@@ -194,6 +194,14 @@ absl::StatusOr<v1::Job> StartRefineJob(v1::GeomFit::Stub& stub, const std::strin
   return job;
 }
 
+grpc::Status CancelJob(v1::GeomFit::Stub& stub, const std::string& job_id) {
+  grpc::ClientContext ctx;
+  v1::CancelJobRequest request;
+  request.set_job_id(job_id);
+  v1::Job job;
+  return stub.CancelJob(&ctx, request, &job);
+}
+
 grpc::Status WatchJob(v1::GeomFit::Stub& stub, const std::string& job_id, int64_t from,
                       std::vector<v1::JobEvent>* out, const std::function<bool(const v1::JobEvent&)>& stop) {
   grpc::ClientContext ctx;

@@ -61,6 +61,8 @@ absl::StatusOr<v1::Job> StartRefineJob(v1::GeomFit::Stub& stub, const std::strin
                                        int factor = 2);
 /// Reads WatchJob(job_id, from) into *out until the stream ends, or until `stop` returns
 /// true for an event (then the call is cancelled, like a client that goes away).
+/// CancelJob(job_id).
+grpc::Status CancelJob(v1::GeomFit::Stub& stub, const std::string& job_id);
 grpc::Status WatchJob(v1::GeomFit::Stub& stub, const std::string& job_id, int64_t from,
                       std::vector<v1::JobEvent>* out,
                       const std::function<bool(const v1::JobEvent&)>& stop = nullptr);
