@@ -240,7 +240,7 @@ std::vector<v1::UploadMeshRequest> UploadChunks(const Mesh& mesh, v1::MeshHeader
     v1::FacesChunk* c = out.emplace_back().mutable_faces();
     c->set_face_offset(b);
     if (triangles) {
-      const Eigen::Matrix<int32_t, Eigen::Dynamic, 3, Eigen::RowMajor> tri = mesh.faces.block(b, 0, n, 3);
+      const Eigen::Matrix<int32_t, Eigen::Dynamic, 3, Eigen::RowMajor> tri = mesh.faces.get().block(b, 0, n, 3);
       EncodeInts(tri.data(), n, 3, c->mutable_faces());
     } else {
       EncodeInts(mesh.faces.data() + 4 * b, n, 4, c->mutable_faces());

@@ -121,9 +121,10 @@ class SqliteStore final : public MeshStore {
     if (faces.size() != sizeof(int32_t) * 4 * nf || positions.size() != sizeof(double) * 3 * nv) {
       return absl::DataLossError(absl::StrCat("mesh '", id, "': stored arrays do not match its counts"));
     }
-    mesh->faces.resize(nf, 4);
+    Faces& mf = mesh->faces.Mutable();
+    mf.resize(nf, 4);
     mesh->positions.resize(nv, 3);
-    std::memcpy(mesh->faces.data(), faces.data(), faces.size());
+    std::memcpy(mf.data(), faces.data(), faces.size());
     std::memcpy(mesh->positions.data(), positions.data(), positions.size());
     out.mesh = std::move(mesh);
     return out;

@@ -113,7 +113,7 @@ absl::StatusOr<Features> DetectFeatures(const Mesh& mesh, const Topology& topo, 
       }
       const int f = topo.VertexFaces(v)[i];
       for (int c = 0; c < mesh.FaceSize(f); ++c)
-        if (mesh.faces(f, c) == v) F.split.faces(f, c) = side_id[root];
+        if (mesh.faces(f, c) == v) F.split.faces.Mutable()(f, c) = side_id[root];
     }
   }
   F.split.positions.resize(nv + extra.size(), 3);

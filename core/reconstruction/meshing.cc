@@ -142,8 +142,9 @@ absl::StatusOr<Mesh> RefineMesh(const ReconstructedSurface& surface, const Topol
         }
       }
   }
-  out.faces.resize(faces.size(), 4);
-  for (size_t f = 0; f < faces.size(); ++f) out.faces.row(f) = faces[f];
+  Faces& out_faces = out.faces.Mutable();
+  out_faces.resize(faces.size(), 4);
+  for (size_t f = 0; f < faces.size(); ++f) out_faces.row(f) = faces[f];
   return out;
 }
 

@@ -222,13 +222,14 @@ Mesh CompactFaces(const Mesh& in, Keep&& keep) {
   for (int f = 0; f < in.NumFaces(); ++f)
     if (keep(f)) faces.push_back(f);
   Mesh m;
-  m.faces.resize(static_cast<Eigen::Index>(faces.size()), 4);
+  Faces& mf = m.faces.Mutable();
+  mf.resize(static_cast<Eigen::Index>(faces.size()), 4);
   int nv = 0;
   for (size_t k = 0; k < faces.size(); ++k)
     for (int c = 0; c < 4; ++c) {
       const int v = in.faces(faces[k], c);
       if (v >= 0 && map[v] < 0) map[v] = nv++;
-      m.faces(static_cast<Eigen::Index>(k), c) = v < 0 ? -1 : map[v];
+      mf(static_cast<Eigen::Index>(k), c) = v < 0 ? -1 : map[v];
     }
   m.positions.resize(nv, 3);
   for (int v = 0; v < in.NumVertices(); ++v)
@@ -244,7 +245,7 @@ Mesh GenerateOpenCylinderMesh(const GeneratorOptions& o, double radius) {
   m.faces = g.faces;
   for (int f = 0; f < m.NumFaces(); ++f)  // weld the seam: column nu onto column 0
     for (int c = 0; c < 4; ++c)
-      if (m.faces(f, c) >= 0 && m.faces(f, c) % (nu + 1) == nu) m.faces(f, c) -= nu;
+      if (m.faces(f, c) >= 0 && m.faces(f, c) % (nu + 1) == nu) m.faces.Mutable()(f, c) -= nu;
   m.positions.resize(g.params.size(), 3);
   for (size_t i = 0; i < g.params.size(); ++i) {
     const double t = 2 * M_PI * g.params[i].x();
@@ -326,8 +327,9 @@ Mesh GenerateSphereMesh(const GeneratorOptions& o, double radius) {
     const Vector3d p = (pts[i] + o.jitter * spacing * t / std::max(1.0, t.norm())).normalized();
     m.positions.row(i) = radius * p;
   }
-  m.faces.resize(faces.size(), 4);
-  for (size_t f = 0; f < faces.size(); ++f) m.faces.row(f) = faces[f].transpose();
+  Faces& mf = m.faces.Mutable();
+  mf.resize(faces.size(), 4);
+  for (size_t f = 0; f < faces.size(); ++f) mf.row(f) = faces[f].transpose();
   // Narrow cells near the cube's corners can fold under jitter: put the vertices of any
   // face that turns too far from the sphere's normal back where they were.
   for (bool changed = true; changed;) {
@@ -397,8 +399,9 @@ Mesh GenerateCylinderMesh(int n) {
   Mesh m;
   m.positions.resize(pts.size(), 3);
   for (size_t i = 0; i < pts.size(); ++i) m.positions.row(i) = pts[i].transpose();
-  m.faces.resize(faces.size(), 4);
-  for (size_t f = 0; f < faces.size(); ++f) m.faces.row(f) = faces[f].transpose();
+  Faces& mf = m.faces.Mutable();
+  mf.resize(faces.size(), 4);
+  for (size_t f = 0; f < faces.size(); ++f) mf.row(f) = faces[f].transpose();
   return m;
 }
 

@@ -150,8 +150,8 @@ TEST(FitTest, IsolatedAndStarvedVerticesAreFlaggedNotFatal) {
   Mesh m;
   m.positions.resize(4, 3);
   m.positions << 0, 0, 0, 1, 0, 0, 0, 1, 0, 5, 5, 5;  // vertex 3 is isolated
-  m.faces.resize(1, 4);
-  m.faces << 0, 1, 2, -1;
+  m.faces.Mutable().resize(1, 4);
+  m.faces.Mutable() << 0, 1, 2, -1;
   FitOptions o;
   o.degree = 2;
   auto d = ComputeDifferentials(m, o);

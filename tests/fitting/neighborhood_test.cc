@@ -18,16 +18,16 @@ Mesh PlanarGrid(int n, bool quads) {
   m.positions.resize((n + 1) * (n + 1), 3);
   for (int j = 0; j <= n; ++j)
     for (int i = 0; i <= n; ++i) m.positions.row(j * (n + 1) + i) << i, j, 0;
-  m.faces.resize(n * n * (quads ? 1 : 2), 4);
+  m.faces.Mutable().resize(n * n * (quads ? 1 : 2), 4);
   int f = 0;
   for (int j = 0; j < n; ++j)
     for (int i = 0; i < n; ++i) {
       const int a = j * (n + 1) + i, b = a + 1, c = a + n + 2, d = a + n + 1;
       if (quads) {
-        m.faces.row(f++) << a, b, c, d;
+        m.faces.Mutable().row(f++) << a, b, c, d;
       } else {
-        m.faces.row(f++) << a, b, c, -1;
-        m.faces.row(f++) << a, c, d, -1;
+        m.faces.Mutable().row(f++) << a, b, c, -1;
+        m.faces.Mutable().row(f++) << a, c, d, -1;
       }
     }
   return m;

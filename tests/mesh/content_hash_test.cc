@@ -34,7 +34,7 @@ TEST(ContentHashTest, EveryPartCounts) {
   moved.positions(3, 2) = std::nextafter(1.0, 2.0);
   EXPECT_NE(MeshContentHash(moved, "tet", {{"a", "1"}}), base);
   Mesh flipped = m;
-  std::swap(flipped.faces(0, 1), flipped.faces(0, 2));
+  std::swap(flipped.faces.Mutable()(0, 1), flipped.faces.Mutable()(0, 2));
   EXPECT_NE(MeshContentHash(flipped, "tet", {{"a", "1"}}), base);
   EXPECT_NE(MeshContentHash(m, "tet2", {{"a", "1"}}), base);
   EXPECT_NE(MeshContentHash(m, "tet", {{"a", "2"}}), base);

@@ -16,9 +16,9 @@ inline Mesh MakeMesh(const std::vector<std::array<double, 3>>& verts, const std:
   m.positions.resize(verts.size(), 3);
   for (size_t v = 0; v < verts.size(); ++v)
     for (int c = 0; c < 3; ++c) m.positions(v, c) = verts[v][c];
-  m.faces.setConstant(faces.size(), 4, -1);
+  m.faces.Mutable().setConstant(faces.size(), 4, -1);
   for (size_t f = 0; f < faces.size(); ++f)
-    for (size_t i = 0; i < faces[f].size(); ++i) m.faces(f, i) = faces[f][i];
+    for (size_t i = 0; i < faces[f].size(); ++i) m.faces.Mutable()(f, i) = faces[f][i];
   return m;
 }
 
@@ -35,7 +35,7 @@ inline Mesh ShuffleVertices(const Mesh& m, uint64_t seed, std::vector<int32_t>* 
   for (int v = 0; v < nv; ++v) s.positions.row(perm[v]) = m.positions.row(v);
   s.faces = m.faces;
   for (int f = 0; f < m.NumFaces(); ++f)
-    for (int c = 0; c < m.FaceSize(f); ++c) s.faces(f, c) = perm[m.faces(f, c)];
+    for (int c = 0; c < m.FaceSize(f); ++c) s.faces.Mutable()(f, c) = perm[m.faces(f, c)];
   if (perm_out) *perm_out = std::move(perm);
   return s;
 }

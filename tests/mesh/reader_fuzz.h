@@ -49,8 +49,8 @@ inline Mesh Pyramid() {
   Mesh m;
   m.positions.resize(5, 3);
   m.positions << 0, 0, 0, 1, 0, 0, 1, 1, 0, 0, 1, 0, 0.5, 0.5, 0.75;
-  m.faces.resize(5, 4);
-  m.faces << 0, 3, 2, 1,  //
+  m.faces.Mutable().resize(5, 4);
+  m.faces.Mutable() << 0, 3, 2, 1,  //
       0, 1, 4, -1,        //
       1, 2, 4, -1,        //
       2, 3, 4, -1,        //

@@ -178,25 +178,25 @@ TEST(TopologyTest, IsolatedVertexIsAllowedButFlagged) {
 TEST(TopologyErrorTest, EmptyMesh) {
   ExpectInvalid(BuildTopology(Mesh{}).status(), {"no vertices"});
   Mesh no_faces = Square();
-  no_faces.faces.resize(0, 4);
+  no_faces.faces.Mutable().resize(0, 4);
   ExpectInvalid(BuildTopology(no_faces).status(), {"no faces"});
 }
 
 TEST(TopologyErrorTest, IndexOutOfRange) {
   Mesh m = Square();
-  m.faces(1, 2) = 7;
+  m.faces.Mutable()(1, 2) = 7;
   ExpectInvalid(ValidateMesh(m).status(), {"face 1", "7", "out of range"});
 }
 
 TEST(TopologyErrorTest, NegativeIndex) {
   Mesh m = Square();
-  m.faces(0, 1) = -2;
+  m.faces.Mutable()(0, 1) = -2;
   ExpectInvalid(ValidateMesh(m).status(), {"face 0", "-2", "out of range"});
 }
 
 TEST(TopologyErrorTest, RepeatedVertexInFace) {
   Mesh m = Square();
-  m.faces(1, 2) = 2;  // (0, 2, 2)
+  m.faces.Mutable()(1, 2) = 2;  // (0, 2, 2)
   ExpectInvalid(ValidateMesh(m).status(), {"face 1", "vertex 2", "twice"});
 }
 
@@ -222,7 +222,7 @@ TEST(TopologyErrorTest, NonManifoldVertexBowTie) {
 
 TEST(TopologyErrorTest, FlippedFace) {
   Mesh m = Square();
-  m.faces.row(1) << 0, 3, 2, -1;  // traverses (2 -> 0) like face 0
+  m.faces.Mutable().row(1) << 0, 3, 2, -1;  // traverses (2 -> 0) like face 0
   ExpectInvalid(ValidateMesh(m).status(),
                 {"inconsistent orientation", "faces 0 and 1", "edge (0, 2)"});
 }
@@ -260,4 +260,20 @@ TEST(TopologyErrorTest, TinyWellShapedFacesAreNotZeroArea) {
 }
 
 }  // namespace
+
+TEST(SharedFacesTest, CopiesShareUntilOneWrites) {
+  const Mesh a = Square();
+  Mesh b = a;
+  b.positions *= 2.0;
+  EXPECT_TRUE(b.faces.SharesWith(a.faces)) << "a copy shares the faces array";
+  b.faces.Mutable()(0, 0) = a.faces(0, 1);
+  EXPECT_FALSE(b.faces.SharesWith(a.faces)) << "writing copies first";
+  EXPECT_EQ(a.faces, Square().faces) << "the original is untouched";
+  EXPECT_NE(b.faces, a.faces);
+  Mesh c;
+  EXPECT_EQ(c.NumFaces(), 0);
+  c.faces.Mutable().resize(2, 4);
+  EXPECT_EQ(c.NumFaces(), 2);
+}
+
 }  // namespace geomfit

@@ -78,8 +78,8 @@ TEST(ClientTest, PredictsTheMeshIdOfAnUpload) {
   Mesh cube;
   cube.positions.resize(8, 3);
   for (int i = 0; i < 8; ++i) cube.positions.row(i) << (i & 1), (i >> 1) & 1, (i >> 2) & 1;
-  cube.faces.resize(6, 4);
-  cube.faces << 0, 2, 3, 1, 4, 5, 7, 6, 0, 1, 5, 4, 2, 6, 7, 3, 0, 4, 6, 2, 1, 3, 7, 5;
+  cube.faces.Mutable().resize(6, 4);
+  cube.faces.Mutable() << 0, 2, 3, 1, 4, 5, 7, 6, 0, 1, 5, 4, 2, 6, 7, 3, 0, 4, 6, 2, 1, 3, 7, 5;
   struct Case {
     Mesh mesh;
     std::string name;

@@ -232,7 +232,7 @@ TEST(FlowJobsTest, BadInputsNameTheirFields) {
 
   // An open surface: flows take no boundary conditions.
   Mesh open = testing::TestSphere(4);
-  open.faces.conservativeResize(open.faces.rows() - 1, Eigen::NoChange);
+  open.faces.Mutable().conservativeResize(open.faces.rows() - 1, Eigen::NoChange);
   absl::StatusOr<v1::MeshInfo> cap = testing::UploadMesh(stub, open, "open");
   ASSERT_TRUE(cap.ok()) << cap.status();
   absl::StatusOr<v1::Job> job = StartFlow(stub, Spec(cap->mesh_id(), "semi_implicit", 1e-3, 5));

@@ -43,6 +43,7 @@ TEST_F(WorkspaceTest, SnapshotOutlivesAnUpdate) {
   ASSERT_TRUE(s2.ok());
   EXPECT_EQ(s2->revision, 2);
   EXPECT_EQ(s2->topology, s1->topology) << "topology survives position updates";
+  EXPECT_TRUE(s2->mesh->faces.SharesWith(s1->mesh->faces)) << "revisions share one faces array";
   EXPECT_EQ(ws_.UpdatePositions(id, 1, mesh.positions).status().code(), absl::StatusCode::kAborted);
   EXPECT_EQ(ws_.UpdatePositions(id, std::nullopt, mesh.positions.topRows(3)).status().code(),
             absl::StatusCode::kInvalidArgument);

@@ -282,7 +282,7 @@ absl::StatusOr<Mesh> Client::Download(const std::string& mesh_id, RemoteMesh* in
       if (r.has_info()) {
         info = r.info();
         mesh.positions.resize(info.num_vertices(), 3);
-        mesh.faces.resize(info.num_faces(), 4);
+        mesh.faces.Mutable().resize(info.num_faces(), 4);
       } else if (r.has_positions() && decode.ok()) {
         auto m = wire::DecodeDoubles(r.positions().positions(), "positions", {3});
         const int64_t off = r.positions().vertex_offset();
@@ -294,7 +294,7 @@ absl::StatusOr<Mesh> Client::Download(const std::string& mesh_id, RemoteMesh* in
         const int64_t off = r.faces().face_offset();
         if (!m.ok()) decode = m.status();
         else if (off < 0 || off + m->rows() > mesh.faces.rows()) decode = absl::DataLossError("faces chunk out of range");
-        else mesh.faces.middleRows(off, m->rows()) = *m;
+        else mesh.faces.Mutable().middleRows(off, m->rows()) = *m;
       }
     }
     return reader->Finish();

@@ -151,9 +151,10 @@ py::tuple ReadMeshFile(const std::string& path) {
     mesh = ReadMesh(path);
   }
   if (!mesh.ok()) throw py::value_error(std::string(mesh.status().message()));
-  const bool quads = mesh->NumFaces() > 0 && (mesh->faces.col(3).array() >= 0).any();
+  const Faces& all = mesh->faces;
+  const bool quads = mesh->HasQuads();
   Eigen::Matrix<int32_t, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> faces =
-      quads ? mesh->faces.leftCols(4) : mesh->faces.leftCols(3);
+      quads ? all.leftCols(4) : all.leftCols(3);
   return py::make_tuple(py::cast(std::move(mesh->positions)), py::cast(std::move(faces)));
 }
 
@@ -166,10 +167,11 @@ std::string UploadMeshId(const py::array_t<double, py::array::c_style | py::arra
     throw py::value_error("faces must be #F x 3 or #F x 4");
   Mesh mesh;
   mesh.positions = Eigen::Map<const Positions>(positions.data(), positions.shape(0), 3);
-  mesh.faces.setConstant(faces.shape(0), 4, -1);
+  Faces& mf = mesh.faces.Mutable();
+  mf.setConstant(faces.shape(0), 4, -1);
   const auto in = faces.unchecked<2>();
   for (py::ssize_t f = 0; f < in.shape(0); ++f)
-    for (py::ssize_t c = 0; c < in.shape(1); ++c) mesh.faces(f, c) = in(f, c);
+    for (py::ssize_t c = 0; c < in.shape(1); ++c) mf(f, c) = in(f, c);
   return MeshIdOf(MeshContentHash(mesh, name, labels));
 }
 
