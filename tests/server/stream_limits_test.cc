@@ -239,6 +239,20 @@ v1::Statistics StatsWhen(v1::GeomFit::Stub& stub, Pred pred) {
   return s;
 }
 
+TEST(StreamLimitsTest, FlagsAndDefaults) {
+  auto d = ParseServerOptions({"--cache-bytes", "64M"});
+  ASSERT_TRUE(d.ok()) << d.status();
+  EXPECT_EQ(d->stream_idle_seconds, 30);
+  EXPECT_EQ(d->InflightBudget(), 32 << 20) << "default: half of --cache-bytes";
+  auto o = ParseServerOptions({"--max-inflight-bytes", "8M", "--stream-idle-seconds", "2.5"});
+  ASSERT_TRUE(o.ok()) << o.status();
+  EXPECT_EQ(o->InflightBudget(), 8 << 20);
+  EXPECT_EQ(o->stream_idle_seconds, 2.5);
+  auto bad = ParseServerOptions({"--stream-idle-seconds", "-1"});
+  EXPECT_EQ(bad.status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(bad.status().message().find("stream-idle-seconds"), std::string::npos) << bad.status();
+}
+
 TEST(StreamLimitsTest, HeaderReservesTheDeclaredSizeAgainstTheBudget) {
   // 5000 vertices + 10000 faces declare 2 x (24 x 5000 + 16 x 10000) = 560000 bytes.
   constexpr int64_t kDeclared = 560000;
