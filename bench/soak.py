@@ -1,6 +1,7 @@
 #!/usr/bin/python3
 """Soak: a dozen clients against one geomfit-server with small budgets, sampling its RSS.
 
+The store is SQLite in a temporary directory (on disk, outside the RSS bound).
 Clients (threads, each its own channel): uploads of new tori, position updates,
 curvature at degrees 1-6, reconstruction (ProjectPoints) and refinement, deletes,
 downloads that stop reading, and stalled upload streams (a header declaring a large
@@ -19,8 +20,10 @@ import argparse
 import os
 import random
 import re
+import shutil
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 
@@ -117,11 +120,12 @@ class Soak:
             return
         picked = self.pick(rnd)
         if kind == "stall":
-            # A header declaring 200k vertices, then silence: the idle timeout ends it.
+            # A header declaring 100k vertices and faces (8 MB in flight), then silence:
+            # the idle timeout ends it.
             gate = threading.Event()
 
             def requests():
-                yield pb.UploadMeshRequest(header=pb.MeshHeader(num_vertices=200000, num_faces=200000))
+                yield pb.UploadMeshRequest(header=pb.MeshHeader(num_vertices=100000, num_faces=100000))
                 gate.wait(self.idle * 3)
 
             try:
@@ -159,11 +163,12 @@ KINDS = ["upload", "upload", "update", "update", "curvature", "curvature", "curv
 
 
 def soak_once(args, allocator):
+    data_dir = tempfile.mkdtemp(prefix="geomfit-soak-")
     env = dict(os.environ)
     if ALLOCATORS[allocator]:
         env["LD_PRELOAD"] = ALLOCATORS[allocator]
     server = subprocess.Popen(
-        [args.server, "--port", str(args.port), "--store", "memory", "--cache-bytes", str(args.cache_bytes),
+        [args.server, "--port", str(args.port), "--store", "sqlite", "--data-dir", data_dir, "--cache-bytes", str(args.cache_bytes),
          "--max-inflight-bytes", str(args.max_inflight_bytes), "--stream-idle-seconds", str(args.idle),
          "--workers", "2", "--threads", "1", "--log-level", "error"], env=env)
     try:
@@ -182,6 +187,8 @@ def soak_once(args, allocator):
             time.sleep(0.1)
             if time.time() > soak.stop_at + 120:
                 break
+        if server.poll() is not None:
+            raise RuntimeError(f"{allocator}: the server exited with {server.returncode} during the soak")
         stats = pb_grpc.GeomFitStub(ch).GetStatistics(pb.GetStatisticsRequest(), timeout=10)
         return dict(allocator=allocator, peak_mib=peak / 1024, mean_mib=sum(samples) / len(samples) / 1024,
                     calls=soak.calls, per_s=soak.calls / args.seconds, errors=soak.errors,
@@ -189,6 +196,7 @@ def soak_once(args, allocator):
     finally:
         server.terminate()
         server.wait(timeout=30)
+        shutil.rmtree(data_dir, ignore_errors=True)
 
 
 def main():

@@ -73,7 +73,10 @@ class ReadReactor final : public grpc::ServerReadReactor<grpc::ByteBuffer> {
     call_.method = method;
     if (limits_ != nullptr) {
       limits_->Opened();
-      watch_ = limits_->Watch([this] { Expire(); });
+      watch_ = limits_->Watch([this] {
+        Expire();
+        return true;
+      });
     }
     Lock lock = Locked();
     absl::StatusOr<CallContext> who = service_->Admit(ctx);
@@ -207,7 +210,7 @@ class WriteReactor final : public grpc::ServerWriteReactor<Response>, private Ch
   /// hands the request over for the call's lifetime); the chunks' are unscoped.
   WriteReactor(Service* service, grpc::CallbackServerContext* ctx, ThreadPool* pool, Service::Call call,
                const google::protobuf::Message* request, WorkFn work)
-      : service_(service), token_(TokenFor(ctx)), work_(std::move(work)), call_(std::move(call)) {
+      : service_(service), ctx_(ctx), token_(TokenFor(ctx)), work_(std::move(work)), call_(std::move(call)) {
     service_->Begin();
     absl::StatusOr<CallContext> who = service_->Admit(ctx);
     if (!who.ok()) {
@@ -216,6 +219,9 @@ class WriteReactor final : public grpc::ServerWriteReactor<Response>, private Ch
     }
     tenant_ = who->tenant;
     ScopeIds(tenant_, const_cast<google::protobuf::Message*>(request));
+    if (StreamLimits* limits = service_->stream_limits(); limits != nullptr) {
+      watch_ = limits->Watch([this, idle = limits->idle()] { return Stalled(idle); });
+    }
     working_ = true;
     if (!pool->TrySubmit([this] { Run(); })) {
       working_ = false;
@@ -235,6 +241,10 @@ class WriteReactor final : public grpc::ServerWriteReactor<Response>, private Ch
   }
   void OnCancel() override { token_->Cancel(); }
   void OnDone() override {
+    if (watch_ != nullptr) {
+      std::lock_guard<std::recursive_mutex> watch(watch_->mu);  // the watchdog is not in Stalled
+      watch_->closed = true;
+    }
     std::unique_lock<std::mutex> lock(mu_);
     done_ = true;
     if (working_) return;  // the work deletes it when it returns
@@ -279,6 +289,7 @@ class WriteReactor final : public grpc::ServerWriteReactor<Response>, private Ch
       queue_.pop_front();
       UnscopeIds(tenant_, &current_);
       writing_ = true;
+      write_started_ = std::chrono::steady_clock::now();
       finished_ = final;
       call_.bytes_out += static_cast<int64_t>(current_.ByteSizeLong());
       lock.unlock();
@@ -290,8 +301,20 @@ class WriteReactor final : public grpc::ServerWriteReactor<Response>, private Ch
     Done(end);
   }
   void Done(const absl::Status& s) { this->Finish(service_->Finish(call_, s)); }
+  /// The watchdog (watch mutex held): a write the reader has not taken for `idle` means
+  /// a reader that stopped reading; the call is cancelled, releasing the queued chunks.
+  bool Stalled(std::chrono::milliseconds idle) {
+    std::lock_guard<std::mutex> lock(mu_);
+    if (!writing_ || std::chrono::steady_clock::now() - write_started_ < idle) return false;
+    token_->Cancel();
+    ctx_->TryCancel();
+    return true;
+  }
 
   Service* service_;
+  grpc::CallbackServerContext* ctx_;
+  std::shared_ptr<StreamWatch> watch_;
+  std::chrono::steady_clock::time_point write_started_;
   std::unique_ptr<CancellationToken> token_;
   WorkFn work_;
   Service::Call call_;
@@ -329,7 +352,10 @@ class PullReactor final : public grpc::ServerWriteReactor<Response> {
     tenant_ = who->tenant;
     ScopeIds(tenant_, const_cast<google::protobuf::Message*>(request));
     if (StreamLimits* limits = service_->stream_limits(); limits != nullptr) {
-      watch_ = limits->Watch([this] { ctx_->TryCancel(); });
+      watch_ = limits->Watch([this] {
+        ctx_->TryCancel();
+        return true;
+      });
     }
     if (!pool->TrySubmit([this] { Start(); })) Done(QueueFull(pool == service->compute() ? "compute" : "io"));
   }

@@ -34,7 +34,7 @@ absl::Status StreamLimits::Reserve(int64_t bytes) {
 
 void StreamLimits::Release(int64_t bytes) { reserved_.fetch_sub(bytes); }
 
-std::shared_ptr<StreamWatch> StreamLimits::Watch(std::function<void()> expire) {
+std::shared_ptr<StreamWatch> StreamLimits::Watch(std::function<bool()> expire) {
   if (idle_.count() <= 0) return nullptr;
   auto watch = std::make_shared<StreamWatch>();
   watch->expire = std::move(expire);
@@ -56,10 +56,7 @@ void StreamLimits::Run() {
     std::vector<const StreamWatch*> gone;
     for (const auto& w : watched) {
       std::lock_guard<std::recursive_mutex> stream(w->mu);
-      if (!w->closed && now - w->last >= idle_) {
-        w->closed = true;
-        w->expire();
-      }
+      if (!w->closed && now - w->last >= idle_ && w->expire()) w->closed = true;
       if (w->closed) gone.push_back(w.get());
     }
     lock.lock();

@@ -17,12 +17,14 @@
 namespace geomfit::server {
 
 /// One watched stream. Its reactor guards its own state with `mu`; the watchdog calls
-/// `expire` with `mu` held, unless `closed` (the reactor no longer waits on the client).
+/// `expire` with `mu` held once `last` is older than the idle time, unless `closed` (the
+/// reactor no longer waits on the client); `expire` returns whether it ended the call
+/// (else it is asked again at the next scan).
 struct StreamWatch {
   std::recursive_mutex mu;  ///< recursive: a reaction run inline from StartRead is safe
   std::chrono::steady_clock::time_point last = std::chrono::steady_clock::now();
   bool closed = false;
-  std::function<void()> expire;
+  std::function<bool()> expire;
   /// A message arrived or a write completed (call with `mu` held).
   void Touch() { last = std::chrono::steady_clock::now(); }
 };
@@ -42,9 +44,9 @@ class StreamLimits {
   void Opened() { open_.fetch_add(1); }
   void Closed() { open_.fetch_sub(1); }
 
-  /// A new watched stream; `expire` ends it (DEADLINE_EXCEEDED) once it has not been
-  /// touched for the idle time. Null without an idle timeout.
-  std::shared_ptr<StreamWatch> Watch(std::function<void()> expire);
+  /// A new watched stream; `expire` ends it (DEADLINE_EXCEEDED, or a cancel) once it
+  /// has not been touched for the idle time. Null without an idle timeout.
+  std::shared_ptr<StreamWatch> Watch(std::function<bool()> expire);
 
   int64_t reserved_bytes() const { return reserved_.load(); }
   int64_t open_streams() const { return open_.load(); }

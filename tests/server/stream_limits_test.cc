@@ -332,5 +332,36 @@ TEST(StreamLimitsTest, StalledStreamsEndAtTheIdleTimeoutAndReturnTheirMemory) {
   EXPECT_EQ(s.stored_meshes(), 0);
 }
 
+// A reader that takes the first chunk and stops: the download is made lazily (one chunk
+// ahead), and once no write completes for the idle time the server cancels the call.
+// Without the watchdog the read below would wait for the client's own 60 s deadline.
+TEST(StreamLimitsTest, DownloadReaderThatStopsReadingIsCancelled) {
+  InProcessServer server(Budgeted(0, 0.3));
+  auto stored = testing::UploadMesh(server.stub(), testing::TestTorus(160), "big");
+  ASSERT_TRUE(stored.ok()) << stored.status();
+  grpc::ChannelArguments args;
+  args.SetInt(GRPC_ARG_HTTP2_BDP_PROBE, 0);
+  args.SetInt(GRPC_ARG_HTTP2_STREAM_LOOKAHEAD_BYTES, 16 << 10);
+  auto channel = grpc::CreateCustomChannel("127.0.0.1:" + std::to_string(server.port()),
+                                           grpc::InsecureChannelCredentials(), args);
+  v1::GeomFit::Stub stub(channel);
+  grpc::ClientContext ctx;
+  ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(60));
+  v1::DownloadMeshRequest request;
+  request.set_mesh_id(stored->mesh_id());
+  request.set_chunk_rows(64);
+  auto reader = stub.DownloadMesh(&ctx, request);
+  v1::DownloadMeshResponse chunk;
+  ASSERT_TRUE(reader->Read(&chunk));
+  ASSERT_TRUE(chunk.has_info());
+  ASSERT_GT(chunk.info().num_vertices() * 24, 1 << 20) << "the mesh must outgrow the transport's windows";
+  std::this_thread::sleep_for(std::chrono::milliseconds(1500));  // stop reading
+  int64_t read = 1;
+  while (reader->Read(&chunk)) ++read;
+  const grpc::Status s = reader->Finish();
+  EXPECT_EQ(s.error_code(), Code::CANCELLED) << s.error_message() << " after " << read << " chunks";
+  EXPECT_EQ(testing::HealthCheck(server.channel()), "SERVING");
+}
+
 }  // namespace
 }  // namespace geomfit::server
