@@ -11,10 +11,10 @@ cache-bytes + max-inflight-bytes and the constant C = peak - bound, plus the com
 calls per second.
 
 With --allocators, the same soak runs once per allocator, preloaded with LD_PRELOAD
-(glibc = none), and prints one table row each (bench/README.md, "Soak").
+("build" = none: the binary's own), and prints one table row each (bench/README.md, "Soak").
 
     PYTHONPATH=clients/python:build/python /usr/bin/python3 bench/soak.py build/server/geomfit-server \\
-        [--seconds 60] [--cache-bytes 64M] [--max-inflight-bytes 32M] [--allocators glibc,jemalloc,mimalloc]
+        [--seconds 60] [--cache-bytes 64M] [--max-inflight-bytes 32M] [--allocators build,jemalloc,mimalloc]
 """
 import argparse
 import os
@@ -35,8 +35,10 @@ import geomfit  # noqa: E402
 from geomfit.v1 import geomfit_pb2 as pb  # noqa: E402
 from geomfit.v1 import geomfit_pb2_grpc as pb_grpc  # noqa: E402
 
+# "build": no preload, the binary's own allocator (mimalloc when linked, the default;
+# glibc malloc in a -DGEOMFIT_MIMALLOC=OFF build). A preloaded library comes before both.
 ALLOCATORS = {
-    "glibc": None,
+    "build": None,
     "jemalloc": "/usr/lib/x86_64-linux-gnu/libjemalloc.so.2",
     "mimalloc": "/usr/lib/x86_64-linux-gnu/libmimalloc.so.2",
 }
@@ -207,7 +209,7 @@ def main():
     ap.add_argument("--cache-bytes", type=parse_bytes, default=64 << 20)
     ap.add_argument("--max-inflight-bytes", type=parse_bytes, default=32 << 20)
     ap.add_argument("--idle", type=float, default=5, help="--stream-idle-seconds")
-    ap.add_argument("--allocators", default="glibc")
+    ap.add_argument("--allocators", default="build")
     args = ap.parse_args()
     bound = (args.cache_bytes + args.max_inflight_bytes) / (1 << 20)
     print(f"cache-bytes {args.cache_bytes >> 20} MiB + max-inflight-bytes {args.max_inflight_bytes >> 20} MiB"
