@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Prints the Debian packages that own the shared libraries BINARY... load (ldd, then
 # dpkg -S), one per line, sorted: the runtime image installs exactly these.
-# Fails if a library belongs to no package (it would be missing at run time).
+# Fails if a library belongs to no package (it would be missing at run time). The
+# allocator comes this way too: geomfit-server links mimalloc, so libmimalloc2.0 is listed.
 set -euo pipefail
 libs=$(ldd "$@" | awk '/=> \// {print $3} /^\t\/.*\(0x/ {print $1}' | sort -u)
 for lib in $libs; do

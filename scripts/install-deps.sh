@@ -11,6 +11,7 @@ pkgs=(
   libeigen3-dev libabsl-dev libspdlog-dev libfmt-dev
   libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc
   libsqlite3-dev prometheus-cpp-dev libsuitesparse-dev
+  libmimalloc-dev
 )
 if ((!server_only)); then
   pkgs+=(

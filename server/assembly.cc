@@ -119,7 +119,7 @@ absl::Status PositionsAssembler::AddPositions(const v1::PositionsChunk& chunk) {
   bytes_ += static_cast<int64_t>(chunk.ByteSizeLong());
   if (!has_header_) return absl::InvalidArgumentError("positions chunk before the header (send the header first)");
   GF_ASSIGN_OR_RETURN(auto m, wire::ViewDoubles(chunk.positions(), "positions", {3}));
-  return positions_.Append(chunk.vertex_offset(), m, max_vertices_);
+  return positions_.Append(chunk.vertex_offset(), m, expected_ > 0 ? expected_ : max_vertices_);
 }
 
 absl::StatusOr<Positions> PositionsAssembler::Finish(int64_t num_vertices) const {

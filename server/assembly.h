@@ -39,6 +39,10 @@ class UploadAssembler {
   /// The complete mesh; INVALID_ARGUMENT if the header or any rows are missing.
   absl::StatusOr<Mesh> Finish() const;
   const v1::MeshHeader& header() const { return header_; }
+  bool has_header() const { return has_header_; }
+  /// What the stream will hold at most once the header is in: the declared rows, and
+  /// the mesh Finish builds from them.
+  int64_t DeclaredBytes() const { return 2 * (24 * header_.num_vertices() + 16 * header_.num_faces()); }
   int64_t bytes() const { return bytes_; }
   std::string mesh_id() const { return ""; }  ///< known only once stored
 
@@ -64,11 +68,16 @@ class PositionsAssembler {
   absl::StatusOr<Positions> Finish() const { return Finish(positions_.rows()); }
   const v1::UpdateHeader& header() const { return header_; }
   bool has_header() const { return has_header_; }
+  /// The mesh has `num_vertices` (known once the header is in): more rows are refused.
+  void Expect(int64_t num_vertices) { expected_ = num_vertices; }
+  /// The expected rows and the positions Finish builds from them (0 before Expect).
+  int64_t DeclaredBytes() const { return 2 * 24 * expected_; }
   int64_t bytes() const { return bytes_; }
   std::string mesh_id() const { return header_.mesh_id(); }
 
  private:
   const int64_t max_vertices_;
+  int64_t expected_ = 0;  ///< 0: up to max_vertices
   bool has_header_ = false;
   v1::UpdateHeader header_;
   int64_t bytes_ = 0;

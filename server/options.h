@@ -35,6 +35,11 @@ struct ServerOptions {
   std::string tls_key;                     ///< PEM private key of tls_cert
   std::string auth_tokens;                 ///< `TOKEN TENANT` lines: bearer tokens, one namespace per tenant
   std::string tls_client_ca;               ///< PEM CA bundle: require and verify client certificates (mTLS)
+  int64_t max_inflight_bytes = 0;          ///< bytes client streams may reserve at once; 0 = cache_bytes / 2
+  double stream_idle_seconds = 30;         ///< a client stream silent this long ends (DEADLINE_EXCEEDED); 0 = never
+
+  /// max_inflight_bytes, or its default: half of cache_bytes.
+  int64_t InflightBudget() const { return max_inflight_bytes > 0 ? max_inflight_bytes : cache_bytes / 2; }
 
   std::string Address() const { return host + ":" + std::to_string(port); }
   /// True for 127.0.0.0/8, ::1 and localhost.

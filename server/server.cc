@@ -17,6 +17,7 @@
 #include "server/metrics.h"
 #include "server/request_stats.h"
 #include "server/rpc/service.h"
+#include "server/rpc/stream_limits.h"
 #include "server/thread_pool.h"
 #include "server/tls.h"
 #include "server/workspace/cache.h"
@@ -59,6 +60,9 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   GF_ASSIGN_OR_RETURN(s->jobs_, JobManager::Create(s->store_.get(), jobs));
   s->job_handlers_ = std::make_unique<JobHandlers>(s->jobs_.get(), s->handlers_.get(), options.max_vertices);
   s->service_->SetJobs(s->job_handlers_.get());
+  s->stream_limits_ = std::make_unique<StreamLimits>(
+      options.InflightBudget(), std::chrono::milliseconds(static_cast<int64_t>(options.stream_idle_seconds * 1e3)));
+  s->service_->SetStreamLimits(s->stream_limits_.get());
   if (!options.auth_tokens.empty()) {
     GF_ASSIGN_OR_RETURN(s->tokens_, TokenTable::Load(options.auth_tokens));
     s->service_->SetTokens(s->tokens_.get());

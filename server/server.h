@@ -21,6 +21,7 @@ class MeshStore;
 class MetricsCollectable;
 class RequestStats;
 class Service;
+class StreamLimits;
 class TokenTable;
 class ThreadPool;
 
@@ -59,6 +60,7 @@ class Server {
   std::unique_ptr<JobHandlers> job_handlers_;
   int port_ = 0;
   bool stopped_ = false;
+  std::unique_ptr<StreamLimits> stream_limits_;  ///< in-flight budget and idle watchdog of streams
 };
 
 }  // namespace geomfit::server

@@ -43,6 +43,16 @@ struct ChunkCollector final : ChunkSink<Response> {
   void Push(Response chunk, bool) override { chunks.push_back(std::move(chunk)); }
 };
 
+/// A server stream's chunks, made one at a time when the transport wants the next
+/// (WriteReactor's lazy mode): a reader that stops reading holds O(one chunk).
+template <typename Response>
+class ChunkSource {
+ public:
+  virtual ~ChunkSource() = default;
+  /// The next chunk into `chunk`; false when none is left.
+  virtual bool Next(Response* chunk) = 0;
+};
+
 /// INVALID_ARGUMENT for an empty mesh id.
 absl::Status RequireId(const std::string& id);
 
@@ -54,9 +64,16 @@ class Handlers {
   /// Stores the upload in `tenant`'s id namespace (Workspace TenantPrefix).
   absl::StatusOr<v1::MeshInfo> UploadMesh(const UploadAssembler& upload, const std::string& tenant = "");
   absl::StatusOr<v1::MeshInfo> UpdatePositions(const PositionsAssembler& update);
+  /// Once an update stream's header is in: the mesh's vertex count becomes the rows the
+  /// stream may send (NOT_FOUND for an unknown mesh).
+  absl::Status ExpectPositions(PositionsAssembler* update);
   /// UpdatePositions in one message, decoded straight into the positions.
   absl::StatusOr<v1::MeshInfo> SetPositions(const v1::SetPositionsRequest& request);
   absl::StatusOr<v1::MeshInfo> GetMesh(const v1::GetMeshRequest& request);
+  /// The stored mesh as chunks made on demand: info, positions, faces (holds the mesh).
+  absl::StatusOr<std::unique_ptr<ChunkSource<v1::DownloadMeshResponse>>> OpenDownload(
+      const v1::DownloadMeshRequest& request);
+  /// OpenDownload, collected.
   absl::StatusOr<std::vector<v1::DownloadMeshResponse>> DownloadMesh(const v1::DownloadMeshRequest& request);
   absl::StatusOr<v1::ListMeshesResponse> ListMeshes(const v1::ListMeshesRequest& request);
   absl::StatusOr<v1::DeleteMeshResponse> DeleteMesh(const v1::DeleteMeshRequest& request);

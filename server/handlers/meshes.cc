@@ -50,6 +50,12 @@ absl::StatusOr<v1::MeshInfo> Handlers::UpdatePositions(const PositionsAssembler&
   return Wire(ws_->UpdatePositions(update.header().mesh_id(), ExpectedRevision(update.header()), std::move(positions)));
 }
 
+absl::Status Handlers::ExpectPositions(PositionsAssembler* update) {
+  GF_ASSIGN_OR_RETURN(const MeshRecord info, ws_->Info(update->header().mesh_id()));
+  update->Expect(info.num_vertices);
+  return absl::OkStatus();
+}
+
 absl::StatusOr<v1::MeshInfo> Handlers::SetPositions(const v1::SetPositionsRequest& request) {
   const v1::UpdateHeader& header = request.header();
   if (header.mesh_id().empty()) return absl::InvalidArgumentError("header.mesh_id: empty");
@@ -70,29 +76,64 @@ absl::StatusOr<v1::MeshInfo> Handlers::GetMesh(const v1::GetMeshRequest& request
   return Wire(ws_->Info(request.mesh_id()));
 }
 
-absl::StatusOr<std::vector<v1::DownloadMeshResponse>> Handlers::DownloadMesh(
+namespace {
+
+/// Info, then positions chunks, then faces chunks of `rows` rows, each encoded when asked.
+class DownloadSource final : public ChunkSource<v1::DownloadMeshResponse> {
+ public:
+  DownloadSource(StoredMesh stored, int64_t rows) : stored_(std::move(stored)), rows_(rows) {}
+  bool Next(v1::DownloadMeshResponse* chunk) override {
+    chunk->Clear();
+    const Mesh& mesh = *stored_.mesh;
+    if (!sent_info_) {
+      sent_info_ = true;
+      *chunk->mutable_info() = ToProto(stored_.info);
+      return true;
+    }
+    if (vertex_ < mesh.NumVertices()) {
+      const int64_t n = std::min<int64_t>(rows_, mesh.NumVertices() - vertex_);
+      v1::PositionsChunk* c = chunk->mutable_positions();
+      c->set_vertex_offset(vertex_);
+      wire::EncodeDoubles(mesh.positions.data() + 3 * vertex_, n, 3, c->mutable_positions());
+      vertex_ += n;
+      return true;
+    }
+    if (face_ < mesh.NumFaces()) {
+      const int64_t n = std::min<int64_t>(rows_, mesh.NumFaces() - face_);
+      v1::FacesChunk* c = chunk->mutable_faces();
+      c->set_face_offset(face_);
+      wire::EncodeInts(mesh.faces.data() + 4 * face_, n, 4, c->mutable_faces());
+      face_ += n;
+      return true;
+    }
+    return false;
+  }
+
+ private:
+  const StoredMesh stored_;
+  const int64_t rows_;
+  bool sent_info_ = false;
+  int64_t vertex_ = 0, face_ = 0;
+};
+
+}  // namespace
+
+absl::StatusOr<std::unique_ptr<ChunkSource<v1::DownloadMeshResponse>>> Handlers::OpenDownload(
     const v1::DownloadMeshRequest& request) {
   GF_RETURN_IF_ERROR(RequireId(request.mesh_id()));
   if (request.revision() < 0 || request.chunk_rows() < 0) {
     return absl::InvalidArgumentError("revision and chunk_rows must not be negative");
   }
   GF_ASSIGN_OR_RETURN(StoredMesh stored, ws_->Stored(request.mesh_id(), request.revision()));
-  const Mesh& mesh = *stored.mesh;
+  return std::make_unique<DownloadSource>(std::move(stored), ChunkRows(request.chunk_rows(), 24));
+}
+
+absl::StatusOr<std::vector<v1::DownloadMeshResponse>> Handlers::DownloadMesh(
+    const v1::DownloadMeshRequest& request) {
+  GF_ASSIGN_OR_RETURN(auto source, OpenDownload(request));
   std::vector<v1::DownloadMeshResponse> out(1);
-  *out[0].mutable_info() = ToProto(stored.info);
-  const int64_t rows = ChunkRows(request.chunk_rows(), 24);
-  for (int64_t b = 0; b < mesh.NumVertices(); b += rows) {
-    const int64_t n = std::min<int64_t>(rows, mesh.NumVertices() - b);
-    v1::PositionsChunk* c = out.emplace_back().mutable_positions();
-    c->set_vertex_offset(b);
-    wire::EncodeDoubles(mesh.positions.data() + 3 * b, n, 3, c->mutable_positions());
-  }
-  for (int64_t b = 0; b < mesh.NumFaces(); b += rows) {
-    const int64_t n = std::min<int64_t>(rows, mesh.NumFaces() - b);
-    v1::FacesChunk* c = out.emplace_back().mutable_faces();
-    c->set_face_offset(b);
-    wire::EncodeInts(mesh.faces.data() + 4 * b, n, 4, c->mutable_faces());
-  }
+  while (source->Next(&out.back())) out.emplace_back();
+  out.pop_back();
   return out;
 }
 

@@ -6,15 +6,19 @@
 #include <functional>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <utility>
 #include <vector>
 
 #include <grpcpp/grpcpp.h>
 
 #include "absl/status/status.h"
+#include "absl/strings/str_cat.h"
+#include "core/util/status_macros.h"
 #include "core/util/cancel.h"
 #include "server/handlers/handlers.h"
 #include "server/rpc/service.h"
+#include "server/rpc/stream_limits.h"
 #include "server/rpc/tenancy.h"
 #include "server/thread_pool.h"
 
@@ -42,72 +46,152 @@ inline std::unique_ptr<CancellationToken> TokenFor(grpc::CallbackServerContext* 
   return token;
 }
 
-/// Client-streaming call: messages are folded into an Assembler on the gRPC thread
-/// (cheap copies); the end of the stream runs `finish` on the compute pool.
+/// Client-streaming call, read as raw bytes so that a message that does not parse ends
+/// the call with INVALID_ARGUMENT (the typed API reports it like the end of the stream).
+/// Messages are folded into an Assembler on the gRPC thread (cheap copies); once the
+/// header is in, the stream reserves the bytes it declares against the in-flight budget
+/// (StreamLimits) before buffering anything; a stream silent for the idle time ends with
+/// DEADLINE_EXCEEDED. The end of the stream runs `finish` on the compute pool. Every end
+/// releases the reservation before the status goes out, and nothing is committed unless
+/// the whole stream parsed and assembled.
 template <typename Request, typename Assembler>
-class ReadReactor final : public grpc::ServerReadReactor<Request> {
+class ReadReactor final : public grpc::ServerReadReactor<grpc::ByteBuffer> {
  public:
   using FinishFn = std::function<absl::StatusOr<v1::MeshInfo>(const Assembler&, const CallContext&)>;
   /// Runs on the compute thread once the call is answered (OK only).
   using AfterFn = std::function<void(const v1::MeshInfo&)>;
+  /// Once the header is in, before any rows: tells the assembler how many rows to expect
+  /// (update streams look up their mesh). Optional.
+  using HeaderFn = std::function<absl::Status(Assembler*)>;
 
-  ReadReactor(Service* service, grpc::CallbackServerContext* ctx, v1::MeshInfo* response, const char* method,
-              FinishFn finish, AfterFn after = nullptr)
-      : service_(service), ctx_(ctx), response_(response), assembler_(service->handlers()->options().max_vertices),
-        finish_(std::move(finish)), after_(std::move(after)) {
+  ReadReactor(Service* service, grpc::CallbackServerContext* ctx, grpc::ByteBuffer* response, const char* method,
+              FinishFn finish, AfterFn after = nullptr, HeaderFn on_header = nullptr)
+      : service_(service), ctx_(ctx), response_(response), limits_(service->stream_limits()),
+        finish_(std::move(finish)), after_(std::move(after)), on_header_(std::move(on_header)) {
+    assembler_.emplace(service->handlers()->options().max_vertices);
     service_->Begin();
     call_.method = method;
+    if (limits_ != nullptr) {
+      limits_->Opened();
+      watch_ = limits_->Watch([this] {
+        Expire();
+        return true;
+      });
+    }
+    Lock lock = Locked();
     absl::StatusOr<CallContext> who = service_->Admit(ctx);
     if (!who.ok()) {
       Done(who.status());
       return;
     }
     who_ = *std::move(who);
-    this->StartRead(&request_);
+    this->StartRead(&buffer_);
   }
 
   void OnReadDone(bool ok) override {
+    Lock lock = Locked();
+    if (ended_) return;  // expired meanwhile
+    if (watch_ != nullptr) watch_->Touch();
     if (ok) {
-      ScopeIds(who_.tenant, &request_);
-      absl::Status s = assembler_.Add(request_);
+      const absl::Status s = Take();
       if (!s.ok()) return Done(s);
-      request_.Clear();
-      this->StartRead(&request_);
+      this->StartRead(&buffer_);
       return;
     }
     if (ctx_->IsCancelled()) return Done(absl::CancelledError("client cancelled the stream; nothing stored"));
-    call_.bytes_in = assembler_.bytes();
+    if (watch_ != nullptr) watch_->closed = true;  // received in full: no longer idle
     const bool queued = service_->compute()->TrySubmit([this] {
-      absl::StatusOr<v1::MeshInfo> info = finish_(assembler_, who_);
+      absl::StatusOr<v1::MeshInfo> info = finish_(*assembler_, who_);
       if (info.ok()) UnscopeIds(who_.tenant, &*info);
       if (info.ok()) {
         call_.mesh_id = info->mesh_id();
-        *response_ = *info;
+        bool own = false;
+        grpc::SerializationTraits<v1::MeshInfo>::Serialize(*info, response_, &own);
       }
       AfterFn after = std::move(after_);  // `this` may be gone once Done returns
+      Lock lock = Locked();
       Done(info.status());
+      lock = Lock();
       if (after && info.ok()) after(*info);
     });
     if (!queued) Done(QueueFull("compute"));
   }
 
-  void OnDone() override { delete this; }
+  void OnDone() override {
+    {
+      Lock lock = Locked();  // the watchdog is not inside Expire
+      if (watch_ != nullptr) watch_->closed = true;
+    }
+    delete this;
+  }
 
  private:
+  using Lock = std::unique_lock<std::recursive_mutex>;
+  /// The watch's mutex (shared with the watchdog), or the reactor's own.
+  Lock Locked() { return Lock(watch_ != nullptr ? watch_->mu : mu_); }
+
+  /// Parses message `count_` and folds it in; reserves the declared size at the header.
+  absl::Status Take() {
+    ++count_;
+    call_.bytes_in += static_cast<int64_t>(buffer_.Length());
+    Request request;
+    const grpc::Status parsed = grpc::SerializationTraits<Request>::Deserialize(&buffer_, &request);
+    buffer_.Clear();
+    if (!parsed.ok()) {
+      return absl::InvalidArgumentError(absl::StrCat("message ", count_, " of the stream is not a valid ",
+                                                     Request::descriptor()->full_name(), "; nothing stored"));
+    }
+    ScopeIds(who_.tenant, &request);
+    const bool had_header = assembler_->has_header();
+    GF_RETURN_IF_ERROR(assembler_->Add(request));
+    if (had_header || !assembler_->has_header()) return absl::OkStatus();
+    if (on_header_) GF_RETURN_IF_ERROR(on_header_(&*assembler_));
+    if (limits_ == nullptr) return absl::OkStatus();
+    const int64_t bytes = assembler_->DeclaredBytes();
+    GF_RETURN_IF_ERROR(limits_->Reserve(bytes));
+    reserved_ = bytes;
+    return absl::OkStatus();
+  }
+
+  /// The watchdog: no message for the idle time (the watch's mutex is held).
+  void Expire() {
+    if (ended_) return;
+    const double seconds = std::chrono::duration<double>(limits_->idle()).count();
+    Done(absl::DeadlineExceededError(absl::StrCat("no message for ", seconds,
+                                                  " s (--stream-idle-seconds); stream ended, nothing stored")));
+  }
+
+  /// Ends the call once (lock held, or the stream is received in full): releases the
+  /// reservation and the buffered rows before the status goes out.
   void Done(const absl::Status& s) {
-    if (call_.mesh_id.empty()) call_.mesh_id = assembler_.mesh_id();
+    if (ended_) return;
+    ended_ = true;
+    if (call_.mesh_id.empty()) call_.mesh_id = assembler_->mesh_id();
+    assembler_.reset();
+    if (limits_ != nullptr) {
+      limits_->Release(reserved_);
+      reserved_ = 0;
+      limits_->Closed();
+    }
     this->Finish(service_->Finish(call_, s));
   }
 
   Service* service_;
   grpc::CallbackServerContext* ctx_;
-  v1::MeshInfo* response_;
-  Request request_;
-  Assembler assembler_;
+  grpc::ByteBuffer* response_;
+  StreamLimits* limits_;
+  std::shared_ptr<StreamWatch> watch_;
+  std::recursive_mutex mu_;
+  grpc::ByteBuffer buffer_;
+  std::optional<Assembler> assembler_;
   FinishFn finish_;
   AfterFn after_;
+  HeaderFn on_header_;
   CallContext who_;
   Service::Call call_{};
+  int64_t count_ = 0;     ///< messages received
+  int64_t reserved_ = 0;  ///< bytes held in the budget
+  bool ended_ = false;
 };
 
 /// Server-streaming call: `work` runs on a pool thread (polling the call's token) and
@@ -126,7 +210,7 @@ class WriteReactor final : public grpc::ServerWriteReactor<Response>, private Ch
   /// hands the request over for the call's lifetime); the chunks' are unscoped.
   WriteReactor(Service* service, grpc::CallbackServerContext* ctx, ThreadPool* pool, Service::Call call,
                const google::protobuf::Message* request, WorkFn work)
-      : service_(service), token_(TokenFor(ctx)), work_(std::move(work)), call_(std::move(call)) {
+      : service_(service), ctx_(ctx), token_(TokenFor(ctx)), work_(std::move(work)), call_(std::move(call)) {
     service_->Begin();
     absl::StatusOr<CallContext> who = service_->Admit(ctx);
     if (!who.ok()) {
@@ -135,6 +219,9 @@ class WriteReactor final : public grpc::ServerWriteReactor<Response>, private Ch
     }
     tenant_ = who->tenant;
     ScopeIds(tenant_, const_cast<google::protobuf::Message*>(request));
+    if (StreamLimits* limits = service_->stream_limits(); limits != nullptr) {
+      watch_ = limits->Watch([this, idle = limits->idle()] { return Stalled(idle); });
+    }
     working_ = true;
     if (!pool->TrySubmit([this] { Run(); })) {
       working_ = false;
@@ -154,6 +241,10 @@ class WriteReactor final : public grpc::ServerWriteReactor<Response>, private Ch
   }
   void OnCancel() override { token_->Cancel(); }
   void OnDone() override {
+    if (watch_ != nullptr) {
+      std::lock_guard<std::recursive_mutex> watch(watch_->mu);  // the watchdog is not in Stalled
+      watch_->closed = true;
+    }
     std::unique_lock<std::mutex> lock(mu_);
     done_ = true;
     if (working_) return;  // the work deletes it when it returns
@@ -198,6 +289,7 @@ class WriteReactor final : public grpc::ServerWriteReactor<Response>, private Ch
       queue_.pop_front();
       UnscopeIds(tenant_, &current_);
       writing_ = true;
+      write_started_ = std::chrono::steady_clock::now();
       finished_ = final;
       call_.bytes_out += static_cast<int64_t>(current_.ByteSizeLong());
       lock.unlock();
@@ -209,8 +301,20 @@ class WriteReactor final : public grpc::ServerWriteReactor<Response>, private Ch
     Done(end);
   }
   void Done(const absl::Status& s) { this->Finish(service_->Finish(call_, s)); }
+  /// The watchdog (watch mutex held): a write the reader has not taken for `idle` means
+  /// a reader that stopped reading; the call is cancelled, releasing the queued chunks.
+  bool Stalled(std::chrono::milliseconds idle) {
+    std::lock_guard<std::mutex> lock(mu_);
+    if (!writing_ || std::chrono::steady_clock::now() - write_started_ < idle) return false;
+    token_->Cancel();
+    ctx_->TryCancel();
+    return true;
+  }
 
   Service* service_;
+  grpc::CallbackServerContext* ctx_;
+  std::shared_ptr<StreamWatch> watch_;
+  std::chrono::steady_clock::time_point write_started_;
   std::unique_ptr<CancellationToken> token_;
   WorkFn work_;
   Service::Call call_;
@@ -223,6 +327,92 @@ class WriteReactor final : public grpc::ServerWriteReactor<Response>, private Ch
   bool working_ = false;   ///< the work was submitted and Run has not let go of the reactor
   bool done_ = false;      ///< OnDone was called
   absl::Status end_;
+};
+
+/// Server-streaming call whose chunks come from a ChunkSource one at a time, the next
+/// made when the previous write is done (flow control): `open` runs on `pool`, each
+/// further chunk on the gRPC thread that saw the write complete. A reader that stops
+/// reading holds the source and two chunks; with an idle timeout (StreamLimits), a
+/// reader that takes no chunk for that long is cancelled.
+template <typename Response>
+class PullReactor final : public grpc::ServerWriteReactor<Response> {
+ public:
+  using OpenFn = std::function<absl::StatusOr<std::unique_ptr<ChunkSource<Response>>>()>;
+
+  /// `request`'s mesh ids are scoped to the caller's tenant before `open` runs.
+  PullReactor(Service* service, grpc::CallbackServerContext* ctx, ThreadPool* pool, Service::Call call,
+              const google::protobuf::Message* request, OpenFn open)
+      : service_(service), ctx_(ctx), open_(std::move(open)), call_(std::move(call)) {
+    service_->Begin();
+    absl::StatusOr<CallContext> who = service_->Admit(ctx);
+    if (!who.ok()) {
+      Done(who.status());
+      return;
+    }
+    tenant_ = who->tenant;
+    ScopeIds(tenant_, const_cast<google::protobuf::Message*>(request));
+    if (StreamLimits* limits = service_->stream_limits(); limits != nullptr) {
+      watch_ = limits->Watch([this] {
+        ctx_->TryCancel();
+        return true;
+      });
+    }
+    if (!pool->TrySubmit([this] { Start(); })) Done(QueueFull(pool == service->compute() ? "compute" : "io"));
+  }
+
+  void OnWriteDone(bool ok) override {
+    if (watch_ != nullptr) {
+      std::lock_guard<std::recursive_mutex> lock(watch_->mu);
+      watch_->Touch();
+    }
+    if (!ok) return Done(absl::CancelledError("client went away during the response stream"));
+    WriteNext();
+  }
+  void OnDone() override {
+    if (watch_ != nullptr) {
+      std::lock_guard<std::recursive_mutex> lock(watch_->mu);  // the watchdog is not cancelling
+      watch_->closed = true;
+    }
+    delete this;
+  }
+
+ private:
+  void Start() {
+    absl::StatusOr<std::unique_ptr<ChunkSource<Response>>> source = open_();
+    if (!source.ok()) return Done(source.status());
+    source_ = *std::move(source);
+    has_next_ = source_->Next(&next_);
+    WriteNext();
+  }
+  /// Writes the chunk made ahead and makes the one after it: the last goes out with OK.
+  void WriteNext() {
+    if (!has_next_) return Done(absl::OkStatus());  // an empty source
+    std::swap(current_, next_);
+    has_next_ = source_->Next(&next_);
+    UnscopeIds(tenant_, &current_);
+    call_.bytes_out += static_cast<int64_t>(current_.ByteSizeLong());
+    if (has_next_) return this->StartWrite(&current_);
+    source_.reset();
+    finished_ = true;
+    this->StartWriteAndFinish(&current_, grpc::WriteOptions(), service_->Finish(call_, absl::OkStatus()));
+  }
+  void Done(const absl::Status& s) {
+    if (finished_) return;
+    finished_ = true;
+    source_.reset();
+    this->Finish(service_->Finish(call_, s));
+  }
+
+  Service* service_;
+  grpc::CallbackServerContext* ctx_;
+  OpenFn open_;
+  Service::Call call_;
+  std::string tenant_;
+  std::shared_ptr<StreamWatch> watch_;
+  std::unique_ptr<ChunkSource<Response>> source_;
+  Response current_, next_;
+  bool has_next_ = false;
+  bool finished_ = false;
 };
 
 /// A WriteReactor work function from a handler that returns all its chunks at once.

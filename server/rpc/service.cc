@@ -78,21 +78,22 @@ grpc::ServerUnaryReactor* Service::Unary(grpc::CallbackServerContext* ctx, Call 
   return reactor;
 }
 
-grpc::ServerReadReactor<v1::UploadMeshRequest>* Service::UploadMesh(grpc::CallbackServerContext* ctx,
-                                                                    v1::MeshInfo* response) {
+grpc::ServerReadReactor<grpc::ByteBuffer>* Service::UploadMesh(grpc::CallbackServerContext* ctx,
+                                                               grpc::ByteBuffer* response) {
   return new ReadReactor<v1::UploadMeshRequest, UploadAssembler>(
       this, ctx, response, "UploadMesh", [this](const UploadAssembler& a, const CallContext& who) { return handlers_->UploadMesh(a, who.tenant); });
 }
 
-grpc::ServerReadReactor<v1::UpdatePositionsRequest>* Service::UpdatePositions(grpc::CallbackServerContext* ctx,
-                                                                              v1::MeshInfo* response) {
+grpc::ServerReadReactor<grpc::ByteBuffer>* Service::UpdatePositions(grpc::CallbackServerContext* ctx,
+                                                                    grpc::ByteBuffer* response) {
   auto next = std::make_shared<std::unique_ptr<Workspace::PendingPrefetch>>();
   return new ReadReactor<v1::UpdatePositionsRequest, PositionsAssembler>(
       this, ctx, response, "UpdatePositions",
       [this, next](const PositionsAssembler& a, const CallContext&) {
         return Updated(handlers_->UpdatePositions(a), next.get());
       },
-      [this, next](const v1::MeshInfo&) { RunPrefetch(next.get()); });
+      [this, next](const v1::MeshInfo&) { RunPrefetch(next.get()); },
+      [this](PositionsAssembler* a) { return handlers_->ExpectPositions(a); });
 }
 
 grpc::ServerUnaryReactor* Service::SetPositions(grpc::CallbackServerContext* ctx,
@@ -128,10 +129,8 @@ grpc::ServerUnaryReactor* Service::GetMesh(grpc::CallbackServerContext* ctx, con
 
 grpc::ServerWriteReactor<v1::DownloadMeshResponse>* Service::DownloadMesh(grpc::CallbackServerContext* ctx,
                                                                           const v1::DownloadMeshRequest* request) {
-  return new WriteReactor<v1::DownloadMeshResponse>(
-      this, ctx, io_, {"DownloadMesh", request->mesh_id()}, request,
-      AllAtOnce<v1::DownloadMeshResponse>(
-          [this, request](const CancellationToken&) { return handlers_->DownloadMesh(*request); }));
+  return new PullReactor<v1::DownloadMeshResponse>(this, ctx, io_, {"DownloadMesh", request->mesh_id()}, request,
+                                                   [this, request] { return handlers_->OpenDownload(*request); });
 }
 
 grpc::ServerUnaryReactor* Service::ListMeshes(grpc::CallbackServerContext* ctx, const v1::ListMeshesRequest* request,
@@ -181,7 +180,15 @@ grpc::ServerUnaryReactor* Service::GetServerInfo(grpc::CallbackServerContext* ct
 grpc::ServerUnaryReactor* Service::GetStatistics(grpc::CallbackServerContext* ctx, const v1::GetStatisticsRequest*,
                                                  v1::Statistics* response) {
   return Unary<v1::Statistics>(ctx, {"GetStatistics", ""}, io_, nullptr, response,
-                               [this](const CallContext&) -> absl::StatusOr<v1::Statistics> { return handlers_->GetStatistics(); });
+                               [this](const CallContext&) -> absl::StatusOr<v1::Statistics> {
+                                 v1::Statistics s = handlers_->GetStatistics();
+                                 if (stream_limits_ != nullptr) {
+                                   s.set_inflight_bytes(stream_limits_->reserved_bytes());
+                                   s.set_inflight_budget_bytes(stream_limits_->max_inflight_bytes());
+                                   s.set_open_streams(stream_limits_->open_streams());
+                                 }
+                                 return s;
+                               });
 }
 
 grpc::ServerWriteReactor<v1::ProjectPointsResponse>* Service::ProjectPoints(grpc::CallbackServerContext* ctx,

@@ -12,6 +12,7 @@
 #include "server/handlers/jobs.h"
 #include "server/auth.h"
 #include "server/request_stats.h"
+#include "server/rpc/stream_limits.h"
 #include "server/rpc/tenancy.h"
 #include "server/thread_pool.h"
 
@@ -24,7 +25,12 @@ std::string JobMeshId(const v1::Job& job);
 /// messages: every handler runs on a pool (compute: uploads, updates, fits; io:
 /// store reads and deletes), and each call ends in Service::Finish, which logs one
 /// line and records statistics.
-class Service final : public v1::GeomFit::CallbackService {
+/// UploadMesh and UpdatePositions are raw (ByteBuffer) methods: the reactor parses each
+/// message itself, so that garbage is told from the end of the stream.
+using ServiceBase = v1::GeomFit::WithRawCallbackMethod_UploadMesh<
+    v1::GeomFit::WithRawCallbackMethod_UpdatePositions<v1::GeomFit::CallbackService>>;
+
+class Service final : public ServiceBase {
  public:
   Service(Handlers* handlers, ThreadPool* compute, ThreadPool* io, RequestStats* stats)
       : handlers_(handlers), compute_(compute), io_(io), stats_(stats) {}
@@ -36,10 +42,12 @@ class Service final : public v1::GeomFit::CallbackService {
   int in_flight() const { return in_flight_.load(); }
   void Begin() { in_flight_.fetch_add(1); }
 
-  grpc::ServerReadReactor<v1::UploadMeshRequest>* UploadMesh(grpc::CallbackServerContext* ctx,
-                                                             v1::MeshInfo* response) override;
-  grpc::ServerReadReactor<v1::UpdatePositionsRequest>* UpdatePositions(grpc::CallbackServerContext* ctx,
-                                                                       v1::MeshInfo* response) override;
+  /// Streams of v1::UploadMeshRequest answered by a v1::MeshInfo (see ServiceBase).
+  grpc::ServerReadReactor<grpc::ByteBuffer>* UploadMesh(grpc::CallbackServerContext* ctx,
+                                                        grpc::ByteBuffer* response) override;
+  /// Streams of v1::UpdatePositionsRequest answered by a v1::MeshInfo.
+  grpc::ServerReadReactor<grpc::ByteBuffer>* UpdatePositions(grpc::CallbackServerContext* ctx,
+                                                             grpc::ByteBuffer* response) override;
   grpc::ServerUnaryReactor* SetPositions(grpc::CallbackServerContext* ctx, const v1::SetPositionsRequest* request,
                                          v1::MeshInfo* response) override;
   grpc::ServerUnaryReactor* GetMesh(grpc::CallbackServerContext* ctx, const v1::GetMeshRequest* request,
@@ -107,6 +115,9 @@ class Service final : public v1::GeomFit::CallbackService {
   Handlers* handlers() { return handlers_; }
   ThreadPool* compute() { return compute_; }
   ThreadPool* io() { return io_; }
+  /// In-flight budget and idle timeout of streams (null: neither).
+  void SetStreamLimits(StreamLimits* limits) { stream_limits_ = limits; }
+  StreamLimits* stream_limits() { return stream_limits_; }
 
  private:
   /// A unary call: admitted, `request`'s mesh ids scoped to the caller's tenant, `work`
@@ -134,6 +145,7 @@ class Service final : public v1::GeomFit::CallbackService {
   std::atomic<int> in_flight_{0};
   JobHandlers* jobs_ = nullptr;
   const TokenTable* tokens_ = nullptr;
+  StreamLimits* stream_limits_ = nullptr;
 };
 
 }  // namespace geomfit::server

@@ -102,6 +102,10 @@ void Cache::EraseMesh(const std::string& id) {
 void Cache::InsertLocked(const CacheKey& key, Value value, int64_t bytes) {
   if (RetiredLocked(key)) return;
   const int t = static_cast<int>(key.tier());
+  // A value computed twice (a prefetch and a request racing past each other) replaces
+  // the first: its LRU node must go too, or eviction would later meet a node whose
+  // entry is gone (found in the soak, bench/soak.py).
+  if (auto it = entries_.find(key); it != entries_.end()) EraseLocked(it);
   lru_[t].push_front(key);
   entries_[key] = Entry{std::move(value), bytes, lru_[t].begin()};
   bytes_ += bytes;

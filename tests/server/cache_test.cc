@@ -163,6 +163,24 @@ TEST(CacheTest, EraseMeshDropsOneMesh) {
   EXPECT_TRUE(hit);
 }
 
+// A value Put while the same key is being computed (a prefetch racing a request): the
+// computed value replaces it and the accounting holds one entry; eviction later walks a
+// consistent LRU list (it used to meet a node whose entry was gone and crash).
+TEST(CacheTest, ValuePutDuringItsComputationIsReplacedOnce) {
+  Cache cache(100);
+  const CacheKey key = K(Tier::kFitting, "a/r1/fit");
+  auto r = cache.GetOrCompute(key, [&]() -> absl::StatusOr<Cache::Computed> {
+    cache.Put(key, std::make_shared<const int>(1), 30);
+    return Cache::Computed{std::make_shared<const int>(2), 40};
+  });
+  ASSERT_TRUE(r.ok());
+  EXPECT_EQ(cache.bytes(), 40);
+  EXPECT_EQ(cache.Stats(Tier::kFitting).entries, 1);
+  for (int i = 0; i < 5; ++i) Get(cache, Tier::kFitting, "b/r1/fit" + std::to_string(i), i, 40);
+  EXPECT_LE(cache.bytes(), 100);
+  EXPECT_EQ(cache.Stats(Tier::kFitting).entries, 2);
+}
+
 TEST(CacheKeyTest, TypedKeysDoNotAlias) {
   // The case: min_points_factor 1.5000001 must not share the default 1.5's fits.
   FitOptions a, b;

@@ -1,0 +1,70 @@
+#pragma once
+// Bounded memory for streamed calls: the in-flight byte budget that client streams
+// reserve their declared size against (--max-inflight-bytes), the count of open
+// streams, and the idle watchdog that ends streams silent for --stream-idle-seconds.
+#include <atomic>
+#include <chrono>
+#include <condition_variable>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <thread>
+#include <vector>
+
+#include "absl/status/status.h"
+
+namespace geomfit::server {
+
+/// One watched stream. Its reactor guards its own state with `mu`; the watchdog calls
+/// `expire` with `mu` held once `last` is older than the idle time, unless `closed` (the
+/// reactor no longer waits on the client); `expire` returns whether it ended the call
+/// (else it is asked again at the next scan).
+struct StreamWatch {
+  std::recursive_mutex mu;  ///< recursive: a reaction run inline from StartRead is safe
+  std::chrono::steady_clock::time_point last = std::chrono::steady_clock::now();
+  bool closed = false;
+  std::function<bool()> expire;
+  /// A message arrived or a write completed (call with `mu` held).
+  void Touch() { last = std::chrono::steady_clock::now(); }
+};
+
+class StreamLimits {
+ public:
+  /// `max_inflight_bytes` 0: no budget; `idle` zero: no idle timeout (no thread).
+  StreamLimits(int64_t max_inflight_bytes, std::chrono::milliseconds idle);
+  ~StreamLimits();
+  StreamLimits(const StreamLimits&) = delete;
+  StreamLimits& operator=(const StreamLimits&) = delete;
+
+  /// Reserves `bytes` for a stream, or RESOURCE_EXHAUSTED naming --max-inflight-bytes
+  /// (nothing reserved) if they do not fit next to the other streams' reservations.
+  absl::Status Reserve(int64_t bytes);
+  void Release(int64_t bytes);
+  void Opened() { open_.fetch_add(1); }
+  void Closed() { open_.fetch_sub(1); }
+
+  /// A new watched stream; `expire` ends it (DEADLINE_EXCEEDED, or a cancel) once it
+  /// has not been touched for the idle time. Null without an idle timeout.
+  std::shared_ptr<StreamWatch> Watch(std::function<bool()> expire);
+
+  int64_t reserved_bytes() const { return reserved_.load(); }
+  int64_t open_streams() const { return open_.load(); }
+  int64_t max_inflight_bytes() const { return limit_; }
+  std::chrono::milliseconds idle() const { return idle_; }
+
+ private:
+  void Run();
+
+  const int64_t limit_;
+  const std::chrono::milliseconds idle_;
+  std::atomic<int64_t> reserved_{0};
+  std::atomic<int64_t> open_{0};
+  std::mutex mu_;
+  std::condition_variable cv_;
+  bool stop_ = false;
+  std::vector<std::shared_ptr<StreamWatch>> watched_;
+  std::thread thread_;
+};
+
+}  // namespace geomfit::server
