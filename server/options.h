@@ -35,6 +35,9 @@ struct ServerOptions {
   std::string tls_key;                     ///< PEM private key of tls_cert
   std::string auth_tokens;                 ///< `TOKEN TENANT` lines: bearer tokens, one namespace per tenant
   std::string tls_client_ca;               ///< PEM CA bundle: require and verify client certificates (mTLS)
+  int64_t quota_meshes = 0;                ///< stored meshes per tenant; 0 = unlimited
+  int64_t quota_bytes = 0;                 ///< their array bytes per tenant; 0 = unlimited
+  int quota_inflight = 0;                  ///< one tenant's requests computing or queued; 0 = unlimited
 
   std::string Address() const { return host + ":" + std::to_string(port); }
   /// True for 127.0.0.0/8, ::1 and localhost.

@@ -20,11 +20,6 @@
 
 namespace geomfit::server {
 
-inline absl::Status QueueFull(const char* pool) {
-  return absl::ResourceExhaustedError(std::string("server busy: the ") + pool +
-                                      " queue is full (--queue); retry later");
-}
-
 /// A token that trips at the call's deadline and when the client cancels the call (or
 /// the server shuts down past its drain time): unary calls get no OnCancel, so the token
 /// polls the context, which gRPC allows from any thread until the call is finished.
@@ -77,7 +72,8 @@ class ReadReactor final : public grpc::ServerReadReactor<Request> {
     }
     if (ctx_->IsCancelled()) return Done(absl::CancelledError("client cancelled the stream; nothing stored"));
     call_.bytes_in = assembler_.bytes();
-    const bool queued = service_->compute()->TrySubmit([this] {
+    if (absl::Status slot = service_->TakeComputeSlot(who_.tenant, &call_); !slot.ok()) return Done(slot);
+    const absl::Status queued = service_->compute()->Submit(who_.tenant, [this] {
       absl::StatusOr<v1::MeshInfo> info = finish_(assembler_, who_);
       if (info.ok()) UnscopeIds(who_.tenant, &*info);
       if (info.ok()) {
@@ -88,7 +84,7 @@ class ReadReactor final : public grpc::ServerReadReactor<Request> {
       Done(info.status());
       if (after && info.ok()) after(*info);
     });
-    if (!queued) Done(QueueFull("compute"));
+    if (!queued.ok()) Done(queued);
   }
 
   void OnDone() override { delete this; }
@@ -135,10 +131,16 @@ class WriteReactor final : public grpc::ServerWriteReactor<Response>, private Ch
     }
     tenant_ = who->tenant;
     ScopeIds(tenant_, const_cast<google::protobuf::Message*>(request));
+    if (pool == service->compute()) {
+      if (absl::Status slot = service_->TakeComputeSlot(tenant_, &call_); !slot.ok()) {
+        Done(slot);
+        return;
+      }
+    }
     working_ = true;
-    if (!pool->TrySubmit([this] { Run(); })) {
+    if (absl::Status queued = pool->Submit(tenant_, [this] { Run(); }); !queued.ok()) {
       working_ = false;
-      Done(QueueFull(pool == service->compute() ? "compute" : "io"));
+      Done(queued);
     }
   }
 
