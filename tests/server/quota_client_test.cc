@@ -4,6 +4,7 @@
 // turn across tenants, so one tenant's backlog of 300 calls does not queue another's.
 #include <atomic>
 #include <condition_variable>
+#include <filesystem>
 #include <memory>
 #include <mutex>
 #include <vector>
@@ -47,6 +48,25 @@ TEST(QuotaClientTest, StoredMeshesOverQuotaAreResourceExhaustedWhateverStoresThe
   // A delete frees the place.
   ASSERT_TRUE(a->DeleteMesh(torus->mesh_id).ok());
   EXPECT_TRUE(a->Upload(TestSphere(4), "sphere").ok());
+}
+
+TEST(QuotaClientTest, UsageSurvivesARestartWithTheSqliteStore) {
+  ServerOptions o = TenantOptions();
+  o.store = "sqlite";
+  o.data_dir = WriteTempFile("geomfit_quota_data", "");
+  std::filesystem::remove_all(o.data_dir);
+  o.quota_meshes = 2;
+  {
+    InProcessServer server(o);
+    auto a = ClientWith(server.port(), kTokenA);
+    ASSERT_TRUE(a->Upload(TestTorus(5), "1").ok());
+    ASSERT_TRUE(a->Upload(TestTorus(5), "2").ok());
+  }
+  InProcessServer server(o);
+  auto a = ClientWith(server.port(), kTokenA);
+  EXPECT_TRUE(IsQuotaError(a->Upload(TestTorus(5), "3").status(), "--quota-meshes=2"));
+  EXPECT_TRUE(ClientWith(server.port(), kTokenB)->Upload(TestTorus(5), "3").ok());
+  std::filesystem::remove_all(o.data_dir);
 }
 
 TEST(QuotaClientTest, SingleTenantModeAppliesQuotasToTheOneTenant) {
