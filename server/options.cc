@@ -130,7 +130,8 @@ const std::vector<Flag>& Flags() {
       {"quota-bytes", "bytes of stored meshes one tenant may hold (24 per vertex + 16 per face; K/M/G "
                       "suffixes); 0 = unlimited",
        IntSetter(&ServerOptions::quota_bytes, "quota-bytes", 0, int64_t{1} << 60)},
-      {"quota-inflight", "requests of one tenant computing or queued for the compute pool at once; 0 = unlimited",
+      {"quota-inflight", "requests of one tenant in the compute pool at once (queued, computing or sending their "
+                         "answer); 0 = unlimited",
        IntSetter(&ServerOptions::quota_inflight, "quota-inflight", 0, 1 << 20)},
       {"log-level", "trace|debug|info|warn|error|off",
        [](const std::string& v, ServerOptions* o) {

@@ -37,7 +37,7 @@ struct ServerOptions {
   std::string tls_client_ca;               ///< PEM CA bundle: require and verify client certificates (mTLS)
   int64_t quota_meshes = 0;                ///< stored meshes per tenant; 0 = unlimited
   int64_t quota_bytes = 0;                 ///< their array bytes per tenant; 0 = unlimited
-  int quota_inflight = 0;                  ///< one tenant's requests computing or queued; 0 = unlimited
+  int quota_inflight = 0;                  ///< one tenant's requests in compute until answered; 0 = unlimited
 
   std::string Address() const { return host + ":" + std::to_string(port); }
   /// True for 127.0.0.0/8, ::1 and localhost.

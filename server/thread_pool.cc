@@ -101,7 +101,7 @@ void ThreadPool::Run() {
       queued_.store(--total_queued_, std::memory_order_release);
     }
     task();
-    task = nullptr;  // what the task holds goes before the tenant's slot is freed
+    task = nullptr;  // what the task holds goes before its tenant's lane can
     std::lock_guard<std::mutex> lock(mu_);
     const auto it = lanes_.find(tenant);
     if (--it->second.active == 0) lanes_.erase(it);

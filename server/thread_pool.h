@@ -18,9 +18,9 @@ namespace geomfit::server {
 ///
 /// Fair across tenants: each tenant's tasks wait in a queue of their own, and the
 /// workers take one task per tenant in turn (round robin over the tenants with tasks
-/// waiting), so a tenant with hundreds of calls queued delays another's call by at
-/// most one task per worker, not by its whole backlog. One tenant (single-tenant mode)
-/// is plain FIFO.
+/// waiting), so a task waits for the tasks running and at most one task of each other
+/// tenant with tasks waiting, however long their backlogs. One tenant (single-tenant
+/// mode) is plain FIFO.
 class ThreadPool {
  public:
   /// `spin`: how long one idle worker at a time polls for the next task before it

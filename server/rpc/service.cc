@@ -42,12 +42,6 @@ absl::Status Service::TakeComputeSlot(const std::string& tenant, Call* call) {
   return absl::OkStatus();
 }
 
-int Service::ComputeSlots(const std::string& tenant) {
-  std::lock_guard<std::mutex> lock(slots_mu_);
-  const auto it = slots_.find(tenant);
-  return it == slots_.end() ? 0 : it->second;
-}
-
 grpc::Status Service::Finish(const Call& call, const absl::Status& status) {
   if (call.compute_slot) {  // given back before the answer leaves: a client's next call finds it free
     std::lock_guard<std::mutex> lock(slots_mu_);

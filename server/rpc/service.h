@@ -114,8 +114,6 @@ class Service final : public v1::GeomFit::CallbackService {
   /// Before a call goes to the compute pool: one of `tenant`'s slots for `call`, given
   /// back by Finish; RESOURCE_EXHAUSTED naming the quota when they are all taken.
   absl::Status TakeComputeSlot(const std::string& tenant, Call* call);
-  /// `tenant`'s calls holding compute slots.
-  int ComputeSlots(const std::string& tenant);
   Handlers* handlers() { return handlers_; }
   ThreadPool* compute() { return compute_; }
   ThreadPool* io() { return io_; }
