@@ -125,6 +125,14 @@ const std::vector<Flag>& Flags() {
       {"auth-tokens", "file of `TOKEN TENANT` lines: calls need 'authorization: Bearer TOKEN' and see only "
                       "their tenant's meshes and jobs (reloaded on SIGHUP); without it, one tenant, no authentication",
        PathSetter(&ServerOptions::auth_tokens)},
+      {"quota-meshes", "meshes one tenant may store (uploads, refinements, job results); 0 = unlimited",
+       IntSetter(&ServerOptions::quota_meshes, "quota-meshes", 0, int64_t{1} << 40)},
+      {"quota-bytes", "bytes of stored meshes one tenant may hold (24 per vertex + 16 per face; K/M/G "
+                      "suffixes); 0 = unlimited",
+       IntSetter(&ServerOptions::quota_bytes, "quota-bytes", 0, int64_t{1} << 60)},
+      {"quota-inflight", "requests of one tenant in the compute pool at once (queued, computing or sending their "
+                         "answer); 0 = unlimited",
+       IntSetter(&ServerOptions::quota_inflight, "quota-inflight", 0, 1 << 20)},
       {"log-level", "trace|debug|info|warn|error|off",
        [](const std::string& v, ServerOptions* o) {
          for (const char* level : {"trace", "debug", "info", "warn", "error", "off"}) {

@@ -40,6 +40,9 @@ struct ServerOptions {
 
   /// max_inflight_bytes, or its default: half of cache_bytes.
   int64_t InflightBudget() const { return max_inflight_bytes > 0 ? max_inflight_bytes : cache_bytes / 2; }
+  int64_t quota_meshes = 0;                ///< stored meshes per tenant; 0 = unlimited
+  int64_t quota_bytes = 0;                 ///< their array bytes per tenant; 0 = unlimited
+  int quota_inflight = 0;                  ///< one tenant's requests in compute until answered; 0 = unlimited
 
   std::string Address() const { return host + ":" + std::to_string(port); }
   /// True for 127.0.0.0/8, ::1 and localhost.

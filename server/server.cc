@@ -42,7 +42,9 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   w.max_vertices = options.max_vertices;
   w.threads = options.threads;
   w.prefetch = options.prefetch != 0;
+  w.quotas = {options.quota_meshes, options.quota_bytes};
   s->workspace_ = std::make_unique<Workspace>(s->store_.get(), s->cache_.get(), w);
+  GF_RETURN_IF_ERROR(s->workspace_->quotas().Load(*s->store_));  // usage is derived, never persisted
   HandlerOptions h;
   h.max_vertices = options.max_vertices;
   h.max_message_bytes = options.max_message_bytes;
@@ -51,8 +53,9 @@ absl::StatusOr<std::unique_ptr<Server>> Server::Start(const ServerOptions& optio
   h.workers = options.workers;
   s->handlers_ = std::make_unique<Handlers>(s->workspace_.get(), s->stats_.get(), h);
   s->compute_ = std::make_unique<ThreadPool>(options.workers, options.queue, std::chrono::microseconds(options.spin_us));
-  s->io_ = std::make_unique<ThreadPool>(2, options.queue);
+  s->io_ = std::make_unique<ThreadPool>(2, options.queue, std::chrono::microseconds(0), "io");
   s->service_ = std::make_unique<Service>(s->handlers_.get(), s->compute_.get(), s->io_.get(), s->stats_.get());
+  s->service_->SetInflightQuota(options.quota_inflight);
   JobManagerOptions jobs;
   jobs.threads = options.job_threads;
   jobs.max_jobs = options.max_jobs;

@@ -40,6 +40,8 @@ class Server {
   void Shutdown(double drain_seconds);
   /// Re-reads --auth-tokens (SIGHUP); on error the old tokens stay. OK without a file.
   absl::Status ReloadTokens();
+  /// The compute pool (fair across tenants, --quota-inflight); tests look at its lanes.
+  ThreadPool& compute_pool() { return *compute_; }
 
  private:
   Server() = default;

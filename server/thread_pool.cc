@@ -7,24 +7,51 @@
 #define GEOMFIT_CPU_RELAX() std::this_thread::yield()
 #endif
 
+#include <algorithm>
+
+#include "absl/strings/str_cat.h"
+
 namespace geomfit::server {
 
-ThreadPool::ThreadPool(int threads, int max_queue, std::chrono::microseconds spin)
-    : max_queue_(static_cast<size_t>(max_queue)), spin_(spin) {
+ThreadPool::ThreadPool(int threads, int max_queue, std::chrono::microseconds spin, std::string name)
+    : max_queue_(static_cast<size_t>(max_queue)), spin_(spin), name_(std::move(name)) {
   for (int i = 0; i < threads; ++i) workers_.emplace_back([this] { Run(); });
 }
 
 ThreadPool::~ThreadPool() { Stop(); }
 
-bool ThreadPool::TrySubmit(std::function<void()> task) {
+absl::Status ThreadPool::Submit(const std::string& tenant, std::function<void()> task) {
   {
     std::lock_guard<std::mutex> lock(mu_);
-    if (stopping_ || queue_.size() >= max_queue_) return false;
-    queue_.push_back(std::move(task));
-    queued_.store(queue_.size(), std::memory_order_release);
+    if (stopping_) return absl::UnavailableError(absl::StrCat("server is stopping: the ", name_, " pool takes no task"));
+    Lane& lane = lanes_[tenant];  // erased below if refused while empty
+    absl::Status refused;
+    if (total_queued_ >= max_queue_) {
+      // A full queue still admits a tenant below its share, so one tenant's backlog
+      // cannot lock the others out.
+      const size_t waiting = turns_.size() + (lane.queued.empty() ? 1 : 0);
+      if (lane.queued.size() >= std::max<size_t>(1, max_queue_ / waiting)) {
+        refused = absl::ResourceExhaustedError(
+            absl::StrCat("server busy: the ", name_, " queue is full (--queue); retry later"));
+      }
+    }
+    if (!refused.ok()) {
+      if (lane.active == 0) lanes_.erase(tenant);
+      return refused;
+    }
+    if (lane.queued.empty()) turns_.push_back(tenant);
+    lane.queued.push_back(std::move(task));
+    ++lane.active;
+    queued_.store(++total_queued_, std::memory_order_release);
   }
   ready_.notify_one();
-  return true;
+  return absl::OkStatus();
+}
+
+int ThreadPool::Active(const std::string& tenant) const {
+  std::lock_guard<std::mutex> lock(mu_);
+  const auto it = lanes_.find(tenant);
+  return it == lanes_.end() ? 0 : it->second.active;
 }
 
 void ThreadPool::Stop() {
@@ -53,20 +80,31 @@ bool ThreadPool::Spin() {
 void ThreadPool::Run() {
   while (true) {
     std::function<void()> task;
+    std::string tenant;
     {
       std::unique_lock<std::mutex> lock(mu_);
-      if (queue_.empty() && !stopping_) {
+      if (turns_.empty() && !stopping_) {
         lock.unlock();
         Spin();
         lock.lock();
       }
-      ready_.wait(lock, [this] { return stopping_ || !queue_.empty(); });
-      if (queue_.empty()) return;  // stopping and drained
-      task = std::move(queue_.front());
-      queue_.pop_front();
-      queued_.store(queue_.size(), std::memory_order_release);
+      ready_.wait(lock, [this] { return stopping_ || !turns_.empty(); });
+      if (turns_.empty()) return;  // stopping and drained
+      // Round robin: the next tenant's oldest task; the tenant goes to the back of the
+      // line if it has more.
+      tenant = std::move(turns_.front());
+      turns_.pop_front();
+      Lane& lane = lanes_[tenant];
+      task = std::move(lane.queued.front());
+      lane.queued.pop_front();
+      if (!lane.queued.empty()) turns_.push_back(tenant);
+      queued_.store(--total_queued_, std::memory_order_release);
     }
     task();
+    task = nullptr;  // what the task holds goes before its tenant's lane can
+    std::lock_guard<std::mutex> lock(mu_);
+    const auto it = lanes_.find(tenant);
+    if (--it->second.active == 0) lanes_.erase(it);
   }
 }
 

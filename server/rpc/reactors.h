@@ -24,11 +24,6 @@
 
 namespace geomfit::server {
 
-inline absl::Status QueueFull(const char* pool) {
-  return absl::ResourceExhaustedError(std::string("server busy: the ") + pool +
-                                      " queue is full (--queue); retry later");
-}
-
 /// A token that trips at the call's deadline and when the client cancels the call (or
 /// the server shuts down past its drain time): unary calls get no OnCancel, so the token
 /// polls the context, which gRPC allows from any thread until the call is finished.
@@ -100,7 +95,8 @@ class ReadReactor final : public grpc::ServerReadReactor<grpc::ByteBuffer> {
     }
     if (ctx_->IsCancelled()) return Done(absl::CancelledError("client cancelled the stream; nothing stored"));
     if (watch_ != nullptr) watch_->closed = true;  // received in full: no longer idle
-    const bool queued = service_->compute()->TrySubmit([this] {
+    if (absl::Status slot = service_->TakeComputeSlot(who_.tenant, &call_); !slot.ok()) return Done(slot);
+    const absl::Status queued = service_->compute()->Submit(who_.tenant, [this] {
       absl::StatusOr<v1::MeshInfo> info = finish_(*assembler_, who_);
       if (info.ok()) UnscopeIds(who_.tenant, &*info);
       if (info.ok()) {
@@ -114,7 +110,7 @@ class ReadReactor final : public grpc::ServerReadReactor<grpc::ByteBuffer> {
       lock = Lock();
       if (after && info.ok()) after(*info);
     });
-    if (!queued) Done(QueueFull("compute"));
+    if (!queued.ok()) Done(queued);
   }
 
   void OnDone() override {
@@ -222,10 +218,16 @@ class WriteReactor final : public grpc::ServerWriteReactor<Response>, private Ch
     if (StreamLimits* limits = service_->stream_limits(); limits != nullptr) {
       watch_ = limits->Watch([this, idle = limits->idle()] { return Stalled(idle); });
     }
+    if (pool == service->compute()) {
+      if (absl::Status slot = service_->TakeComputeSlot(tenant_, &call_); !slot.ok()) {
+        Done(slot);
+        return;
+      }
+    }
     working_ = true;
-    if (!pool->TrySubmit([this] { Run(); })) {
+    if (absl::Status queued = pool->Submit(tenant_, [this] { Run(); }); !queued.ok()) {
       working_ = false;
-      Done(QueueFull(pool == service->compute() ? "compute" : "io"));
+      Done(queued);
     }
   }
 

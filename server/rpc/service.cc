@@ -9,6 +9,7 @@
 #include <spdlog/spdlog.h>
 
 #include "absl/status/status.h"
+#include "absl/strings/str_cat.h"
 #include "core/util/status_macros.h"
 #include "server/mesh_store.h"
 #include "server/rpc/grpc_status.h"
@@ -27,7 +28,26 @@ absl::StatusOr<CallContext> Service::Admit(const grpc::CallbackServerContext* ct
   return call;
 }
 
+absl::Status Service::TakeComputeSlot(const std::string& tenant, Call* call) {
+  if (inflight_quota_ <= 0) return absl::OkStatus();
+  std::lock_guard<std::mutex> lock(slots_mu_);
+  int& taken = slots_[tenant];
+  if (taken >= inflight_quota_) {
+    if (taken == 0) slots_.erase(tenant);
+    return absl::ResourceExhaustedError(absl::StrCat("tenant quota --quota-inflight=", inflight_quota_,
+                                                     " reached: retry once one of your requests is answered"));
+  }
+  ++taken;
+  call->compute_slot = tenant;
+  return absl::OkStatus();
+}
+
 grpc::Status Service::Finish(const Call& call, const absl::Status& status) {
+  if (call.compute_slot) {  // given back before the answer leaves: a client's next call finds it free
+    std::lock_guard<std::mutex> lock(slots_mu_);
+    const auto it = slots_.find(*call.compute_slot);
+    if (--it->second == 0) slots_.erase(it);
+  }
   const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - call.start).count();
   const std::string code = absl::StatusCodeToString(status.code());
   stats_->Record(call.method, code, status.ok(), ms);
@@ -53,6 +73,9 @@ grpc::ServerUnaryReactor* Service::Unary(grpc::CallbackServerContext* ctx, Call 
   // gRPC hands the request over for the call's lifetime: scoping it in place spares a
   // copy of large requests (SetPositions).
   if (who.ok() && request != nullptr) ScopeIds(who->tenant, const_cast<google::protobuf::Message*>(request));
+  if (who.ok() && pool == compute_) {
+    if (absl::Status slot = TakeComputeSlot(who->tenant, &call); !slot.ok()) who = slot;
+  }
   auto run = [this, reactor, response, work = std::move(work), after = std::move(after), call,
               who = who.ok() ? *who : CallContext()]() mutable {
     absl::StatusOr<Response> r = work(who);
@@ -72,8 +95,8 @@ grpc::ServerUnaryReactor* Service::Unary(grpc::CallbackServerContext* ctx, Call 
     reactor->Finish(Finish(call, who.status()));
   } else if (pool == nullptr) {
     run();
-  } else if (!pool->TrySubmit(std::move(run))) {
-    reactor->Finish(Finish(call, QueueFull(pool == compute_ ? "compute" : "io")));
+  } else if (absl::Status queued = pool->Submit(who->tenant, std::move(run)); !queued.ok()) {
+    reactor->Finish(Finish(call, queued));
   }
   return reactor;
 }
@@ -224,7 +247,9 @@ namespace {
 absl::Status NoJobs() { return absl::UnimplementedError("this server runs no jobs"); }
 }  // namespace
 
-std::string JobMeshId(const v1::Job& job) { return job.request().refine().mesh_id(); }
+std::string JobMeshId(const v1::Job& job) {
+  return job.request().has_flow() ? job.request().flow().mesh_id() : job.request().refine().mesh_id();
+}
 
 absl::Status Service::OwnJob(const CallContext& who, const std::string& job_id) const {
   if (who.tenant.empty() || jobs_ == nullptr) return absl::OkStatus();

@@ -2,6 +2,9 @@
 #include <atomic>
 #include <chrono>
 #include <functional>
+#include <map>
+#include <mutex>
+#include <optional>
 #include <string>
 
 #include <grpcpp/grpcpp.h>
@@ -100,6 +103,7 @@ class Service final : public ServiceBase {
     std::string mesh_id;
     int64_t bytes_in = 0, bytes_out = 0;
     std::chrono::steady_clock::time_point start = std::chrono::steady_clock::now();
+    std::optional<std::string> compute_slot;  ///< the tenant whose compute slot it holds (TakeComputeSlot)
   };
   /// Logs and records `call` (begun with Begin), returning the mapped status to
   /// finish the RPC with.
@@ -112,6 +116,12 @@ class Service final : public ServiceBase {
   void SetTokens(const TokenTable* tokens) { tokens_ = tokens; }
   /// NOT_FOUND unless job `job_id` is the caller's (its input mesh is).
   absl::Status OwnJob(const CallContext& who, const std::string& job_id) const;
+  /// --quota-inflight: `k` calls per tenant in compute at once (queued or running, until
+  /// answered); 0 = unlimited.
+  void SetInflightQuota(int k) { inflight_quota_ = k; }
+  /// Before a call goes to the compute pool: one of `tenant`'s slots for `call`, given
+  /// back by Finish; RESOURCE_EXHAUSTED naming the quota when they are all taken.
+  absl::Status TakeComputeSlot(const std::string& tenant, Call* call);
   Handlers* handlers() { return handlers_; }
   ThreadPool* compute() { return compute_; }
   ThreadPool* io() { return io_; }
@@ -146,6 +156,9 @@ class Service final : public ServiceBase {
   JobHandlers* jobs_ = nullptr;
   const TokenTable* tokens_ = nullptr;
   StreamLimits* stream_limits_ = nullptr;
+  int inflight_quota_ = 0;
+  std::mutex slots_mu_;
+  std::map<std::string, int> slots_;  ///< per tenant, while some are taken
 };
 
 }  // namespace geomfit::server

@@ -39,7 +39,7 @@ int64_t MeshBytes(const Mesh& m) {
 }
 
 Workspace::Workspace(MeshStore* store, Cache* cache, WorkspaceOptions options)
-    : store_(store), cache_(cache), options_(options) {}
+    : store_(store), cache_(cache), options_(options), quotas_(options.quotas) {}
 
 std::string TenantPrefix(absl::string_view tenant) { return tenant.empty() ? "" : absl::StrCat(tenant, "/"); }
 
@@ -83,7 +83,7 @@ absl::StatusOr<MeshRecord> Workspace::AddMesh(Mesh mesh, const MeshMeta& meta) {
   info.num_isolated_vertices = topo.num_isolated;
   AmendForPositions(mesh.positions, 1, &info);
   info.created_unix_ms = info.updated_unix_ms;
-  GF_ASSIGN_OR_RETURN(MeshRecord stored, store_->Insert(info, mesh));
+  GF_ASSIGN_OR_RETURN(MeshRecord stored, quotas_.Insert(*store_, info, mesh));
   if (stored.revision == 1) {
     const int64_t topo_bytes = static_cast<int64_t>(topo.Bytes());
     cache_->Put(TopologyKey(stored.mesh_id), std::make_shared<const Topology>(std::move(topo)), topo_bytes);
@@ -130,7 +130,7 @@ absl::StatusOr<std::vector<MeshRecord>> Workspace::List(const std::string& after
 }
 
 absl::Status Workspace::Delete(const std::string& id) {
-  GF_RETURN_IF_ERROR(store_->Delete(id));
+  GF_RETURN_IF_ERROR(quotas_.Delete(*store_, id));
   cache_->EraseMesh(id);
   {
     std::lock_guard<std::mutex> lock(recipes_mu_);

@@ -22,6 +22,7 @@
 #include "server/workspace/cache.h"
 #include "server/workspace/evaluation.h"
 #include "server/workspace/keys.h"
+#include "server/workspace/quotas.h"
 
 namespace geomfit::server {
 
@@ -29,6 +30,7 @@ struct WorkspaceOptions {
   int64_t max_vertices = 20'000'000;
   int threads = 0;        ///< numeric threads per computation; 0 = all cores
   bool prefetch = true;   ///< after a position update, recompute the last step's differentials
+  StoreQuotaLimits quotas{};  ///< per tenant (--quota-meshes, --quota-bytes); 0 = unlimited
 };
 
 /// What a new mesh is called.
@@ -130,6 +132,8 @@ class Workspace {
                                                                OperatorKind kind, const RunContext& ctx);
 
   const Cache& cache() const { return *cache_; }
+  /// Stored meshes per tenant: AddMesh and Delete go through it; Load it before serving.
+  StoreQuotas& quotas() { return quotas_; }
   MeshStore& store() const { return *store_; }
 
  private:
@@ -151,6 +155,7 @@ class Workspace {
   std::map<std::string, Recipe> recipes_;
   std::mutex evaluations_mu_;
   std::map<CacheKey, std::shared_ptr<Evaluation>> evaluations_;  ///< running, by differentials key
+  StoreQuotas quotas_;
 };
 
 /// A prefetch registered by PlanPrefetch: Run computes it; dropped unrun, it ends as

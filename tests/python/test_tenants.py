@@ -48,3 +48,21 @@ def test_cli_token(tenant_server, tmp_path, monkeypatch):
     assert run("list", "--server", tenant_server.address, "--token-file", str(token_file)).stdout.startswith("mesh_id")
     monkeypatch.setenv("GEOMFIT_TOKEN", TOKEN_B)
     assert run("list", "--server", tenant_server.address).stdout.startswith("mesh_id")
+
+
+def test_quota_names_itself(tmp_path, transport):
+    tokens = tmp_path / "tokens"
+    tokens.write_text("%s alpha\n%s beta\n" % (TOKEN_A, TOKEN_B))
+    s = ServerProcess("--store=memory", "--auth-tokens", str(tokens), "--quota-meshes", "1")
+    try:
+        pos, tris = torus(24, 12)
+        with geomfit.Client(s.address, transport=transport, token=TOKEN_A, max_attempts=1) as a, \
+                geomfit.Client(s.address, transport=transport, token=TOKEN_B, max_attempts=1) as b:
+            a.upload(pos, tris, name="first")
+            with pytest.raises(geomfit.GeomfitError) as e:
+                a.upload(pos, tris, name="second")
+            assert e.value.code.name == "RESOURCE_EXHAUSTED"
+            assert "tenant quota --quota-meshes=1 reached" in str(e.value)
+            b.upload(pos, tris, name="second")  # beta's quota is beta's
+    finally:
+        s.kill(signal.SIGTERM)

@@ -67,5 +67,23 @@ TEST(OptionsTest, BadValuesNameTheFlag) {
   EXPECT_NE(r.status().message().find("GEOMFIT_WORKERS"), std::string::npos) << r.status();
 }
 
+TEST(OptionsTest, Quotas) {
+  auto d = ParseServerOptions({});
+  ASSERT_TRUE(d.ok());
+  EXPECT_EQ(d->quota_meshes, 0) << "unlimited by default";
+  EXPECT_EQ(d->quota_bytes, 0);
+  EXPECT_EQ(d->quota_inflight, 0);
+  ::setenv("GEOMFIT_QUOTA_MESHES", "12", 1);
+  auto o = ParseServerOptions({"--quota-bytes=3G", "--quota-inflight", "4"});
+  ::unsetenv("GEOMFIT_QUOTA_MESHES");
+  ASSERT_TRUE(o.ok()) << o.status();
+  EXPECT_EQ(o->quota_meshes, 12);
+  EXPECT_EQ(o->quota_bytes, int64_t{3} << 30);
+  EXPECT_EQ(o->quota_inflight, 4);
+  auto r = ParseServerOptions({"--quota-inflight=-1"});
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.status().message().find("--quota-inflight=-1"), std::string::npos) << r.status();
+}
+
 }  // namespace
 }  // namespace geomfit::server

@@ -1,52 +1,23 @@
 // Bearer tokens and tenants (--auth-tokens): every RPC of one tenant is blind to
 // another's meshes and jobs (NOT_FOUND, never a hint that they exist); calls without a
 // valid token are UNAUTHENTICATED; health stays open.
-#include <unistd.h>
-
 #include <algorithm>
-#include <filesystem>
 #include <fstream>
 
 #include <gtest/gtest.h>
 
-#include "clients/cpp/client/client.h"
 #include "server/auth.h"
-#include "tests/server/test_util.h"
+#include "tests/server/tenant_util.h"
 
 namespace geomfit {
 namespace {
 
+using server::testing::ClientWith;
 using server::testing::InProcessServer;
-constexpr char kTokenA[] = "token-of-tenant-a-0123456789";
-constexpr char kTokenB[] = "token-of-tenant-b-0123456789";
-
-std::string WriteFile(const std::string& name, const std::string& text) {
-  const std::string path =
-      (std::filesystem::temp_directory_path() / (name + "_" + std::to_string(::getpid()))).string();
-  std::ofstream(path) << text;
-  return path;
-}
-
-std::string TokenFile() {
-  return WriteFile("geomfit_tokens", std::string("# token tenant\n") + kTokenA + " alpha\n" + kTokenB + "  beta\n");
-}
-
-server::ServerOptions TenantOptions() {
-  server::ServerOptions o = server::testing::LoopbackOptions();
-  o.auth_tokens = TokenFile();
-  return o;
-}
-
-/// chunk_rows 50: uploads and updates of the test meshes stream in several messages;
-/// 0: an update is one SetPositions message.
-std::unique_ptr<Client> ClientWith(int port, const std::string& token, int64_t chunk_rows = 50) {
-  ClientOptions o;
-  o.target = "127.0.0.1:" + std::to_string(port);
-  o.max_attempts = 1;
-  o.token = token;
-  if (chunk_rows > 0) o.chunk_rows = chunk_rows;
-  return Client::Connect(o);
-}
+using server::testing::kTokenA;
+using server::testing::kTokenB;
+using server::testing::TenantOptions;
+using server::testing::TokenFile;
 
 TEST(TokenTableTest, ParsesReloadsAndRejects) {
   const std::string path = TokenFile();
@@ -80,6 +51,31 @@ TEST(TenantTest, CallsWithoutAValidTokenAreUnauthenticatedAndHealthStaysOpen) {
     EXPECT_EQ(c->ListJobs().status().code(), absl::StatusCode::kUnauthenticated);
     EXPECT_EQ(c->WatchJob("x", 0, [](const v1::JobEvent&) { return true; }).code(),
               absl::StatusCode::kUnauthenticated);
+    // Every other RPC too, before it looks at the (unknown) id.
+    const auto kUnauthenticated = absl::StatusCode::kUnauthenticated;
+    const Mesh mesh = server::testing::TestTorus(5);
+    EXPECT_EQ(c->UpdatePositions("x", mesh.positions).status().code(), kUnauthenticated);  // stream
+    EXPECT_EQ(ClientWith(server.port(), token, 0)->UpdatePositions("x", mesh.positions).status().code(),
+              kUnauthenticated);  // SetPositions
+    EXPECT_EQ(c->DeleteMesh("x").code(), kUnauthenticated);
+    EXPECT_EQ(c->ComputeDifferentials("x", FitOptions()).status().code(), kUnauthenticated);
+    EXPECT_EQ(c->ProjectPoints("x", mesh.positions.topRows(3)).status().code(), kUnauthenticated);
+    EXPECT_EQ(c->HighOrderNodes("x", 2).status().code(), kUnauthenticated);
+    EXPECT_EQ(c->RefineMesh("x", 2).status().code(), kUnauthenticated);
+    EXPECT_EQ(c->Integrate("x", IntegrationInput()).status().code(), kUnauthenticated);
+    EXPECT_EQ(c->GetOperator("x", v1::OPERATOR_LAPLACE_BELTRAMI).status().code(), kUnauthenticated);
+    EXPECT_EQ(c->ApplyOperator("x", v1::OPERATOR_LAPLACE_BELTRAMI, mesh.positions).status().code(),
+              kUnauthenticated);
+    v1::StartJobRequest start;
+    start.mutable_refine()->set_mesh_id("x");
+    EXPECT_EQ(c->StartJob(start).status().code(), kUnauthenticated);
+    v1::FlowJob flow;
+    flow.set_mesh_id("x");
+    EXPECT_EQ(c->StartFlow(flow).status().code(), kUnauthenticated);
+    EXPECT_EQ(c->GetJob("x").status().code(), kUnauthenticated);
+    EXPECT_EQ(c->CancelJob("x").status().code(), kUnauthenticated);
+    EXPECT_EQ(c->GetServerInfo().status().code(), kUnauthenticated);
+    EXPECT_EQ(c->GetStatistics().status().code(), kUnauthenticated);
   }
   EXPECT_EQ(server::testing::HealthCheck(server.channel()), "SERVING");
   EXPECT_EQ(ClientWith(server.port(), "")->CheckHealth().value_or("error"), "SERVING");
@@ -111,6 +107,8 @@ TEST(TenantTest, EveryRpcOfAnotherTenantFindsNothing) {
   EXPECT_EQ(b->HighOrderNodes(id, 2).status().code(), kNotFound);
   EXPECT_EQ(b->RefineMesh(id, 2).status().code(), kNotFound);
   EXPECT_EQ(b->Integrate(id, IntegrationInput()).status().code(), kNotFound);
+  EXPECT_EQ(b->GetOperator(id, v1::OPERATOR_LAPLACE_BELTRAMI).status().code(), kNotFound);
+  EXPECT_EQ(b->ApplyOperator(id, v1::OPERATOR_LAPLACE_BELTRAMI, mesh.positions).status().code(), kNotFound);
   EXPECT_EQ(b->DeleteMesh(id).code(), kNotFound);
   v1::StartJobRequest start;
   start.mutable_refine()->set_mesh_id(id);
@@ -136,6 +134,41 @@ TEST(TenantTest, EveryRpcOfAnotherTenantFindsNothing) {
   ASSERT_TRUE(info.ok());
   EXPECT_EQ(info->revision, 1);
   EXPECT_TRUE(a->DeleteMesh(id).ok());
+}
+
+TEST(TenantTest, FlowJobsAreTheirTenantsOnly) {
+  InProcessServer server(TenantOptions());
+  auto a = ClientWith(server.port(), kTokenA);
+  auto b = ClientWith(server.port(), kTokenB);
+  auto mine = a->Upload(server::testing::TestSphere(4), "a's sphere");
+  ASSERT_TRUE(mine.ok()) << mine.status();
+  v1::FlowJob spec;
+  spec.set_mesh_id(mine->mesh_id);
+  spec.set_dt(1e-3);
+  spec.set_steps(2);
+  const auto kNotFound = absl::StatusCode::kNotFound;
+  EXPECT_EQ(b->StartFlow(spec).status().code(), kNotFound);
+  auto job = a->StartFlow(spec);
+  ASSERT_TRUE(job.ok()) << job.status();
+  EXPECT_EQ(job->request().flow().mesh_id(), mine->mesh_id);
+  // The other tenant learns nothing of it...
+  EXPECT_EQ(b->GetJob(job->job_id()).status().code(), kNotFound);
+  EXPECT_EQ(b->CancelJob(job->job_id()).status().code(), kNotFound);
+  EXPECT_EQ(b->WatchJob(job->job_id(), 0, [](const v1::JobEvent&) { return true; }).code(), kNotFound);
+  EXPECT_TRUE(b->ListJobs()->empty());
+  // ...while the owner watches, gets and lists it; its snapshot is a revision of a's mesh.
+  v1::JobEvent last;
+  ASSERT_TRUE(a->WatchJob(job->job_id(), 0, [&](const v1::JobEvent& e) {
+                  last = e;
+                  return true;
+                }).ok());
+  EXPECT_EQ(last.state(), v1::JOB_STATE_SUCCEEDED) << last.message();
+  auto got = a->GetJob(job->job_id());
+  ASSERT_TRUE(got.ok()) << got.status();
+  EXPECT_EQ(got->state(), v1::JOB_STATE_SUCCEEDED);
+  EXPECT_EQ(a->ListJobs()->size(), 1u);
+  EXPECT_EQ(a->GetMesh(mine->mesh_id)->revision, 2);
+  EXPECT_TRUE(b->ListMeshes()->empty());
 }
 
 TEST(TenantTest, IdenticalUploadsByTwoTenantsAreIndependentMeshes) {

@@ -1,7 +1,9 @@
 #pragma once
 // Shared helpers of the server tests: meshes, an in-process server on a loopback
 // port, raw stream helpers and a health probe that uses no generated code.
+#include <condition_variable>
 #include <functional>
+#include <mutex>
 #include <memory>
 #include <string>
 #include <vector>
@@ -70,6 +72,41 @@ grpc::Status WatchJob(v1::GeomFit::Stub& stub, const std::string& job_id, int64_
 /// grpc.health.v1 Check for `service` ("" = server), sent as raw bytes so it relies
 /// on nothing but the wire format: "SERVING", "NOT_SERVING", or the error.
 std::string HealthCheck(const std::shared_ptr<grpc::Channel>& channel, const std::string& service = "");
+
+/// A pool task that holds its worker until the gate opens, and says when it started.
+class Gate {
+ public:
+  std::function<void()> Task() {
+    return [this] {
+      std::unique_lock<std::mutex> lock(mu_);
+      ++started_;
+      changed_.notify_all();
+      changed_.wait(lock, [this] { return open_; });
+    };
+  }
+  /// Waits until `tasks` of its tasks hold their workers.
+  void AwaitStart(int tasks = 1) {
+    std::unique_lock<std::mutex> lock(mu_);
+    changed_.wait(lock, [&] { return started_ >= tasks; });
+  }
+  void Open() {
+    std::lock_guard<std::mutex> lock(mu_);
+    open_ = true;
+    changed_.notify_all();
+  }
+
+ private:
+  std::mutex mu_;
+  std::condition_variable changed_;
+  int started_ = 0;
+  bool open_ = false;
+};
+
+/// RESOURCE_EXHAUSTED "tenant quota QUOTA reached" (QUOTA: "--quota-meshes=3").
+inline bool IsQuotaError(const absl::Status& s, const std::string& quota) {
+  return s.code() == absl::StatusCode::kResourceExhausted &&
+         s.message().find("tenant quota " + quota + " reached") != absl::string_view::npos;
+}
 
 /// Bitwise equality of two meshes.
 bool SameMesh(const Mesh& a, const Mesh& b);

@@ -2,9 +2,15 @@
 
 #include <atomic>
 #include <chrono>
+#include <functional>
+#include <mutex>
+#include <string>
 #include <thread>
+#include <vector>
 
 #include <gtest/gtest.h>
+
+#include "tests/server/test_util.h"
 
 namespace geomfit::server {
 namespace {
@@ -47,6 +53,51 @@ TEST(ThreadPoolTest, AFullQueueRefuses) {
   while (!pool.TrySubmit([] {})) std::this_thread::yield();
   EXPECT_FALSE(pool.TrySubmit([] {}));
   release = true;
+}
+
+using testing::Gate;
+
+TEST(ThreadPoolTest, TenantsAreServedInTurn) {
+  ThreadPool pool(1, 1000);
+  Gate gate;
+  ASSERT_TRUE(pool.Submit("a", gate.Task()).ok());
+  gate.AwaitStart();
+  std::mutex mu;
+  std::vector<std::string> order;
+  auto task = [&](std::string name) {
+    return [&, name] {
+      std::lock_guard<std::mutex> lock(mu);
+      order.push_back(name);
+    };
+  };
+  // a's backlog of five is queued before b's two, yet b waits for one of a's at most.
+  for (int i = 1; i <= 5; ++i) ASSERT_TRUE(pool.Submit("a", task("a" + std::to_string(i))).ok());
+  for (int i = 1; i <= 2; ++i) ASSERT_TRUE(pool.Submit("b", task("b" + std::to_string(i))).ok());
+  EXPECT_EQ(pool.Active("a"), 6);
+  EXPECT_EQ(pool.Active("b"), 2);
+  gate.Open();
+  pool.Stop();
+  EXPECT_EQ(order, (std::vector<std::string>{"a1", "b1", "a2", "b2", "a3", "a4", "a5"}));
+  EXPECT_EQ(pool.Active("a"), 0);
+  EXPECT_EQ(pool.Active("b"), 0);
+}
+
+TEST(ThreadPoolTest, AFullQueueStillAdmitsATenantBelowItsShare) {
+  ThreadPool pool(1, 4, microseconds(0), "compute");
+  Gate gate;
+  ASSERT_TRUE(pool.Submit("a", gate.Task()).ok());
+  gate.AwaitStart();
+  for (int i = 0; i < 4; ++i) ASSERT_TRUE(pool.Submit("a", [] {}).ok());
+  const absl::Status full = pool.Submit("a", [] {});
+  EXPECT_EQ(full.code(), absl::StatusCode::kResourceExhausted);
+  EXPECT_NE(full.message().find("the compute queue is full (--queue)"), std::string::npos) << full;
+  // b's share of the queue, with a and b waiting, is 4 / 2.
+  EXPECT_TRUE(pool.Submit("b", [] {}).ok());
+  EXPECT_TRUE(pool.Submit("b", [] {}).ok());
+  EXPECT_EQ(pool.Submit("b", [] {}).code(), absl::StatusCode::kResourceExhausted);
+  gate.Open();
+  pool.Stop();
+  EXPECT_EQ(pool.Submit("b", [] {}).code(), absl::StatusCode::kUnavailable);
 }
 
 }  // namespace
