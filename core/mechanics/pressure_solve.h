@@ -27,7 +27,16 @@
 //   [ C^T 0 ] [dl] = [ -C^T (y - x)    ]        reference centroid (3n x 6)
 // i.e. the mean displacement and the mean rotation (sum (x_i - c) x phi_i) are zero and
 // six multipliers absorb the discrete net force and torque (O(h^{d-1})). On an open
-// surface the boundary vertices are clamped (y_i = x_i). Linear systems: a sparse direct
+// surface the boundary vertices are clamped (y_i = x_i), or free: a traction-free edge,
+// the natural boundary condition sigma m = 0 (m the deformed outward conormal). With
+// sigma = y_a S^ab y_b^T and m . y_b proportional to N_b = x_b . M (M the reference
+// outward conormal: a pushed-forward edge keeps its normal covector) it reads
+// y_a S^ab N_b = 0, two tangential equations that replace the tangential part of the
+// vertex's equilibrium (its normal part n . (div sigma + [p] n) = 0 stays), scaled by
+// 1/h against it. Nothing is held then, so the six rigid modes are removed by the
+// border as on a closed surface. Check: an open cylinder with free ends under [p]
+// expands uniaxially, hoop stretch l with p = E (l^2 - 1)/(2 l) and axial stretch
+// sqrt(1 - nu (l^2 - 1)) (zero axial stress). Linear systems: a sparse direct
 // solver (core/linalg: UMFPACK when linked, else SparseLU), one factorization per Newton
 // iteration, the symbolic analysis reused. Load stepping: when Newton does not converge
 // at the full load, the load is approached in steps halved on failure and doubled after
@@ -51,7 +60,7 @@ namespace geomfit {
 enum class BoundaryCondition {
   kUnset,    ///< closed surfaces only (an open mesh is INVALID_ARGUMENT)
   kClamped,  ///< boundary vertices stay at their reference positions
-  kFree,     ///< traction-free edges: not implemented (UNIMPLEMENTED)
+  kFree,     ///< traction-free edges (natural condition sigma m = 0); rigid modes removed
 };
 const char* BoundaryConditionName(BoundaryCondition bc);
 
@@ -97,7 +106,7 @@ struct PressureSolution {
 
 /// Solves (6.4.1) for `reference` under `pressure` (1 value, or one per vertex).
 /// Errors: INVALID_ARGUMENT for bad options, a pressure of the wrong length or not
-/// finite, an open mesh without `boundary`; UNIMPLEMENTED for free boundaries;
+/// finite, an open mesh without `boundary`;
 /// FAILED_PRECONDITION when Newton does not converge (the message holds the residual
 /// history); CANCELLED / DEADLINE_EXCEEDED from `ctx` (polled every iteration).
 absl::StatusOr<PressureSolution> SolvePressureLoad(const Mesh& reference, const Topology& topo,
