@@ -9,6 +9,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "core/linalg/gmres.h"
 #include "core/mechanics/membrane_kernel.h"
 #include "core/operators/operators.h"
 #include "core/surfaces/analytic.h"
@@ -42,6 +43,9 @@ absl::Status ValidatePressureSolveOptions(const PressureSolveOptions& o) {
   if (o.max_load_cuts < 0) return absl::InvalidArgumentError("max_load_cuts must be >= 0");
   if (!(o.chord_ratio >= 0 && o.chord_ratio < 1))
     return absl::InvalidArgumentError(absl::StrFormat("chord_ratio %g must lie in [0, 1)", o.chord_ratio));
+  if (!(o.krylov_tolerance > 0 && o.krylov_tolerance < 1))
+    return absl::InvalidArgumentError(absl::StrFormat("krylov_tolerance %g must lie in (0, 1)", o.krylov_tolerance));
+  if (o.krylov_max_iterations < 1) return absl::InvalidArgumentError("krylov_max_iterations must be >= 1");
   if (o.solver.kind == SolverKind::kBiCGSTAB && o.solver.preconditioner != Preconditioner::kIlut)
     return absl::InvalidArgumentError("solver: BiCGSTAB needs the ILUT preconditioner here (or a direct solver)");
   return ValidateSolverOptions(o.solver);
@@ -140,6 +144,33 @@ class PressureProblem {
   }
 
   int size() const { return 3 * nv_ + (bordered_ ? 6 : 0); }
+
+  /// The Jacobian's 1-ring part (GMRES's preconditioner): entries between a vertex and
+  /// itself or an edge neighbour, and the border; values copied from the Jacobian.
+  const SparseMatrix& OneRingPart(const Topology& topo) {
+    if (keep_.empty()) {
+      const int N = size();
+      const int* outer = J_.outerIndexPtr();
+      const int* inner = J_.innerIndexPtr();
+      std::vector<int> pouter(N + 1, 0), pinner;
+      for (int r = 0; r < N; ++r) {
+        const int i = r / 3;
+        for (int k = outer[r]; k < outer[r + 1]; ++k) {
+          const int c = inner[k], j = c / 3;
+          const bool near = r >= 3 * nv_ || c >= 3 * nv_ || j == i ||
+                            std::binary_search(topo.Neighbors(i), topo.Neighbors(i) + topo.NumNeighbors(i), j);
+          if (near) keep_.push_back(k), pinner.push_back(c);
+        }
+        pouter[r + 1] = static_cast<int>(keep_.size());
+      }
+      P_.resize(N, N);
+      P_.resizeNonZeros(static_cast<Eigen::Index>(keep_.size()));
+      std::copy(pouter.begin(), pouter.end(), P_.outerIndexPtr());
+      std::copy(pinner.begin(), pinner.end(), P_.innerIndexPtr());
+    }
+    for (size_t m = 0; m < keep_.size(); ++m) P_.valuePtr()[m] = J_.valuePtr()[keep_[m]];
+    return P_;
+  }
   double load_norm() const { return load_norm_; }
   bool bordered() const { return bordered_; }
   SparseMatrix& jacobian() { return J_; }
@@ -351,6 +382,8 @@ class PressureProblem {
   std::vector<double> p_;
   Eigen::Vector3d centroid_;
   SparseMatrix J_;
+  SparseMatrix P_;          // OneRingPart
+  std::vector<int> keep_;   // its entries' positions in J_
 };
 
 std::string History(const std::vector<NewtonIteration>& h) {
@@ -400,6 +433,7 @@ absl::StatusOr<PressureSolution> SolvePressureLoad(const Mesh& reference, const 
   SolverOptions so = options.solver;
   if (so.kind == SolverKind::kAuto)
     so.kind = SolverAvailable(SolverKind::kUmfpack) ? SolverKind::kUmfpack : SolverKind::kSparseLU;
+  if (options.krylov) so.umfpack_refinement = 0;  // a preconditioner
   SparseSolver solver(so);
 
   double t = 0, dt = 1;
@@ -431,15 +465,43 @@ absl::StatusOr<PressureSolution> SolvePressureLoad(const Mesh& reference, const 
         problem.AddDiagonal(damping);
         out.assemble_ms += w.Millis();
         w = Stopwatch();
-        absl::Status fs = solver.Factorize(problem.jacobian());
+        absl::Status fs = solver.Factorize(options.krylov ? problem.OneRingPart(topo) : problem.jacobian());
         out.factorize_ms += w.Millis();
         ++out.factorizations;
         if (!fs.ok()) break;  // singular Jacobian: cut the load
         factorized = true;
+      } else if (options.krylov) {  // GMRES takes the fresh Jacobian; the preconditioner stays
+        GF_RETURN_IF_ERROR(problem.Evaluate(zt, target, &F, true, ctx));
+        problem.AddDiagonal(damping);
+        out.assemble_ms += w.Millis();
       }
       w = Stopwatch();
       dz.resize(0);
-      GF_RETURN_IF_ERROR(solver.Solve(-F, &dz));
+      if (options.krylov) {
+        const SparseMatrix& J = problem.jacobian();
+        GmresOptions go;
+        go.tolerance = options.krylov_tolerance;
+        go.max_iterations = options.krylov_max_iterations;
+        GmresResult gr;
+        const absl::Status gs = Gmres(
+            [&](const Eigen::VectorXd& v, Eigen::VectorXd* y) {
+              *y = J * v;
+              return absl::OkStatus();
+            },
+            [&](const Eigen::VectorXd& v, Eigen::VectorXd* y) {
+              const Stopwatch pw;
+              y->resize(0);
+              const absl::Status s = solver.Solve(v, y);
+              out.precondition_ms += pw.Millis();
+              return s;
+            },
+            -F, go, &dz, &gr, ctx);
+        out.krylov_iterations += gr.iterations;
+        // Not reaching the tolerance leaves the best iterate: the line search judges it.
+        if (!gs.ok() && gs.code() != absl::StatusCode::kFailedPrecondition) return gs;
+      } else {
+        GF_RETURN_IF_ERROR(solver.Solve(-F, &dz));
+      }
       out.solve_ms += w.Millis();
       // Backtracking: halve the step while the residual grows (at most 4 times).
       double alpha = 1, new_res = 0;

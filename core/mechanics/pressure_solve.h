@@ -81,6 +81,16 @@ struct PressureSolveOptions {
   /// kAuto: UMFPACK if linked, else SparseLU. BiCGSTAB + ILUT also converges (2x slower
   /// than UMFPACK at 5k vertices, bench/README.md "Membranes").
   SolverOptions solver;
+  /// Newton's linear solves. false: `solver` factorizes the Jacobian, whose stencils
+  /// (20-40 points) fill any direct factorization badly. true: restarted GMRES on the
+  /// Jacobian (core/linalg/gmres.h), right-preconditioned by `solver`'s factorization of
+  /// its 1-ring part (the 3 x 3 blocks between vertices sharing an edge, the diagonal
+  /// blocks and the border), each solve to `krylov_tolerance` (inexact Newton). The
+  /// Jacobian is re-evaluated every iteration (assembly is cheap); the preconditioner's
+  /// factorization is kept by the chord rule above.
+  bool krylov = false;
+  double krylov_tolerance = 1e-6;
+  int krylov_max_iterations = 300;
 };
 absl::Status ValidatePressureSolveOptions(const PressureSolveOptions& o);
 
@@ -101,6 +111,8 @@ struct PressureSolution {
   double residual = 0;     ///< final relative residual
   int factorizations = 0;
   int load_steps = 0;
+  int krylov_iterations = 0;  ///< GMRES iterations in all (krylov)
+  double precondition_ms = 0;  ///< of solve_ms: the preconditioner's solves (krylov)
   double fit_ms = 0, assemble_ms = 0, factorize_ms = 0, solve_ms = 0;
 };
 
