@@ -51,6 +51,22 @@ absl::Status ValidatePressureSolveOptions(const PressureSolveOptions& o) {
   return ValidateSolverOptions(o.solver);
 }
 
+absl::Status SetPressureSolver(const std::string& name, PressureSolveOptions* o) {
+  o->krylov = name == "gmres";
+  if (o->krylov) {
+    o->solver.kind = SolverAvailable(SolverKind::kUmfpack) ? SolverKind::kUmfpack : SolverKind::kSparseLU;
+    return absl::OkStatus();
+  }
+  absl::StatusOr<SolverKind> kind = ParseSolverKind(name);
+  if (!kind.ok())
+    return absl::InvalidArgumentError(absl::StrCat("solver: unknown '", name,
+                                                   "' (auto, sparselu, umfpack, klu, bicgstab, gmres)"));
+  if (!SolverAvailable(*kind)) return absl::InvalidArgumentError(absl::StrCat("solver: ", name, " is not in this build"));
+  o->solver.kind = *kind;
+  if (*kind == SolverKind::kBiCGSTAB) o->solver.preconditioner = Preconditioner::kIlut;
+  return absl::OkStatus();
+}
+
 namespace {
 
 constexpr int kRows[5] = {TaylorIndex(1, 0), TaylorIndex(0, 1), TaylorIndex(2, 0), TaylorIndex(1, 1),

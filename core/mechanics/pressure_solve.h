@@ -42,6 +42,7 @@
 // at the full load, the load is approached in steps halved on failure and doubled after
 // success.
 #include <functional>
+#include <string>
 #include <vector>
 
 #include <Eigen/Core>
@@ -93,6 +94,10 @@ struct PressureSolveOptions {
   int krylov_max_iterations = 300;
 };
 absl::Status ValidatePressureSolveOptions(const PressureSolveOptions& o);
+/// Sets the linear solver by name: "auto", "sparselu", "umfpack", "klu", "bicgstab"
+/// (with ILUT) factorize or iterate on the Jacobian; "gmres" sets `krylov` with UMFPACK
+/// (else SparseLU) for the preconditioner. INVALID_ARGUMENT naming `solver` otherwise.
+absl::Status SetPressureSolver(const std::string& name, PressureSolveOptions* o);
 
 /// One Newton iteration (also the callback's argument).
 struct NewtonIteration {

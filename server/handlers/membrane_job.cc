@@ -59,12 +59,8 @@ absl::StatusOr<PressureSolveOptions> SolveOptionsFromProto(const v1::MembraneSol
   GF_ASSIGN_OR_RETURN(o.fit, MembraneFitFromProto(spec.has_fit(), spec.fit(), 2, "membrane.fit"));
   GF_ASSIGN_OR_RETURN(o.boundary, BoundaryFromProto(spec.boundary()));
   if (!spec.solver().empty()) {
-    absl::StatusOr<SolverKind> solver = ParseSolverKind(spec.solver());
-    if (!solver.ok()) return absl::InvalidArgumentError(absl::StrCat("membrane.", solver.status().message()));
-    if (!SolverAvailable(*solver))
-      return absl::InvalidArgumentError(absl::StrCat("membrane.solver: ", spec.solver(), " is not in this build"));
-    o.solver.kind = *solver;
-    if (*solver == SolverKind::kBiCGSTAB) o.solver.preconditioner = Preconditioner::kIlut;
+    if (absl::Status s = SetPressureSolver(spec.solver(), &o); !s.ok())
+      return absl::InvalidArgumentError(absl::StrCat("membrane.", s.message()));
   }
   if (spec.tolerance() != 0) {
     if (!(spec.tolerance() > 0 && spec.tolerance() < 1))

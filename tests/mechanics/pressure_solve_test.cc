@@ -129,6 +129,25 @@ TEST(PressureSolve, FreeEndedCylinderExpandsWithoutAxialStress) {
   EXPECT_GE(order, 3);
 }
 
+// GMRES preconditioned by the Jacobian's 1-ring part reaches the direct solve's answer.
+TEST(PressureSolve, KrylovMatchesTheDirectSolve) {
+  GeneratorOptions g;
+  g.n = 8;
+  const Mesh m = GenerateSphereMesh(g);
+  const Topology topo = BuildTopology(m).value();
+  PressureSolveOptions o = Options(3);
+  const PressureSolution direct = SolvePressureLoad(m, topo, Eigen::VectorXd::Constant(1, 2.0), o).value();
+  ASSERT_TRUE(SetPressureSolver("gmres", &o).ok());
+  EXPECT_TRUE(o.krylov);
+  const PressureSolution krylov = SolvePressureLoad(m, topo, Eigen::VectorXd::Constant(1, 2.0), o).value();
+  std::printf("krylov: %zu Newton iterations, %d GMRES iterations, residual %.2e\n", krylov.history.size(),
+              krylov.krylov_iterations, krylov.residual);
+  EXPECT_LE(krylov.residual, 1e-10);
+  EXPECT_GT(krylov.krylov_iterations, 0);
+  EXPECT_LT((krylov.deformed - direct.deformed).cwiseAbs().maxCoeff(), 1e-9);
+  EXPECT_EQ(SetPressureSolver("cholesky", &o).code(), absl::StatusCode::kInvalidArgument);
+}
+
 TEST(PressureSolve, OpenMeshNeedsABoundaryCondition) {
   GeneratorOptions g;
   g.n = 4;

@@ -309,8 +309,7 @@ absl::Status SolveLocal(const SolveArgs& a) {
   o.fit.degree = a.degree;
   GF_ASSIGN_OR_RETURN(o.boundary, BoundaryOf(a.boundary));
   if (!a.solver.empty()) {
-    GF_ASSIGN_OR_RETURN(o.solver.kind, ParseSolverKind(a.solver));
-    if (o.solver.kind == SolverKind::kBiCGSTAB) o.solver.preconditioner = Preconditioner::kIlut;
+    if (absl::Status s = SetPressureSolver(a.solver, &o); !s.ok()) return UsageError(absl::StrCat("--", s.message()));
   }
   o.tolerance = a.tolerance;
   o.max_iterations = a.max_iterations;
@@ -410,7 +409,7 @@ absl::Status RunSolve(const std::vector<std::string>& argv) {
   p.Double("pressure", &a.pressure, "constant pressure jump [p] (inside minus outside)")
       .String("pressure-file", &a.pressure_file, "one pressure value per vertex (text, numpy.savetxt)", "FILE")
       .String("boundary", &a.boundary, "open surfaces: clamped or free", "BC")
-      .String("solver", &a.solver, "auto, umfpack, sparselu, klu or bicgstab", "SOLVER")
+      .String("solver", &a.solver, "auto, umfpack, sparselu, klu, bicgstab or gmres (large meshes)", "SOLVER")
       .Double("tolerance", &a.tolerance, "relative residual |F| / |[p] n| to reach")
       .Int("max-iterations", &a.max_iterations, "Newton iterations per load step")
       .Int("max-load-cuts", &a.max_load_cuts, "halvings of the load step before giving up")
