@@ -4,6 +4,7 @@
 //   membrane_study throughput [threads] interface-pressure throughput at ~10k and ~100k
 //                                      vertices (reference fit and membrane evaluation apart)
 //   membrane_study newton [n] [degree] [solver]  the pressure-load solve of the unit sphere
+//                                      (solver: umfpack, sparselu, klu, bicgstab-ilut, gmres[-TOL])
 //                                      under [p] = 2 (cubed sphere of level n), one thread,
 //                                      time split (fit, assembly, factorization, solve)
 #include <cmath>
@@ -103,7 +104,9 @@ void Newton(int n, int degree, const std::string& solver) {
   o.material = Material();
   o.fit.degree = degree;
   const bool ilut = solver == "bicgstab-ilut";
-  o.solver.kind = ParseSolverKind(ilut ? "bicgstab" : solver).value();
+  o.krylov = solver.rfind("gmres", 0) == 0;  // "gmres" or "gmres-TOL": GMRES, 1-ring UMFPACK preconditioner
+  if (o.krylov && solver.size() > 6) o.krylov_tolerance = std::atof(solver.c_str() + 6);
+  o.solver.kind = o.krylov ? SolverKind::kUmfpack : ParseSolverKind(ilut ? "bicgstab" : solver).value();
   if (ilut) o.solver.preconditioner = Preconditioner::kIlut;
   const Stopwatch w;
   auto r = SolvePressureLoad(m, topo, Eigen::VectorXd::Constant(1, 2.0), o, RunContext().WithThreads(1),
@@ -118,10 +121,11 @@ void Newton(int n, int degree, const std::string& solver) {
   double e = 0;
   const double r1 = 1.0080320;
   for (int i = 0; i < m.NumVertices(); ++i) e = std::max(e, std::abs(r->deformed.row(i).norm() - r1));
+  if (o.krylov) std::printf("  preconditioner solves %.2f s\n", r->precondition_ms / 1e3);
   std::printf("sphere %d vertices, degree %d, %s: %.2f s total (fit %.2f, assemble %.2f, factorize %.2f, solve %.2f); "
-              "%d factorizations, residual %.2e, max |r - r1| %.2e\n",
+              "%d factorizations, %d GMRES iterations, residual %.2e, max |r - r1| %.2e\n",
               m.NumVertices(), degree, solver.c_str(), w.Seconds(), r->fit_ms / 1e3, r->assemble_ms / 1e3,
-              r->factorize_ms / 1e3, r->solve_ms / 1e3, r->factorizations, r->residual, e);
+              r->factorize_ms / 1e3, r->solve_ms / 1e3, r->factorizations, r->krylov_iterations, r->residual, e);
 }
 
 }  // namespace

@@ -27,6 +27,12 @@ using RowsXi = Eigen::Matrix<int32_t, Eigen::Dynamic, Eigen::Dynamic, Eigen::Row
 /// Writes rows x cols doubles (cols == 0: a 1-D array of `rows`).
 void EncodeDoubles(const double* data, int64_t rows, int64_t cols, v1::DoubleArray* out);
 void EncodeInts(const int32_t* data, int64_t rows, int64_t cols, v1::Int32Array* out);
+/// Rows [begin, begin + rows) of a row-major Eigen array (a vector: 1-D).
+template <typename Array>
+void EncodeRows(const Array& a, int64_t begin, int64_t rows, v1::DoubleArray* out) {
+  const int64_t cols = Array::ColsAtCompileTime == 1 ? 0 : a.cols();
+  EncodeDoubles(a.data() + begin * (cols > 1 ? cols : 1), rows, cols, out);
+}
 
 /// A validated wire array, still in the message's bytes (which need not be aligned
 /// for T, so read it with CopyTo or CopyRows).

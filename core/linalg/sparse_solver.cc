@@ -54,6 +54,7 @@ absl::Status ValidateSolverOptions(const SolverOptions& o) {
     return absl::InvalidArgumentError(absl::StrFormat("solver.max_iterations %d must be >= 1", o.max_iterations));
   if (!(o.ilut_drop >= 0) || o.ilut_fill < 1)
     return absl::InvalidArgumentError("solver.ilut_drop must be >= 0 and solver.ilut_fill >= 1");
+  if (o.umfpack_refinement < 0) return absl::InvalidArgumentError("solver.umfpack_refinement must be >= 0");
   return absl::OkStatus();
 }
 
@@ -117,6 +118,7 @@ absl::Status SparseSolver::Factorize(const Matrix& A) {
       break;
 #ifdef GEOMFIT_HAVE_SUITESPARSE
     case SolverKind::kUmfpack:
+      m.umfpack.umfpackControl()(UMFPACK_IRSTEP) = options_.umfpack_refinement;
       if (analyze) m.umfpack.analyzePattern(m.A);
       m.umfpack.factorize(m.A);
       info = m.umfpack.info();

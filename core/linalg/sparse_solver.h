@@ -44,6 +44,9 @@ struct SolverOptions {
   Preconditioner preconditioner = Preconditioner::kDiagonal;
   double ilut_drop = 1e-3;    ///< ILUT drop tolerance
   int ilut_fill = 5;          ///< ILUT fill factor (5, 1e-3: 1.5x faster SD steps than 20, 1e-4)
+  /// UMFPACK's iterative refinement steps per solve (its default 2); 0 for a
+  /// preconditioner, where each solve need not be exact.
+  int umfpack_refinement = 2;
 };
 absl::Status ValidateSolverOptions(const SolverOptions& o);
 

@@ -83,6 +83,7 @@ absl::StatusOr<MembraneFields> ComputeMembrane(const SurfaceFits& reference, con
   out.stress.resize(nv, 9);
   out.von_mises.resize(nv);
   out.pressure.resize(nv);
+  out.traction.resize(nv);
   const double nan = std::numeric_limits<double>::quiet_NaN();
   GF_RETURN_IF_ERROR(ParallelFor(nv, ctx, [&](int64_t vi) {
     const int v = static_cast<int>(vi);
@@ -90,7 +91,7 @@ absl::StatusOr<MembraneFields> ComputeMembrane(const SurfaceFits& reference, con
       out.stretches.row(v).setConstant(nan);
       out.strain.row(v).setConstant(nan);
       out.stress.row(v).setConstant(nan);
-      out.von_mises(v) = out.pressure(v) = nan;
+      out.von_mises(v) = out.pressure(v) = out.traction(v) = nan;
       return;
     }
     Jet5<double> x, y;
@@ -112,6 +113,7 @@ absl::StatusOr<MembraneFields> ComputeMembrane(const SurfaceFits& reference, con
     const Eigen::Vector2d sp = Eigen2(s.tau);
     out.von_mises(v) = std::sqrt(sp(0) * sp(0) - sp(0) * sp(1) + sp(1) * sp(1));
     out.pressure(v) = mechanics_internal::InterfacePressureAt(s, y);
+    out.traction(v) = s.normal.dot(mechanics_internal::StressDivergence(ref, s, y, lambda, mu));
   }, 1024, "membrane"));
   return out;
 }

@@ -46,6 +46,9 @@ struct MembraneFields {
   RowMajor9 stress;       ///< Cauchy stress sigma (3 x 3 row-major, deformed tangent plane)
   Eigen::VectorXd von_mises;  ///< sqrt(s1^2 - s1 s2 + s2^2) of the principal stresses
   Eigen::VectorXd pressure;   ///< p = tr(W tau^), inside minus outside
+  /// n . div sigma (6.2.9) with div sigma in full (the tangential terms too): -p in the
+  /// continuum (outward n), so p + traction measures the discrete balance's error.
+  Eigen::VectorXd traction;
 };
 
 /// Stress and pressure of `deformed` (positions of the reference mesh's vertices) against

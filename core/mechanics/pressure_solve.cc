@@ -9,6 +9,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "core/linalg/gmres.h"
 #include "core/mechanics/membrane_kernel.h"
 #include "core/operators/operators.h"
 #include "core/surfaces/analytic.h"
@@ -42,9 +43,28 @@ absl::Status ValidatePressureSolveOptions(const PressureSolveOptions& o) {
   if (o.max_load_cuts < 0) return absl::InvalidArgumentError("max_load_cuts must be >= 0");
   if (!(o.chord_ratio >= 0 && o.chord_ratio < 1))
     return absl::InvalidArgumentError(absl::StrFormat("chord_ratio %g must lie in [0, 1)", o.chord_ratio));
+  if (!(o.krylov_tolerance > 0 && o.krylov_tolerance < 1))
+    return absl::InvalidArgumentError(absl::StrFormat("krylov_tolerance %g must lie in (0, 1)", o.krylov_tolerance));
+  if (o.krylov_max_iterations < 1) return absl::InvalidArgumentError("krylov_max_iterations must be >= 1");
   if (o.solver.kind == SolverKind::kBiCGSTAB && o.solver.preconditioner != Preconditioner::kIlut)
     return absl::InvalidArgumentError("solver: BiCGSTAB needs the ILUT preconditioner here (or a direct solver)");
   return ValidateSolverOptions(o.solver);
+}
+
+absl::Status SetPressureSolver(const std::string& name, PressureSolveOptions* o) {
+  o->krylov = name == "gmres";
+  if (o->krylov) {
+    o->solver.kind = SolverAvailable(SolverKind::kUmfpack) ? SolverKind::kUmfpack : SolverKind::kSparseLU;
+    return absl::OkStatus();
+  }
+  absl::StatusOr<SolverKind> kind = ParseSolverKind(name);
+  if (!kind.ok())
+    return absl::InvalidArgumentError(absl::StrCat("solver: unknown '", name,
+                                                   "' (auto, sparselu, umfpack, klu, bicgstab, gmres)"));
+  if (!SolverAvailable(*kind)) return absl::InvalidArgumentError(absl::StrCat("solver: ", name, " is not in this build"));
+  o->solver.kind = *kind;
+  if (*kind == SolverKind::kBiCGSTAB) o->solver.preconditioner = Preconditioner::kIlut;
+  return absl::OkStatus();
 }
 
 namespace {
@@ -53,21 +73,37 @@ constexpr int kRows[5] = {TaylorIndex(1, 0), TaylorIndex(0, 1), TaylorIndex(2, 0
                           TaylorIndex(0, 2)};
 using AD = Eigen::AutoDiffScalar<Eigen::Matrix<double, 15, 1>>;
 
-// Residual div sigma + [p] n at a vertex and, if `D`, its derivative with respect to the
-// 15 derivatives (y_u, y_v, y_uu, y_uv, y_vv) of y.
+// The residual at a vertex: div sigma + [p] n; at a free-edge vertex (`conormal`: the
+// covariant components N_b = x_b . M of the reference outward conormal M) its normal
+// component with the traction sigma m (= y_a S^ab N_b up to a positive factor, m the
+// deformed conormal) times `edge_scale` in place of the tangential ones.
+template <typename T>
+mechanics_internal::V3<T> Residual(const ReferenceGeometry& ref, const Jet5<T>& y, double lambda, double mu,
+                                   double p, const Eigen::Vector2d* conormal, double edge_scale) {
+  using namespace mechanics_internal;
+  const MembraneState<T> s = State<T>(ref, y, lambda, mu);
+  V3<T> r = StressDivergence(ref, s, y, lambda, mu) + s.normal * T(p);
+  if (!conormal) return r;
+  const T rn = s.normal.dot(r);
+  const Eigen::Vector2d& N = *conormal;
+  const V3<T> traction = y.d[0] * (s.S(0, 0) * N(0) + s.S(0, 1) * N(1)) + y.d[1] * (s.S(1, 0) * N(0) + s.S(1, 1) * N(1));
+  return s.normal * rn + traction * T(edge_scale);
+}
+
+// Residual at a vertex and, if `D`, its derivative with respect to the 15 derivatives
+// (y_u, y_v, y_uu, y_uv, y_vv) of y.
 void LocalResidual(const ReferenceGeometry& ref, const Jet5<double>& y, double lambda, double mu, double p,
-                   Eigen::Vector3d* R, Eigen::Matrix<double, 3, 15>* D) {
+                   const Eigen::Vector2d* conormal, double edge_scale, Eigen::Vector3d* R,
+                   Eigen::Matrix<double, 3, 15>* D) {
   using namespace mechanics_internal;
   if (!D) {
-    const MembraneState<double> s = State<double>(ref, y, lambda, mu);
-    *R = StressDivergence(ref, s, y, lambda, mu) + p * s.normal;
+    *R = Residual<double>(ref, y, lambda, mu, p, conormal, edge_scale);
     return;
   }
   Jet5<AD> ya;
   for (int q = 0; q < 5; ++q)
     for (int c = 0; c < 3; ++c) ya.d[q](c) = AD(y.d[q](c), 15, 3 * q + c);
-  const MembraneState<AD> s = State<AD>(ref, ya, lambda, mu);
-  const V3<AD> r = StressDivergence(ref, s, ya, lambda, mu) + s.normal * AD(p);
+  const V3<AD> r = Residual<AD>(ref, ya, lambda, mu, p, conormal, edge_scale);
   for (int c = 0; c < 3; ++c) {
     (*R)(c) = r(c).value();
     D->row(c) = r(c).derivatives().transpose();
@@ -82,16 +118,20 @@ class PressureProblem {
     assembler_ = std::make_unique<OperatorAssembler>(
         std::shared_ptr<const Neighborhoods>(&fits_->neighborhoods(), [](const Neighborhoods*) {}));
     fixed_.assign(nv_, 0);
+    free_.assign(nv_, 0);
     bool open = false;
+    const bool free_edges = o.boundary == BoundaryCondition::kFree;
     for (int i = 0; i < nv_; ++i) {
-      if (topo.is_boundary[i]) fixed_[i] = 1, open = true;
-      if (fits_->diagnostics(i).degree_used < 2) fixed_[i] = 1;  // no curvature: held in place
+      if (topo.is_boundary[i]) (free_edges ? free_ : fixed_)[i] = 1, open = true;
+      if (fits_->diagnostics(i).degree_used < 2) fixed_[i] = 1, free_[i] = 0;  // no curvature: held in place
     }
-    bordered_ = !open;
+    // Free edges hold nothing: the rigid motions are removed as on a closed surface.
+    bordered_ = !open || free_edges;
     lambda_ = o.material.Lambda();
     mu_ = o.material.Mu();
     const double h = AverageEdgeLength(ref);
     clamp_scale_ = o.material.E / (h * h);
+    edge_scale_ = 1 / h;
     border_scale_ = o.material.E;
     ref_.resize(nv_);
     p_.resize(nv_);
@@ -106,6 +146,12 @@ class PressureProblem {
     for (int i = 0; i < nv_; ++i) normals_.row(i) = HeightGeometryAt(*fits_, i).normal.transpose();
     ndiff_.resize(nv_);
     for (int i = 0; i < nv_; ++i) mechanics_internal::StencilJet(*fits_, i, normals_, ndiff_[i].d);
+    conormal_.assign(nv_, Eigen::Vector2d::Zero());
+    for (int i = 0; i < nv_; ++i) {
+      if (!free_[i]) continue;
+      const Eigen::Vector3d M = OutwardConormal(ref, topo, i, normals_.row(i).transpose());
+      conormal_[i] = Eigen::Vector2d(ref_[i].x.d[0].dot(M), ref_[i].x.d[1].dot(M));
+    }
     load_norm_ = 0;
     for (int i = 0; i < nv_; ++i)
       if (!fixed_[i]) load_norm_ += p_[i] * p_[i];
@@ -114,6 +160,33 @@ class PressureProblem {
   }
 
   int size() const { return 3 * nv_ + (bordered_ ? 6 : 0); }
+
+  /// The Jacobian's 1-ring part (GMRES's preconditioner): entries between a vertex and
+  /// itself or an edge neighbour, and the border; values copied from the Jacobian.
+  const SparseMatrix& OneRingPart(const Topology& topo) {
+    if (keep_.empty()) {
+      const int N = size();
+      const int* outer = J_.outerIndexPtr();
+      const int* inner = J_.innerIndexPtr();
+      std::vector<int> pouter(N + 1, 0), pinner;
+      for (int r = 0; r < N; ++r) {
+        const int i = r / 3;
+        for (int k = outer[r]; k < outer[r + 1]; ++k) {
+          const int c = inner[k], j = c / 3;
+          const bool near = r >= 3 * nv_ || c >= 3 * nv_ || j == i ||
+                            std::binary_search(topo.Neighbors(i), topo.Neighbors(i) + topo.NumNeighbors(i), j);
+          if (near) keep_.push_back(k), pinner.push_back(c);
+        }
+        pouter[r + 1] = static_cast<int>(keep_.size());
+      }
+      P_.resize(N, N);
+      P_.resizeNonZeros(static_cast<Eigen::Index>(keep_.size()));
+      std::copy(pouter.begin(), pouter.end(), P_.outerIndexPtr());
+      std::copy(pinner.begin(), pinner.end(), P_.innerIndexPtr());
+    }
+    for (size_t m = 0; m < keep_.size(); ++m) P_.valuePtr()[m] = J_.valuePtr()[keep_[m]];
+    return P_;
+  }
   double load_norm() const { return load_norm_; }
   bool bordered() const { return bordered_; }
   SparseMatrix& jacobian() { return J_; }
@@ -155,7 +228,8 @@ class PressureProblem {
       }
       Eigen::Vector3d R;
       Eigen::Matrix<double, 3, 15> D;
-      LocalResidual(ref_[i], yj, lambda_, mu_, t * p_[i], &R, jacobian ? &D : nullptr);
+      LocalResidual(ref_[i], yj, lambda_, mu_, t * p_[i], free_[i] ? &conormal_[i] : nullptr, edge_scale_, &R,
+                    jacobian ? &D : nullptr);
       for (int m = 0; m < b; ++m) R += border_scale_ * z(3 * nv_ + m) * Mode(i, m);
       F->segment<3>(3 * i) = R;
       if (!jacobian) return;
@@ -236,6 +310,44 @@ class PressureProblem {
   double ResidualNorm(const Eigen::VectorXd& F) const { return F.norm() / load_norm_; }
 
  private:
+  /// The unit outward conormal of the reference at boundary vertex i: the sum of t x n
+  /// over its boundary edges t (directed as their face runs, counter-clockwise seen
+  /// from n, so the face lies to the left), projected onto the tangent plane. An edge
+  /// (i, j) is on the boundary when one face around i has it.
+  static Eigen::Vector3d OutwardConormal(const Mesh& m, const Topology& topo, int i, const Eigen::Vector3d& n) {
+    std::vector<std::pair<int, int>> count;  // neighbour across an edge, faces having that edge
+    auto bump = [&](int j) {
+      for (auto& c : count)
+        if (c.first == j) return void(++c.second);
+      count.push_back({j, 1});
+    };
+    auto once = [&](int j) {
+      for (const auto& c : count)
+        if (c.first == j) return c.second == 1;
+      return false;
+    };
+    auto corner = [&](int f) {
+      int c = 0;
+      while (m.faces(f, c) != i) ++c;
+      return c;
+    };
+    for (int k = 0; k < topo.NumVertexFaces(i); ++k) {
+      const int f = topo.VertexFaces(i)[k], c = corner(f);
+      bump(m.Next(f, c));
+      bump(m.Prev(f, c));
+    }
+    const Eigen::Vector3d xi = m.positions.row(i).transpose();
+    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+    for (int k = 0; k < topo.NumVertexFaces(i); ++k) {
+      const int f = topo.VertexFaces(i)[k], c = corner(f);
+      const int next = m.Next(f, c), prev = m.Prev(f, c);
+      if (once(next)) sum += (m.positions.row(next).transpose() - xi).cross(n);
+      if (once(prev)) sum += (xi - m.positions.row(prev).transpose()).cross(n);
+    }
+    sum -= n * n.dot(sum);
+    return sum.normalized();
+  }
+
   // 3 x 3 blocks over each vertex's sorted stencil points, then the border columns; the
   // border rows are dense (values fixed: C^T).
   void BuildPattern() {
@@ -276,14 +388,18 @@ class PressureProblem {
   int nv_;
   std::unique_ptr<OperatorAssembler> assembler_;
   std::vector<uint8_t> fixed_;
+  std::vector<uint8_t> free_;              // free-edge vertices
+  std::vector<Eigen::Vector2d> conormal_;  // their reference outward conormals, N_b = x_b . M
   bool bordered_ = false;
-  double lambda_ = 0, mu_ = 0, clamp_scale_ = 1, border_scale_ = 1, load_norm_ = 0;
+  double lambda_ = 0, mu_ = 0, clamp_scale_ = 1, border_scale_ = 1, load_norm_ = 0, edge_scale_ = 1;
   std::vector<ReferenceGeometry> ref_;
   Positions normals_;               // reference fitted normals
   std::vector<Jet5<double>> ndiff_;  // their stencil derivatives per vertex
   std::vector<double> p_;
   Eigen::Vector3d centroid_;
   SparseMatrix J_;
+  SparseMatrix P_;          // OneRingPart
+  std::vector<int> keep_;   // its entries' positions in J_
 };
 
 std::string History(const std::vector<NewtonIteration>& h) {
@@ -313,12 +429,8 @@ absl::StatusOr<PressureSolution> SolvePressureLoad(const Mesh& reference, const 
   for (Eigen::Index i = 0; i < pressure.size(); ++i)
     if (!std::isfinite(pressure(i)))
       return absl::InvalidArgumentError(absl::StrFormat("pressure: value %d is not finite", i));
-  if (topo.num_boundary_edges > 0) {
-    if (options.boundary == BoundaryCondition::kUnset)
-      return absl::InvalidArgumentError("boundary: the mesh is open; give a boundary condition (clamped)");
-    if (options.boundary == BoundaryCondition::kFree)
-      return absl::UnimplementedError("boundary: free (traction-free) edges are not implemented; use clamped");
-  }
+  if (topo.num_boundary_edges > 0 && options.boundary == BoundaryCondition::kUnset)
+    return absl::InvalidArgumentError("boundary: the mesh is open; give a boundary condition (clamped or free)");
   PressureSolution out;
   const Stopwatch fit_watch;
   GF_ASSIGN_OR_RETURN(auto fits, FitForOperators(reference, topo, options.fit, nullptr, ctx));
@@ -337,6 +449,7 @@ absl::StatusOr<PressureSolution> SolvePressureLoad(const Mesh& reference, const 
   SolverOptions so = options.solver;
   if (so.kind == SolverKind::kAuto)
     so.kind = SolverAvailable(SolverKind::kUmfpack) ? SolverKind::kUmfpack : SolverKind::kSparseLU;
+  if (options.krylov) so.umfpack_refinement = 0;  // a preconditioner
   SparseSolver solver(so);
 
   double t = 0, dt = 1;
@@ -368,15 +481,43 @@ absl::StatusOr<PressureSolution> SolvePressureLoad(const Mesh& reference, const 
         problem.AddDiagonal(damping);
         out.assemble_ms += w.Millis();
         w = Stopwatch();
-        absl::Status fs = solver.Factorize(problem.jacobian());
+        absl::Status fs = solver.Factorize(options.krylov ? problem.OneRingPart(topo) : problem.jacobian());
         out.factorize_ms += w.Millis();
         ++out.factorizations;
         if (!fs.ok()) break;  // singular Jacobian: cut the load
         factorized = true;
+      } else if (options.krylov) {  // GMRES takes the fresh Jacobian; the preconditioner stays
+        GF_RETURN_IF_ERROR(problem.Evaluate(zt, target, &F, true, ctx));
+        problem.AddDiagonal(damping);
+        out.assemble_ms += w.Millis();
       }
       w = Stopwatch();
       dz.resize(0);
-      GF_RETURN_IF_ERROR(solver.Solve(-F, &dz));
+      if (options.krylov) {
+        const SparseMatrix& J = problem.jacobian();
+        GmresOptions go;
+        go.tolerance = options.krylov_tolerance;
+        go.max_iterations = options.krylov_max_iterations;
+        GmresResult gr;
+        const absl::Status gs = Gmres(
+            [&](const Eigen::VectorXd& v, Eigen::VectorXd* y) {
+              *y = J * v;
+              return absl::OkStatus();
+            },
+            [&](const Eigen::VectorXd& v, Eigen::VectorXd* y) {
+              const Stopwatch pw;
+              y->resize(0);
+              const absl::Status s = solver.Solve(v, y);
+              out.precondition_ms += pw.Millis();
+              return s;
+            },
+            -F, go, &dz, &gr, ctx);
+        out.krylov_iterations += gr.iterations;
+        // Not reaching the tolerance leaves the best iterate: the line search judges it.
+        if (!gs.ok() && gs.code() != absl::StatusCode::kFailedPrecondition) return gs;
+      } else {
+        GF_RETURN_IF_ERROR(solver.Solve(-F, &dz));
+      }
       out.solve_ms += w.Millis();
       // Backtracking: halve the step while the residual grows (at most 4 times).
       double alpha = 1, new_res = 0;

@@ -27,12 +27,22 @@
 //   [ C^T 0 ] [dl] = [ -C^T (y - x)    ]        reference centroid (3n x 6)
 // i.e. the mean displacement and the mean rotation (sum (x_i - c) x phi_i) are zero and
 // six multipliers absorb the discrete net force and torque (O(h^{d-1})). On an open
-// surface the boundary vertices are clamped (y_i = x_i). Linear systems: a sparse direct
+// surface the boundary vertices are clamped (y_i = x_i), or free: a traction-free edge,
+// the natural boundary condition sigma m = 0 (m the deformed outward conormal). With
+// sigma = y_a S^ab y_b^T and m . y_b proportional to N_b = x_b . M (M the reference
+// outward conormal: a pushed-forward edge keeps its normal covector) it reads
+// y_a S^ab N_b = 0, two tangential equations that replace the tangential part of the
+// vertex's equilibrium (its normal part n . (div sigma + [p] n) = 0 stays), scaled by
+// 1/h against it. Nothing is held then, so the six rigid modes are removed by the
+// border as on a closed surface. Check: an open cylinder with free ends under [p]
+// expands uniaxially, hoop stretch l with p = E (l^2 - 1)/(2 l) and axial stretch
+// sqrt(1 - nu (l^2 - 1)) (zero axial stress). Linear systems: a sparse direct
 // solver (core/linalg: UMFPACK when linked, else SparseLU), one factorization per Newton
 // iteration, the symbolic analysis reused. Load stepping: when Newton does not converge
 // at the full load, the load is approached in steps halved on failure and doubled after
 // success.
 #include <functional>
+#include <string>
 #include <vector>
 
 #include <Eigen/Core>
@@ -51,7 +61,7 @@ namespace geomfit {
 enum class BoundaryCondition {
   kUnset,    ///< closed surfaces only (an open mesh is INVALID_ARGUMENT)
   kClamped,  ///< boundary vertices stay at their reference positions
-  kFree,     ///< traction-free edges: not implemented (UNIMPLEMENTED)
+  kFree,     ///< traction-free edges (natural condition sigma m = 0); rigid modes removed
 };
 const char* BoundaryConditionName(BoundaryCondition bc);
 
@@ -72,8 +82,22 @@ struct PressureSolveOptions {
   /// kAuto: UMFPACK if linked, else SparseLU. BiCGSTAB + ILUT also converges (2x slower
   /// than UMFPACK at 5k vertices, bench/README.md "Membranes").
   SolverOptions solver;
+  /// Newton's linear solves. false: `solver` factorizes the Jacobian, whose stencils
+  /// (20-40 points) fill any direct factorization badly. true: restarted GMRES on the
+  /// Jacobian (core/linalg/gmres.h), right-preconditioned by `solver`'s factorization of
+  /// its 1-ring part (the 3 x 3 blocks between vertices sharing an edge, the diagonal
+  /// blocks and the border), each solve to `krylov_tolerance` (inexact Newton). The
+  /// Jacobian is re-evaluated every iteration (assembly is cheap); the preconditioner's
+  /// factorization is kept by the chord rule above.
+  bool krylov = false;
+  double krylov_tolerance = 1e-6;
+  int krylov_max_iterations = 300;
 };
 absl::Status ValidatePressureSolveOptions(const PressureSolveOptions& o);
+/// Sets the linear solver by name: "auto", "sparselu", "umfpack", "klu", "bicgstab"
+/// (with ILUT) factorize or iterate on the Jacobian; "gmres" sets `krylov` with UMFPACK
+/// (else SparseLU) for the preconditioner. INVALID_ARGUMENT naming `solver` otherwise.
+absl::Status SetPressureSolver(const std::string& name, PressureSolveOptions* o);
 
 /// One Newton iteration (also the callback's argument).
 struct NewtonIteration {
@@ -92,12 +116,14 @@ struct PressureSolution {
   double residual = 0;     ///< final relative residual
   int factorizations = 0;
   int load_steps = 0;
+  int krylov_iterations = 0;  ///< GMRES iterations in all (krylov)
+  double precondition_ms = 0;  ///< of solve_ms: the preconditioner's solves (krylov)
   double fit_ms = 0, assemble_ms = 0, factorize_ms = 0, solve_ms = 0;
 };
 
 /// Solves (6.4.1) for `reference` under `pressure` (1 value, or one per vertex).
 /// Errors: INVALID_ARGUMENT for bad options, a pressure of the wrong length or not
-/// finite, an open mesh without `boundary`; UNIMPLEMENTED for free boundaries;
+/// finite, an open mesh without `boundary`;
 /// FAILED_PRECONDITION when Newton does not converge (the message holds the residual
 /// history); CANCELLED / DEADLINE_EXCEEDED from `ctx` (polled every iteration).
 absl::StatusOr<PressureSolution> SolvePressureLoad(const Mesh& reference, const Topology& topo,

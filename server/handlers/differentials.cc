@@ -12,11 +12,7 @@
 namespace geomfit::server {
 namespace {
 
-template <typename Array>
-void EncodeRows(const Array& a, int64_t begin, int64_t rows, v1::DoubleArray* out) {
-  const int64_t cols = Array::ColsAtCompileTime == 1 ? 0 : a.cols();
-  wire::EncodeDoubles(a.data() + begin * std::max<int64_t>(cols, 1), rows, cols, out);
-}
+using wire::EncodeRows;
 
 void EncodeDiagnostics(const std::vector<VertexDiagnostics>& d, int64_t begin, int64_t rows,
                        v1::VertexDiagnostics* out) {

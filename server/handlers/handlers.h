@@ -112,6 +112,12 @@ class Handlers {
   absl::StatusOr<v1::ApplyOperatorResponse> ApplyOperator(const v1::ApplyOperatorRequest& request,
                                                           const CancellationToken& cancel);
 
+  // Membranes (membrane.cc).
+  /// Stress, strain, stretches, von Mises stress, pressure and traction of a deformed
+  /// membrane against the reference's cached fits, in chunks of rows.
+  absl::StatusOr<std::vector<v1::ComputeMembraneResponse>> ComputeMembrane(const v1::ComputeMembraneRequest& request,
+                                                                           const CancellationToken& cancel);
+
   // Server (info.cc).
   v1::ServerInfo GetServerInfo() const;
   v1::Statistics GetStatistics() const;

@@ -7,6 +7,7 @@
 #include "proto/wire.h"
 #include "server/handlers/handlers.h"
 #include "server/handlers/flow_job.h"
+#include "server/handlers/membrane_job.h"
 #include "server/handlers/refine_job.h"
 
 namespace geomfit::server {
@@ -84,8 +85,13 @@ absl::StatusOr<v1::Job> JobHandlers::StartJob(const v1::StartJobRequest& request
       GF_ASSIGN_OR_RETURN(run, MakeFlowJob(&handlers_->workspace(), request.flow()));
       break;
     }
+    case v1::StartJobRequest::kMembrane: {
+      kind = "membrane";
+      GF_ASSIGN_OR_RETURN(run, MakeMembraneJob(&handlers_->workspace(), request.membrane()));
+      break;
+    }
     case v1::StartJobRequest::SPEC_NOT_SET:
-      return absl::InvalidArgumentError("spec: set one job spec (refine, flow)");
+      return absl::InvalidArgumentError("spec: set one job spec (refine, flow, membrane)");
   }
   GF_ASSIGN_OR_RETURN(JobStatus status, jobs_->Start(kind, request.SerializeAsString(), std::move(run)));
   return ToProto(status);
@@ -130,6 +136,16 @@ absl::StatusOr<std::vector<v1::JobEvent>> JobHandlers::ReadEvents(const std::str
 absl::StatusOr<v1::Job> JobHandlers::StartFlow(const v1::FlowJob& spec) {
   v1::StartJobRequest request;
   *request.mutable_flow() = spec;
+  return StartJob(request);
+}
+
+}  // namespace geomfit::server
+
+namespace geomfit::server {
+
+absl::StatusOr<v1::Job> JobHandlers::StartMembraneSolve(const v1::MembraneSolveJob& spec) {
+  v1::StartJobRequest request;
+  *request.mutable_membrane() = spec;
   return StartJob(request);
 }
 

@@ -31,6 +31,8 @@ class JobHandlers {
   JobManager* manager() { return jobs_; }
   /// StartJob with a flow spec.
   absl::StatusOr<v1::Job> StartFlow(const v1::FlowJob& spec);
+  /// StartJob with a membrane (pressure-load solve) spec.
+  absl::StatusOr<v1::Job> StartMembraneSolve(const v1::MembraneSolveJob& spec);
 
  private:
   JobManager* jobs_;

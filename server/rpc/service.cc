@@ -248,7 +248,11 @@ absl::Status NoJobs() { return absl::UnimplementedError("this server runs no job
 }  // namespace
 
 std::string JobMeshId(const v1::Job& job) {
-  return job.request().has_flow() ? job.request().flow().mesh_id() : job.request().refine().mesh_id();
+  switch (job.request().spec_case()) {
+    case v1::StartJobRequest::kFlow: return job.request().flow().mesh_id();
+    case v1::StartJobRequest::kMembrane: return job.request().membrane().mesh_id();
+    default: return job.request().refine().mesh_id();
+  }
 }
 
 absl::Status Service::OwnJob(const CallContext& who, const std::string& job_id) const {
@@ -263,9 +267,10 @@ absl::Status Service::OwnJob(const CallContext& who, const std::string& job_id) 
 
 grpc::ServerUnaryReactor* Service::StartJob(grpc::CallbackServerContext* ctx, const v1::StartJobRequest* request,
                                             v1::Job* response) {
-  Call call{"StartJob", request->has_refine() ? request->refine().mesh_id()
-                        : request->has_flow() ? request->flow().mesh_id()
-                                              : ""};
+  Call call{"StartJob", request->has_refine()     ? request->refine().mesh_id()
+                        : request->has_flow()     ? request->flow().mesh_id()
+                        : request->has_membrane() ? request->membrane().mesh_id()
+                                                  : ""};
   return Unary<v1::Job>(ctx, std::move(call), io_, request, response, [this, request](const CallContext&) -> absl::StatusOr<v1::Job> {
     if (jobs_ == nullptr) return NoJobs();
     return jobs_->StartJob(*request);  // its mesh id is scoped: the job is the tenant's
@@ -333,6 +338,23 @@ grpc::ServerUnaryReactor* Service::GetOperator(grpc::CallbackServerContext* ctx,
                                                v1::GetOperatorResponse* response) {
   return Unary<v1::GetOperatorResponse>(ctx, {"GetOperator", request->mesh_id()}, compute_, request, response,
                                         [this, ctx, request](const CallContext&) { return handlers_->GetOperator(*request, *TokenFor(ctx)); });
+}
+
+grpc::ServerWriteReactor<v1::ComputeMembraneResponse>* Service::ComputeMembrane(
+    grpc::CallbackServerContext* ctx, const v1::ComputeMembraneRequest* request) {
+  return new WriteReactor<v1::ComputeMembraneResponse>(
+      this, ctx, compute_, {"ComputeMembrane", request->mesh_id()}, request,
+      AllAtOnce<v1::ComputeMembraneResponse>(
+          [this, request](const CancellationToken& cancel) { return handlers_->ComputeMembrane(*request, cancel); }));
+}
+
+grpc::ServerUnaryReactor* Service::StartMembraneSolve(grpc::CallbackServerContext* ctx,
+                                                      const v1::MembraneSolveJob* request, v1::Job* response) {
+  return Unary<v1::Job>(ctx, {"StartMembraneSolve", request->mesh_id()}, io_, request, response,
+                        [this, request](const CallContext&) -> absl::StatusOr<v1::Job> {
+                          if (jobs_ == nullptr) return NoJobs();
+                          return jobs_->StartMembraneSolve(*request);
+                        });
 }
 
 }  // namespace geomfit::server

@@ -97,6 +97,12 @@ class Service final : public ServiceBase {
   grpc::ServerUnaryReactor* GetOperator(grpc::CallbackServerContext* ctx, const v1::GetOperatorRequest* request,
                                         v1::GetOperatorResponse* response) override;
 
+  // Membranes.
+  grpc::ServerWriteReactor<v1::ComputeMembraneResponse>* ComputeMembrane(
+      grpc::CallbackServerContext* ctx, const v1::ComputeMembraneRequest* request) override;
+  grpc::ServerUnaryReactor* StartMembraneSolve(grpc::CallbackServerContext* ctx, const v1::MembraneSolveJob* request,
+                                               v1::Job* response) override;
+
   /// What one call did, for the request log line.
   struct Call {
     const char* method;

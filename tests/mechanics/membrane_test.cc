@@ -147,7 +147,7 @@ TEST(Membrane, RigidMotionIsStressFree) {
 
 TEST(Membrane, BalloonFieldsAreExact) {
   // r0 = 1 -> 1.1: stretches 1.1, strain 0.105 T_ref, stress (lambda* + mu) 0.21 T,
-  // von Mises equal to the (equal) principal stresses.
+  // von Mises equal to the (equal) principal stresses; the traction n . div sigma = -p.
   GeneratorOptions g;
   g.n = 16;
   const Mesh m = GenerateSphereMesh(g);
@@ -169,6 +169,8 @@ TEST(Membrane, BalloonFieldsAreExact) {
     ASSERT_LT((stress - s * T).norm(), 1e-3 * s);
     ASSERT_NEAR(f.von_mises(i), s, 1e-3 * s);
     ASSERT_LT(std::abs(n.dot(stress * n)), 1e-3 * s);  // n^T sigma n = 0 (Proposition 6.1.2)
+    // n^T div sigma in full (6.2.9) = -tr(W tau^) = -p: the balance the pressure stands for.
+    ASSERT_NEAR(f.traction(i), -kBalloon, 2e-3 * kBalloon) << i;
   }
 }
 

@@ -45,7 +45,8 @@ def help_options(*argv):
 
 
 @pytest.mark.parametrize("command", ["curvature", "generate", "convert", "project", "refine", "nodes", "integrate",
-                                     "upload", "update", "info", "list", "delete", "jobs watch", "server"])
+                                     "upload", "update", "info", "list", "delete", "jobs watch", "membrane pressure",
+                                     "membrane solve", "server"])
 def test_every_option_is_documented(command):
     guide = open(GUIDE).read()
     options = help_options(SERVER) if command == "server" else help_options(CLI, *command.split())

@@ -161,6 +161,7 @@ absl::Status RunNodes(const std::vector<std::string>& args);      ///< reconstru
 absl::Status RunIntegrate(const std::vector<std::string>& args);  ///< reconstruct.cc
 absl::Status RunFlowCommand(const std::vector<std::string>& args);      ///< flow.cc
 absl::Status RunOperatorCommand(const std::vector<std::string>& args);  ///< flow.cc
+absl::Status RunMembraneCommand(const std::vector<std::string>& args);  ///< membrane.cc
 
 #ifdef GEOMFIT_WITH_CLIENT
 }  // namespace geomfit::cli

@@ -30,6 +30,8 @@ constexpr Command kCommands[] = {
     {"integrate", "high-order area, volume, scalar and flux integrals", RunIntegrate},
     {"flow", "mean-curvature flow or surface diffusion (--server job or --local)", RunFlowCommand},
     {"operator", "a GFD surface operator as a sparse matrix (--server)", RunOperatorCommand},
+    {"membrane", "membrane stress and interface pressure; pressure-load solve (--server job or --local)",
+     RunMembraneCommand},
 };
 
 bool IsRemoteCommand(const std::string& name) {

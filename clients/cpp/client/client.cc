@@ -675,4 +675,62 @@ absl::StatusOr<Eigen::MatrixXd> Client::ApplyOperator(const std::string& mesh_id
   });
 }
 
+absl::StatusOr<RemoteMembrane> Client::ComputeMembrane(v1::ComputeMembraneRequest request) {
+  return WithMesh<RemoteMembrane>(request.mesh_id(), [&](const std::string& id) -> absl::StatusOr<RemoteMembrane> {
+    request.set_mesh_id(id);
+    RemoteMembrane out;
+    absl::Status decode;
+    GF_RETURN_IF_ERROR(impl_->Call([&](grpc::ClientContext& ctx) {
+      out = RemoteMembrane();
+      decode = absl::OkStatus();
+      auto stream = impl_->stub->ComputeMembrane(&ctx, request);
+      v1::ComputeMembraneResponse c;
+      int64_t n = 0;
+      MembraneFields& f = out.values;
+      // Rows of chunk c's `a` (cols 0: 1-D) into rows [offset, offset + rows) of `dst`.
+      auto take = [&](const v1::DoubleArray& a, const char* name, int64_t cols, auto* dst) {
+        if (!decode.ok() || a.data().empty()) return;
+        absl::StatusOr<wire::RowsXd> m = wire::DecodeDoubles(a, name, {cols});
+        if (!m.ok()) {
+          decode = m.status();
+          return;
+        }
+        if (m->rows() != c.num_vertices() || c.vertex_offset() + m->rows() > n) {
+          decode = absl::DataLossError(absl::StrCat("ComputeMembrane: chunk ", name, " of the wrong length"));
+          return;
+        }
+        if (dst->rows() != n) dst->resize(n, dst->cols());
+        for (int64_t r = 0; r < m->rows(); ++r)
+          for (int64_t k = 0; k < m->cols(); ++k) (*dst)(c.vertex_offset() + r, k) = (*m)(r, k);
+      };
+      while (stream->Read(&c)) {
+        if (n == 0) {  // the first chunk
+          n = c.total_vertices();
+          out.revision = c.revision();
+          out.deformed_revision = c.deformed_revision();
+          out.fit_ms = c.fit_ms();
+          out.evaluate_ms = c.evaluate_ms();
+        }
+        take(c.pressure(), "pressure", 0, &f.pressure);
+        take(c.stretches(), "stretches", 2, &f.stretches);
+        take(c.strain(), "strain", 9, &f.strain);
+        take(c.stress(), "stress", 9, &f.stress);
+        take(c.von_mises(), "von_mises", 0, &f.von_mises);
+        take(c.traction(), "traction", 0, &f.traction);
+      }
+      return stream->Finish();
+    }, id));
+    GF_RETURN_IF_ERROR(decode);
+    return out;
+  });
+}
+
+absl::StatusOr<v1::Job> Client::StartMembraneSolve(v1::MembraneSolveJob spec) {
+  spec.set_mesh_id(ResolveId(spec.mesh_id()));
+  v1::Job job;
+  GF_RETURN_IF_ERROR(
+      impl_->Call([&](grpc::ClientContext& ctx) { return impl_->stub->StartMembraneSolve(&ctx, spec, &job); }));
+  return job;
+}
+
 }  // namespace geomfit

@@ -20,6 +20,7 @@
 #include "core/mesh/mesh.h"
 #include "core/operators/operators.h"
 #include "core/integration/integrate.h"
+#include "core/mechanics/membrane.h"
 #include "core/quantities/differentials.h"
 #include "core/reconstruction/meshing.h"
 #include "core/reconstruction/projection.h"
@@ -71,6 +72,14 @@ struct RemoteDifferentials {
   Differentials values;  ///< arrays not requested are empty
   FitSummary summary;
   v1::FitSummary wire_summary;  ///< the last chunk's complete summary, every field as sent
+};
+
+/// A ComputeMembrane call's arrays (those not requested are empty) and revisions.
+struct RemoteMembrane {
+  MembraneFields values;
+  int64_t revision = 0;           ///< the reference's
+  int64_t deformed_revision = 0;  ///< 0 when the positions were sent
+  double fit_ms = 0, evaluate_ms = 0;
 };
 
 class Client {
@@ -150,6 +159,13 @@ class Client {
   /// The operator applied to `field` (n x 1 or n x 3 per vertex): n x k.
   absl::StatusOr<Eigen::MatrixXd> ApplyOperator(const std::string& mesh_id, v1::OperatorKind kind,
                                                 const Eigen::MatrixXd& field, const v1::FitOptions& options = {});
+
+  // Membranes (chapter 6).
+  /// ComputeMembrane with the request as on the wire (its mesh_id is resolved like the
+  /// others'; a deformed.mesh_id is sent as given).
+  absl::StatusOr<RemoteMembrane> ComputeMembrane(v1::ComputeMembraneRequest request);
+  /// StartJob with a membrane (pressure-load solve) spec; watch it with WatchJob.
+  absl::StatusOr<v1::Job> StartMembraneSolve(v1::MembraneSolveJob spec);
 
   /// The server-side id currently standing for `mesh_id` (differs after a re-upload).
   std::string ResolveId(const std::string& mesh_id) const;

@@ -779,7 +779,12 @@ class Client:
         (results: the stored revision; arrays "positions" with send_positions=True), then
         the final event. A failed or cancelled job raises GeomfitError after its final
         event; closing the iterator early (break) cancels the job."""
-        job = self.start_flow(mesh_id, dt, steps, **options)
+        yield from self._job_events(self.start_flow(mesh_id, dt, steps, **options))
+
+    def _job_events(self, job: "pb.Job") -> Iterator["pb.JobEvent"]:
+        """The events of `job` as they come, its final one included; a failed or
+        cancelled job raises GeomfitError after its final event; closing the iterator
+        early (break) cancels the job."""
         finished = False
         try:
             for event in self.watch_job(job.job_id):
@@ -831,3 +836,105 @@ class Client:
         _encode(np.asarray(field), "<f8", request.field)
         out = self._call(lambda: self._stub.ApplyOperator(request, timeout=self.timeout, metadata=_route(mesh_id)))
         return _decode(out.result, "<f8")
+
+    # ------------------------------------------------------------------ membranes (chapter 6)
+    MEMBRANE_QUANTITIES = {"pressure": 1, "stretches": 2, "strain": 3, "stress": 4, "von_mises": 5, "traction": 6}
+
+    def membrane(self, mesh_id: str, deformed=None, young_modulus: float = float("nan"),
+                 poisson_ratio: float = float("nan"), quantities: Iterable[str] = ("pressure", "stretches", "von_mises"),
+                 revision: int = 0, deformed_revision: int = 0, reference=None, degree: int = 0,
+                 **fit_options) -> Dict[str, np.ndarray]:
+        """Membrane quantities (6.1-6.2) of a deformed configuration against the reference
+        `mesh_id` (at `revision`; 0 = latest): `deformed` is an n x 3 array of positions,
+        or the id of a stored mesh of the same topology (with `deformed_revision`), or
+        None with `deformed_revision` > 0 for another revision of the reference's mesh.
+        `reference`: n x 3 reference positions on the mesh's faces instead of the stored
+        ones (after a solve stored its result as the mesh's next revision). young_modulus (E > 0) and poisson_ratio (-1 < nu < 0.5) are required. Returns a
+        dict of numpy arrays: pressure (n; inside minus outside), stretches (n x 2),
+        strain and stress (n x 3 x 3), von_mises (n), traction (n; n . div sigma, about
+        -pressure). degree 0 keeps the server's default (4); `fit_options` are further
+        FitOptions fields."""
+        unknown = [q for q in quantities if q not in self.MEMBRANE_QUANTITIES]
+        if unknown:
+            raise ValueError("unknown quantities %s; choose from %s" % (unknown, sorted(self.MEMBRANE_QUANTITIES)))
+        request = pb.ComputeMembraneRequest(mesh_id=mesh_id, revision=revision, young_modulus=young_modulus,
+                                            poisson_ratio=poisson_ratio,
+                                            quantities=[self.MEMBRANE_QUANTITIES[q] for q in quantities])
+        if degree or fit_options:
+            request.options.CopyFrom(pb.FitOptions(degree=degree or 4, **fit_options))
+        if isinstance(deformed, str):
+            request.deformed.CopyFrom(pb.MeshRef(mesh_id=deformed, revision=deformed_revision))
+        elif deformed is not None:
+            _encode(_positions_array(deformed), "<f8", request.deformed_positions)
+        elif deformed_revision:
+            request.deformed.CopyFrom(pb.MeshRef(revision=deformed_revision))
+        if reference is not None:
+            _encode(_positions_array(reference), "<f8", request.reference_positions)
+
+        def run():
+            out: Dict[str, np.ndarray] = {}
+            total = 0
+            for chunk in self._stub.ComputeMembrane(request, timeout=self.timeout, metadata=_route(mesh_id)):
+                if chunk.total_vertices:
+                    total = chunk.total_vertices
+                lo = chunk.vertex_offset
+                for name in self.MEMBRANE_QUANTITIES:
+                    field = getattr(chunk, name)
+                    if not field.data:
+                        continue
+                    a = _decode(field, "<f8")
+                    if name not in out:
+                        out[name] = np.empty((total,) + a.shape[1:], dtype=np.float64)
+                    out[name][lo:lo + len(a)] = a
+            for name in ("strain", "stress"):
+                if name in out:
+                    out[name] = out[name].reshape(-1, 3, 3)
+            return out
+        return self._call(run)
+
+    def membrane_pressure(self, mesh_id: str, deformed=None, young_modulus: float = float("nan"),
+                          poisson_ratio: float = float("nan"), **options) -> np.ndarray:
+        """The interface pressure p = tr(W tau^) (6.2.10) per vertex, inside minus
+        outside, that the membrane's stress balances (membrane()'s arguments)."""
+        return self.membrane(mesh_id, deformed, young_modulus, poisson_ratio, quantities=("pressure",),
+                             **options)["pressure"]
+
+    def start_membrane_solve(self, mesh_id: str, pressure, young_modulus: float, poisson_ratio: float,
+                             boundary: str = "", degree: int = 0, solver: str = "", tolerance: float = 0.0,
+                             max_iterations: int = 0, max_load_cuts: Optional[int] = None, new_mesh: bool = False,
+                             name: str = "", send_displacement: bool = False, revision: int = 0) -> "pb.Job":
+        """Starts the pressure-load solve (6.4.1) of the reference membrane `mesh_id`
+        under `pressure` (a number or one value per vertex; inside minus outside):
+        boundary "clamped" or "free" for open surfaces; degree 0 keeps the default (4);
+        tolerance 0 = 1e-10 (relative residual). The deformed surface is stored as a new
+        revision of the mesh (new_mesh=True: as a new mesh). Returns the job at once."""
+        spec = pb.MembraneSolveJob(mesh_id=mesh_id, revision=revision, young_modulus=young_modulus,
+                                   poisson_ratio=poisson_ratio, solver=solver, tolerance=tolerance,
+                                   max_iterations=max_iterations, new_mesh=new_mesh, name=name,
+                                   send_displacement=send_displacement)
+        if np.ndim(pressure) == 0:
+            spec.pressure = float(pressure)
+        else:
+            _encode(np.asarray(pressure, dtype=np.float64).reshape(-1), "<f8", spec.pressure_field)
+        if boundary:
+            boundaries = {"clamped": pb.MEMBRANE_BOUNDARY_CLAMPED, "free": pb.MEMBRANE_BOUNDARY_FREE}
+            if boundary not in boundaries:
+                raise ValueError(f"boundary {boundary!r}: expected clamped or free")
+            spec.boundary = boundaries[boundary]
+        if degree:
+            spec.fit.degree = degree
+        if max_load_cuts is not None:
+            spec.max_load_cuts = max_load_cuts
+        return self._call(lambda: self._stub.StartMembraneSolve(spec, timeout=self.timeout))
+
+    def membrane_solve(self, mesh_id: str, pressure, young_modulus: float, poisson_ratio: float,
+                       **options) -> Iterator["pb.JobEvent"]:
+        """Runs the pressure-load solve (start_membrane_solve's options) and iterates over
+        its job events as they come: phase "newton" per Newton iteration (values residual,
+        step, load; counts load_step, iteration), "stored" (results: the deformed surface;
+        arrays "displacement" with send_displacement=True), then the final event (values
+        residual, max_displacement, timings; counts iterations, factorizations). A solve
+        that does not converge raises GeomfitError (FAILED_PRECONDITION, its residual
+        history) after its final event; closing the iterator early cancels the job."""
+        yield from self._job_events(self.start_membrane_solve(mesh_id, pressure, young_modulus, poisson_ratio,
+                                                              **options))
