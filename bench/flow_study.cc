@@ -46,30 +46,15 @@ CotanResult CotanMcf(const Mesh& mesh, double dt, int steps) {
   r.x = mesh.positions;
   Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> ldlt;
   const Stopwatch watch;
+  Mesh current = mesh;
   for (int s = 0; s < steps; ++s) {
-    std::vector<Eigen::Triplet<double>> t;
-    Eigen::VectorXd mass = Eigen::VectorXd::Zero(nv);
-    for (int f = 0; f < mesh.NumFaces(); ++f) {
-      const int v[3] = {mesh.faces(f, 0), mesh.faces(f, 1), mesh.faces(f, 2)};
-      const Eigen::Vector3d p[3] = {r.x.row(v[0]), r.x.row(v[1]), r.x.row(v[2])};
-      const double area = 0.5 * (p[1] - p[0]).cross(p[2] - p[0]).norm();
-      for (int k = 0; k < 3; ++k) {
-        mass(v[k]) += area / 3;
-        const Eigen::Vector3d a = p[(k + 1) % 3] - p[k], b = p[(k + 2) % 3] - p[k];
-        const double w = 0.5 * a.dot(b) / a.cross(b).norm();  // cot at corner k, for edge (k+1, k+2)
-        const int i = v[(k + 1) % 3], j = v[(k + 2) % 3];
-        t.emplace_back(i, j, -0.5 * dt * w);
-        t.emplace_back(j, i, -0.5 * dt * w);
-        t.emplace_back(i, i, 0.5 * dt * w);
-        t.emplace_back(j, j, 0.5 * dt * w);
-      }
-    }
-    for (int i = 0; i < nv; ++i) t.emplace_back(i, i, mass(i));
-    Eigen::SparseMatrix<double> A(nv, nv);
-    A.setFromTriplets(t.begin(), t.end());
+    current.positions = r.x;
+    const CotanLaplacian cot = BuildCotanLaplacian(current);
+    Eigen::SparseMatrix<double> A = -0.5 * dt * cot.stiffness;
+    for (int i = 0; i < nv; ++i) A.coeffRef(i, i) += cot.mass(i);
     if (s == 0) ldlt.analyzePattern(A);
     ldlt.factorize(A);
-    const Eigen::MatrixXd rhs = mass.asDiagonal() * Eigen::MatrixXd(r.x);
+    const Eigen::MatrixXd rhs = cot.mass.asDiagonal() * Eigen::MatrixXd(r.x);
     r.x = ldlt.solve(rhs);
   }
   r.ms_per_step = watch.Millis() / steps;
