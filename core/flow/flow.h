@@ -94,7 +94,7 @@ class FlowStepper {
   int steps_taken() const { return steps_; }
   const SparseSolver& solver() const { return solver_; }
   /// Surface diffusion with the default solver: cotan preconditioner factorizations so
-  /// far (1 for a run whose geometry changes slowly).
+  /// far (0 while Jacobi suffices; 1 for a run whose geometry changes slowly).
   int preconditioner_factorizations() const;
 
   ~FlowStepper();

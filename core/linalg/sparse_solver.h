@@ -35,13 +35,14 @@ bool SolverAvailable(SolverKind kind);
 struct SolverOptions {
   /// kAuto lets the caller choose. Flows take BiCGSTAB, warm-started: with Jacobi for
   /// MCF; for surface diffusion, on the system reduced to the normal offsets,
-  /// (I + dt B K) s = -dt B M, matrix-free, preconditioned by the cotan square
-  /// (I - c Lc)^2, c = sqrt(dt / 2) / 2, whose factorization is reused while it works. Any
-  /// other kind solves SD's 2n block system (ILUT for BiCGSTAB: Jacobi stalls there).
+  /// (I + dt B K) s = -dt B M, matrix-free, with Jacobi, or once Jacobi needs more than
+  /// 300 iterations with the cotan square (I - c Lc)^2, c = sqrt(dt / 2) / 2, whose
+  /// factorization is reused while it works (FlowStepper::Schur in flow.cc). Any other
+  /// kind solves SD's 2n block system (ILUT for BiCGSTAB: Jacobi stalls there).
   /// GFD stencils of 25-40 points per row fill direct factorizations badly: MCF at 5768
   /// vertices solves in ~10 ms against ~1 s for SparseLU, UMFPACK or KLU; SD's block
   /// system at 10k vertices in ~0.7 s (ILUT) against 5 s for UMFPACK, the best direct
-  /// one, and 12.8 s at 100k; the reduced system in ... (bench/README.md, "Flows").
+  /// one (bench/README.md, "Flows").
   SolverKind kind = SolverKind::kAuto;
   double tolerance = 1e-12;   ///< BiCGSTAB relative residual
   int max_iterations = 1000;  ///< BiCGSTAB
