@@ -1,5 +1,6 @@
 // Chapter 5 studies (bench/README.md, "Flows").
-//   flow_study table   Table 5.1 protocol (unit sphere, 50 x 1e-3, degree 4) on the three
+//   flow_study table [cubed|delaunay|jittered]
+//                      Table 5.1 protocol (unit sphere, 50 x 1e-3, degree 4) on the three
 //                      levels, beside the cotan (Dziuk) implicit MCF with lumped mass.
 //   flow_study steps [sizes] [threads] [solver] [mcf|surface_diffusion]
 //                      semi-implicit MCF and SD step times split into fit / assemble /
@@ -68,18 +69,35 @@ Integrals HighOrder(const Mesh& mesh) {
   return Integrate(WalfSurface(mesh, fits), IntegrationInput()).value();
 }
 
-void Table() {
+// Table 5.1's three levels in a mesh family: "cubed" (the project's cubed spheres,
+// n = 8 / 16 / 31), "delaunay" (hulls of Fibonacci points with the text's 368 / 1450 /
+// 5804 vertices), "jittered" (the same hulls of points jittered by 0.3 x the spacing,
+// 400 / 1600 / 6400 vertices: sizes and connectivity the tests never saw).
+Mesh TableMesh(const std::string& family, int level) {
+  if (family == "delaunay") return GenerateDelaunaySphereMesh((int[]){368, 1450, 5804}[level]);
+  if (family == "jittered") return GenerateDelaunaySphereMesh((int[]){400, 1600, 6400}[level], 0.3, 7);
+  return Sphere((int[]){8, 16, 31}[level]);
+}
+
+void Table(const std::string& family) {
   const double T = 0.05, exact = std::sqrt(1 - 2 * T);
   double floor_r = 1;
   for (int i = 0; i < 50; ++i) floor_r = floor_r * floor_r * floor_r / (floor_r * floor_r + 1e-3);
   const double text[3] = {1.68e-4, 8.76e-5, 8.33e-5};
-  std::printf("Table 5.1: unit sphere, 50 x 1e-3, degree 4, semi-implicit; BE floor %.3e\n", floor_r - exact);
-  std::printf("   n  verts  Linf       (text)     spatial    flatA err  flatV err  hoA err    hoV err    ms/step | cotan Linf  ms/step\n");
+  std::printf("Table 5.1 (%s meshes): unit sphere, 50 x 1e-3, degree 4, semi-implicit; BE floor %.3e\n",
+              family.c_str(), floor_r - exact);
+  std::printf("   l  verts  Linf       (text)     spatial    flatA err  flatV err  hoA err    hoV err    ms/step | cotan Linf  ms/step\n");
   std::vector<double> h, sp;
   for (int l = 0; l < 3; ++l) {
-    const int n = (int[]){8, 16, 31}[l];
-    const Mesh mesh = Sphere(n);
+    const Mesh mesh = TableMesh(family, l);
+    const int n = l;
     FlowOptions o;
+    if (getenv("GF_RINGS")) o.fit.rings = atof(getenv("GF_RINGS"));
+    if (getenv("GF_MINPTS")) o.fit.min_points_factor = atof(getenv("GF_MINPTS"));
+    if (getenv("GF_TWOPASS")) o.fit.two_pass = true;
+    if (getenv("GF_EPS")) o.fit.weight_epsilon = atof(getenv("GF_EPS"));
+    if (getenv("GF_DEG")) o.fit.degree = atoi(getenv("GF_DEG"));
+    if (getenv("GF_LEVELS") && l >= atoi(getenv("GF_LEVELS"))) break;
     o.dt = 1e-3;
     o.steps = 50;
     FlowResult r;
@@ -101,15 +119,15 @@ void Table() {
   }
   std::printf("spatial order %.2f\n", ConvergenceOrder(h, sp));
   // Semi-implicit at dt = 1e-2 on all three levels.
-  for (int n : {8, 16, 31}) {
+  for (int n = 0; n < 3; ++n) {
     FlowOptions o;
     o.dt = 1e-2;
     o.steps = 10;
     FlowResult r;
-    const absl::Status s = RunFlow(Sphere(n), o, RunContext(), &r);
+    const absl::Status s = RunFlow(TableMesh(family, n), o, RunContext(), &r);
     double R = 1;
     for (int i = 0; i < 10; ++i) R = R * R * R / (R * R + 1e-2);
-    std::printf("semi-implicit dt=1e-2 n=%d: %s, spatial error at t=0.1 %.2e\n", n, s.ok() ? "ok" : s.ToString().c_str(),
+    std::printf("semi-implicit dt=1e-2 level %d: %s, spatial error at t=0.1 %.2e\n", n, s.ok() ? "ok" : s.ToString().c_str(),
                 MaxRadiusError(r.mesh.positions, R));
   }
 }
@@ -184,14 +202,14 @@ void Steps(const std::vector<int>& sizes, int threads, const std::string& solver
 int main(int argc, char** argv) {
   const std::string what = argc > 1 ? argv[1] : "table";
   if (what == "table") {
-    Table();
+    Table(argc > 2 ? argv[2] : "cubed");
   } else if (what == "steps") {
     std::vector<int> sizes;
     std::stringstream ss(argc > 2 ? argv[2] : "10000,100000");
     for (std::string item; std::getline(ss, item, ',');) sizes.push_back(std::atoi(item.c_str()));
     Steps(sizes, argc > 3 ? std::atoi(argv[3]) : 1, argc > 4 ? argv[4] : "auto", argc > 5 ? argv[5] : "");
   } else {
-    std::fprintf(stderr, "usage: flow_study table | steps [sizes] [threads] [solver] [mcf|surface_diffusion]\n");
+    std::fprintf(stderr, "usage: flow_study table [cubed|delaunay|jittered] | steps [sizes] [threads] [solver] [mcf|surface_diffusion]\n");
     return 2;
   }
 }

@@ -73,6 +73,8 @@ absl::StatusOr<FlowScheme> ParseFlowScheme(const std::string& name) {
 FitOptions DefaultFlowFitOptions() {
   FitOptions o;
   o.degree = 4;
+  o.rings = 1.5;
+  o.min_points_factor = 1.1;
   return o;
 }
 
