@@ -2,7 +2,7 @@
 //   flow_study table [cubed|delaunay|jittered]
 //                      Table 5.1 protocol (unit sphere, 50 x 1e-3, degree 4) on the three
 //                      levels, beside the cotan (Dziuk) implicit MCF with lumped mass.
-//   flow_study steps [sizes] [threads] [solver] [mcf|surface_diffusion]
+//   flow_study steps [sizes] [threads] [solver] [mcf|surface_diffusion] [scheme]
 //                      semi-implicit MCF and SD step times split into fit / assemble /
 //                      solve (median of steps 2..4), and a degree-4 fit of the same mesh.
 #include <algorithm>
@@ -92,12 +92,6 @@ void Table(const std::string& family) {
     const Mesh mesh = TableMesh(family, l);
     const int n = l;
     FlowOptions o;
-    if (getenv("GF_RINGS")) o.fit.rings = atof(getenv("GF_RINGS"));
-    if (getenv("GF_MINPTS")) o.fit.min_points_factor = atof(getenv("GF_MINPTS"));
-    if (getenv("GF_TWOPASS")) o.fit.two_pass = true;
-    if (getenv("GF_EPS")) o.fit.weight_epsilon = atof(getenv("GF_EPS"));
-    if (getenv("GF_DEG")) o.fit.degree = atoi(getenv("GF_DEG"));
-    if (getenv("GF_LEVELS") && l >= atoi(getenv("GF_LEVELS"))) break;
     o.dt = 1e-3;
     o.steps = 50;
     FlowResult r;
@@ -137,7 +131,8 @@ double Median(std::vector<double> v) {
   return v[v.size() / 2];
 }
 
-void Steps(const std::vector<int>& sizes, int threads, const std::string& solver, const std::string& only) {
+void Steps(const std::vector<int>& sizes, int threads, const std::string& solver, const std::string& only,
+           const std::string& only_scheme) {
   std::printf("step times (ms, median of steps 2..4), threads %d, solver %s\n", threads, solver.c_str());
   std::printf("  flow  scheme          verts     fit4    fit  assemble   solve   total  iters  total/fit4  step1\n");
   for (int target : sizes) {
@@ -155,6 +150,7 @@ void Steps(const std::vector<int>& sizes, int threads, const std::string& solver
     for (FlowKind kind : {FlowKind::kMeanCurvature, FlowKind::kSurfaceDiffusion}) {
       if (!only.empty() && only != FlowKindName(kind)) continue;
       for (FlowScheme scheme : {FlowScheme::kSemiImplicit, FlowScheme::kBdf2}) {
+        if (!only_scheme.empty() && only_scheme != FlowSchemeName(scheme)) continue;
         FlowOptions o;
         o.kind = kind;
         o.scheme = scheme;
@@ -207,9 +203,10 @@ int main(int argc, char** argv) {
     std::vector<int> sizes;
     std::stringstream ss(argc > 2 ? argv[2] : "10000,100000");
     for (std::string item; std::getline(ss, item, ',');) sizes.push_back(std::atoi(item.c_str()));
-    Steps(sizes, argc > 3 ? std::atoi(argv[3]) : 1, argc > 4 ? argv[4] : "auto", argc > 5 ? argv[5] : "");
+    Steps(sizes, argc > 3 ? std::atoi(argv[3]) : 1, argc > 4 ? argv[4] : "auto", argc > 5 ? argv[5] : "",
+          argc > 6 ? argv[6] : "");
   } else {
-    std::fprintf(stderr, "usage: flow_study table [cubed|delaunay|jittered] | steps [sizes] [threads] [solver] [mcf|surface_diffusion]\n");
+    std::fprintf(stderr, "usage: flow_study table [cubed|delaunay|jittered] | steps [sizes] [threads] [solver] [mcf|surface_diffusion] [scheme]\n");
     return 2;
   }
 }
