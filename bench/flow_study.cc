@@ -1,7 +1,8 @@
 // Chapter 5 studies (bench/README.md, "Flows").
-//   flow_study table   Table 5.1 protocol (unit sphere, 50 x 1e-3, degree 4) on the three
+//   flow_study table [cubed|delaunay|jittered]
+//                      Table 5.1 protocol (unit sphere, 50 x 1e-3, degree 4) on the three
 //                      levels, beside the cotan (Dziuk) implicit MCF with lumped mass.
-//   flow_study steps [sizes] [threads] [solver] [mcf|surface_diffusion]
+//   flow_study steps [sizes] [threads] [solver] [mcf|surface_diffusion] [scheme]
 //                      semi-implicit MCF and SD step times split into fit / assemble /
 //                      solve (median of steps 2..4), and a degree-4 fit of the same mesh.
 #include <algorithm>
@@ -46,30 +47,15 @@ CotanResult CotanMcf(const Mesh& mesh, double dt, int steps) {
   r.x = mesh.positions;
   Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> ldlt;
   const Stopwatch watch;
+  Mesh current = mesh;
   for (int s = 0; s < steps; ++s) {
-    std::vector<Eigen::Triplet<double>> t;
-    Eigen::VectorXd mass = Eigen::VectorXd::Zero(nv);
-    for (int f = 0; f < mesh.NumFaces(); ++f) {
-      const int v[3] = {mesh.faces(f, 0), mesh.faces(f, 1), mesh.faces(f, 2)};
-      const Eigen::Vector3d p[3] = {r.x.row(v[0]), r.x.row(v[1]), r.x.row(v[2])};
-      const double area = 0.5 * (p[1] - p[0]).cross(p[2] - p[0]).norm();
-      for (int k = 0; k < 3; ++k) {
-        mass(v[k]) += area / 3;
-        const Eigen::Vector3d a = p[(k + 1) % 3] - p[k], b = p[(k + 2) % 3] - p[k];
-        const double w = 0.5 * a.dot(b) / a.cross(b).norm();  // cot at corner k, for edge (k+1, k+2)
-        const int i = v[(k + 1) % 3], j = v[(k + 2) % 3];
-        t.emplace_back(i, j, -0.5 * dt * w);
-        t.emplace_back(j, i, -0.5 * dt * w);
-        t.emplace_back(i, i, 0.5 * dt * w);
-        t.emplace_back(j, j, 0.5 * dt * w);
-      }
-    }
-    for (int i = 0; i < nv; ++i) t.emplace_back(i, i, mass(i));
-    Eigen::SparseMatrix<double> A(nv, nv);
-    A.setFromTriplets(t.begin(), t.end());
+    current.positions = r.x;
+    const CotanLaplacian cot = BuildCotanLaplacian(current);
+    Eigen::SparseMatrix<double> A = -0.5 * dt * cot.stiffness;
+    for (int i = 0; i < nv; ++i) A.coeffRef(i, i) += cot.mass(i);
     if (s == 0) ldlt.analyzePattern(A);
     ldlt.factorize(A);
-    const Eigen::MatrixXd rhs = mass.asDiagonal() * Eigen::MatrixXd(r.x);
+    const Eigen::MatrixXd rhs = cot.mass.asDiagonal() * Eigen::MatrixXd(r.x);
     r.x = ldlt.solve(rhs);
   }
   r.ms_per_step = watch.Millis() / steps;
@@ -83,17 +69,28 @@ Integrals HighOrder(const Mesh& mesh) {
   return Integrate(WalfSurface(mesh, fits), IntegrationInput()).value();
 }
 
-void Table() {
+// Table 5.1's three levels in a mesh family: "cubed" (the project's cubed spheres,
+// n = 8 / 16 / 31), "delaunay" (hulls of Fibonacci points with the text's 368 / 1450 /
+// 5804 vertices), "jittered" (the same hulls of points jittered by 0.3 x the spacing,
+// 400 / 1600 / 6400 vertices: sizes and connectivity the tests never saw).
+Mesh TableMesh(const std::string& family, int level) {
+  if (family == "delaunay") return GenerateDelaunaySphereMesh((int[]){368, 1450, 5804}[level]);
+  if (family == "jittered") return GenerateDelaunaySphereMesh((int[]){400, 1600, 6400}[level], 0.3, 7);
+  return Sphere((int[]){8, 16, 31}[level]);
+}
+
+void Table(const std::string& family) {
   const double T = 0.05, exact = std::sqrt(1 - 2 * T);
   double floor_r = 1;
   for (int i = 0; i < 50; ++i) floor_r = floor_r * floor_r * floor_r / (floor_r * floor_r + 1e-3);
   const double text[3] = {1.68e-4, 8.76e-5, 8.33e-5};
-  std::printf("Table 5.1: unit sphere, 50 x 1e-3, degree 4, semi-implicit; BE floor %.3e\n", floor_r - exact);
-  std::printf("   n  verts  Linf       (text)     spatial    flatA err  flatV err  hoA err    hoV err    ms/step | cotan Linf  ms/step\n");
+  std::printf("Table 5.1 (%s meshes): unit sphere, 50 x 1e-3, degree 4, semi-implicit; BE floor %.3e\n",
+              family.c_str(), floor_r - exact);
+  std::printf("   l  verts  Linf       (text)     spatial    flatA err  flatV err  hoA err    hoV err    ms/step | cotan Linf  ms/step\n");
   std::vector<double> h, sp;
   for (int l = 0; l < 3; ++l) {
-    const int n = (int[]){8, 16, 31}[l];
-    const Mesh mesh = Sphere(n);
+    const Mesh mesh = TableMesh(family, l);
+    const int n = l;
     FlowOptions o;
     o.dt = 1e-3;
     o.steps = 50;
@@ -116,15 +113,15 @@ void Table() {
   }
   std::printf("spatial order %.2f\n", ConvergenceOrder(h, sp));
   // Semi-implicit at dt = 1e-2 on all three levels.
-  for (int n : {8, 16, 31}) {
+  for (int n = 0; n < 3; ++n) {
     FlowOptions o;
     o.dt = 1e-2;
     o.steps = 10;
     FlowResult r;
-    const absl::Status s = RunFlow(Sphere(n), o, RunContext(), &r);
+    const absl::Status s = RunFlow(TableMesh(family, n), o, RunContext(), &r);
     double R = 1;
     for (int i = 0; i < 10; ++i) R = R * R * R / (R * R + 1e-2);
-    std::printf("semi-implicit dt=1e-2 n=%d: %s, spatial error at t=0.1 %.2e\n", n, s.ok() ? "ok" : s.ToString().c_str(),
+    std::printf("semi-implicit dt=1e-2 level %d: %s, spatial error at t=0.1 %.2e\n", n, s.ok() ? "ok" : s.ToString().c_str(),
                 MaxRadiusError(r.mesh.positions, R));
   }
 }
@@ -134,9 +131,10 @@ double Median(std::vector<double> v) {
   return v[v.size() / 2];
 }
 
-void Steps(const std::vector<int>& sizes, int threads, const std::string& solver, const std::string& only) {
+void Steps(const std::vector<int>& sizes, int threads, const std::string& solver, const std::string& only,
+           const std::string& only_scheme) {
   std::printf("step times (ms, median of steps 2..4), threads %d, solver %s\n", threads, solver.c_str());
-  std::printf("  flow  scheme          verts     fit4    fit  assemble   solve   total  iters  total/fit4\n");
+  std::printf("  flow  scheme          verts     fit4    fit  assemble   solve   total  iters  total/fit4  step1\n");
   for (int target : sizes) {
     const int n = static_cast<int>(std::lround(std::sqrt((target - 2) / 6.0)));
     const Mesh mesh = Sphere(n);
@@ -152,6 +150,7 @@ void Steps(const std::vector<int>& sizes, int threads, const std::string& solver
     for (FlowKind kind : {FlowKind::kMeanCurvature, FlowKind::kSurfaceDiffusion}) {
       if (!only.empty() && only != FlowKindName(kind)) continue;
       for (FlowScheme scheme : {FlowScheme::kSemiImplicit, FlowScheme::kBdf2}) {
+        if (!only_scheme.empty() && only_scheme != FlowSchemeName(scheme)) continue;
         FlowOptions o;
         o.kind = kind;
         o.scheme = scheme;
@@ -170,6 +169,7 @@ void Steps(const std::vector<int>& sizes, int threads, const std::string& solver
         }
         std::vector<double> f, a, s, tot;
         int iters = 0;
+        double first = 0;  // step 1: symbolic analyses, the SD preconditioner's factorization
         for (int i = 0; i < 4; ++i) {
           const Stopwatch w;
           auto st = (*stepper)->Step(ctx);
@@ -177,13 +177,16 @@ void Steps(const std::vector<int>& sizes, int threads, const std::string& solver
             std::printf("error: %s\n", st.status().ToString().c_str());
             return;
           }
-          if (i == 0) continue;
+          if (i == 0) {
+            first = w.Millis();
+            continue;
+          }
           f.push_back(st->fit_ms), a.push_back(st->assemble_ms), s.push_back(st->solve_ms), tot.push_back(w.Millis());
           iters = st->solver_iterations;
         }
-        std::printf("  %-4s  %-13s %8d %8.1f %6.1f %8.1f %8.1f %7.1f %5d  %6.2f\n",
+        std::printf("  %-4s  %-13s %8d %8.1f %6.1f %8.1f %8.1f %7.1f %5d  %6.2f  %7.1f\n",
                     kind == FlowKind::kMeanCurvature ? "mcf" : "sd", FlowSchemeName(scheme), mesh.NumVertices(), fit4,
-                    Median(f), Median(a), Median(s), Median(tot), iters, Median(tot) / fit4);
+                    Median(f), Median(a), Median(s), Median(tot), iters, Median(tot) / fit4, first);
         std::fflush(stdout);
       }
     }
@@ -195,14 +198,15 @@ void Steps(const std::vector<int>& sizes, int threads, const std::string& solver
 int main(int argc, char** argv) {
   const std::string what = argc > 1 ? argv[1] : "table";
   if (what == "table") {
-    Table();
+    Table(argc > 2 ? argv[2] : "cubed");
   } else if (what == "steps") {
     std::vector<int> sizes;
     std::stringstream ss(argc > 2 ? argv[2] : "10000,100000");
     for (std::string item; std::getline(ss, item, ',');) sizes.push_back(std::atoi(item.c_str()));
-    Steps(sizes, argc > 3 ? std::atoi(argv[3]) : 1, argc > 4 ? argv[4] : "auto", argc > 5 ? argv[5] : "");
+    Steps(sizes, argc > 3 ? std::atoi(argv[3]) : 1, argc > 4 ? argv[4] : "auto", argc > 5 ? argv[5] : "",
+          argc > 6 ? argv[6] : "");
   } else {
-    std::fprintf(stderr, "usage: flow_study table | steps [sizes] [threads] [solver] [mcf|surface_diffusion]\n");
+    std::fprintf(stderr, "usage: flow_study table [cubed|delaunay|jittered] | steps [sizes] [threads] [solver] [mcf|surface_diffusion] [scheme]\n");
     return 2;
   }
 }

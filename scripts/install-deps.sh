@@ -16,7 +16,7 @@ pkgs=(
 if ((!server_only)); then
   pkgs+=(
     libgtest-dev libgmock-dev libbenchmark-dev libcgal-dev libgmp-dev libmpfr-dev
-    python3 python3-grpcio python3-protobuf python3-numpy python3-pytest
+    python3 python3-grpcio python3-protobuf python3-numpy python3-scipy python3-pytest
     python3-vtk9 python3-meshio python3-tqdm
     python3-dev pybind11-dev python3-setuptools python3-pip python3-venv python3-wheel
     openssl

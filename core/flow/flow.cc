@@ -1,6 +1,9 @@
 #include "core/flow/flow.h"
 
+#include <algorithm>
 #include <cmath>
+
+#include <Eigen/SparseCholesky>
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
@@ -31,6 +34,17 @@ void ForEachTriangle(const Mesh& m, Fn&& fn) {
   }
 }
 
+// y = A x, rows in parallel; y is NaN once ctx trips (so that an iterative solve stops).
+void Multiply(const SparseMatrix& A, const Eigen::VectorXd& x, Eigen::VectorXd* y, const RunContext& ctx) {
+  y->resize(A.rows());
+  const absl::Status s = ParallelFor(A.rows(), ctx, [&](int64_t i) {
+    double acc = 0;
+    for (SparseMatrix::InnerIterator it(A, i); it; ++it) acc += it.value() * x(it.col());
+    (*y)(i) = acc;
+  }, 4096);
+  if (!s.ok()) y->setConstant(std::nan(""));
+}
+
 }  // namespace
 
 const char* FlowKindName(FlowKind kind) {
@@ -59,6 +73,8 @@ absl::StatusOr<FlowScheme> ParseFlowScheme(const std::string& name) {
 FitOptions DefaultFlowFitOptions() {
   FitOptions o;
   o.degree = 4;
+  o.rings = 1.5;
+  o.min_points_factor = 1.1;
   return o;
 }
 
@@ -138,6 +154,106 @@ absl::Status FlowStepper::Linearize(const Mesh& fit_mesh, const Positions& base,
   }, 1024);
 }
 
+// Surface diffusion's reduced system (I + a B K) s = -a B M (eliminating mu = M + K s
+// from [[I, a B], [-K, I]]), solved matrix-free by BiCGSTAB warm-started from the last
+// step, first with Jacobi (the diagonal of I + a B K): no set-up, parallel, the fastest
+// while a |B K| is moderate (bench/README.md: 27 iterations at 10k vertices, dt = 1e-6).
+// When Jacobi needs more than kJacobiIterations, the flow switches for good to the cotan
+// square P = (I - c M^{-1} S)^2: with B ~ Laplace-Beltrami and K ~ Laplace-Beltrami / 2,
+// a B K ~ (a/2) Laplace-Beltrami^2, and P^{-1} = ((M - c S)^{-1} M)^2 costs one sparse
+// Cholesky factorization of the 1-ring matrix M - c S, kept while the iterations stay
+// within twice those of its first solve. c = sqrt(a/2) / 2: the 1-ring cotan operator's
+// top eigenvalues are ~3x the wide GFD stencils' (630 vs 190 at 386 vertices); halving c
+// balances the spectrum of P^{-1} (I + a B K) to [0.15, 3] (a = 1e-2) .. [0.68, 1]
+// (a = 1e-6), against [0.04, 1] .. [0.48, 1] with c = sqrt(a/2). Neither is spectrally
+// equivalent to the GFD system (wide stencils barely see the mesh's highest
+// frequencies): iterations grow with n (bench/README.md, "Flows").
+struct FlowStepper::Schur {
+  static constexpr int kJacobiIterations = 300;
+  bool cotan = false;             // switched from Jacobi
+  Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> ldlt;
+  Eigen::VectorXd mass;
+  double c = -1;                  // the factorization's c (a changes: BDF2's start step)
+  bool analyzed = false, refactor = true;
+  int iterations_at_factor = -1;  // BiCGSTAB iterations of the first solve after it
+  int factorizations = 0;
+
+  absl::Status Factorize(const Mesh& geometry, double c_new) {
+    const CotanLaplacian cot = BuildCotanLaplacian(geometry);
+    Eigen::SparseMatrix<double> P = -c_new * cot.stiffness;
+    for (int i = 0; i < P.rows(); ++i) P.coeffRef(i, i) += cot.mass(i);
+    if (!analyzed) ldlt.analyzePattern(P);
+    analyzed = true;
+    ldlt.factorize(P);
+    if (ldlt.info() != Eigen::Success)
+      return absl::FailedPreconditionError("cotan preconditioner: factorization failed (degenerate faces?)");
+    mass = cot.mass;
+    c = c_new;
+    refactor = false;
+    iterations_at_factor = -1;
+    ++factorizations;
+    return absl::OkStatus();
+  }
+};
+
+FlowStepper::FlowStepper() = default;
+FlowStepper::~FlowStepper() = default;
+
+int FlowStepper::preconditioner_factorizations() const { return schur_ ? schur_->factorizations : 0; }
+
+absl::StatusOr<int> FlowStepper::SolveSchur(const Mesh& geometry, const Eigen::VectorXd& mean, double adt,
+                                            const RunContext& ctx, Eigen::VectorXd* s) {
+  Schur& z = *schur_;
+  Eigen::VectorXd tmp;
+  const LinearMap apply = [&](const Eigen::VectorXd& x, Eigen::VectorXd* y) {
+    Multiply(K_, x, &tmp, ctx);
+    Multiply(B_, tmp, y, ctx);
+    *y = x + adt * *y;
+  };
+  Eigen::VectorXd rhs;
+  Multiply(B_, mean, &rhs, ctx);
+  rhs *= -adt;
+  const double tolerance = options_.solver.tolerance;
+  const int max_iterations = options_.solver.max_iterations;
+  if (!z.cotan) {
+    const SparseMatrix Kt = K_.transpose();
+    Eigen::VectorXd inverse_diagonal(K_.rows());
+    GF_RETURN_IF_ERROR(ParallelFor(K_.rows(), ctx, [&](int64_t i) {
+      inverse_diagonal(i) = 1 / (1 + adt * B_.row(i).dot(Kt.row(i)));
+    }, 4096));
+    const LinearMap jacobi = [&](const Eigen::VectorXd& x, Eigen::VectorXd* y) {
+      *y = inverse_diagonal.cwiseProduct(x);
+    };
+    *s = solution_;  // warm start
+    const absl::StatusOr<int> iterations =
+        SolveBicgstab(apply, jacobi, rhs, s, tolerance, std::min(max_iterations, Schur::kJacobiIterations));
+    GF_RETURN_IF_ERROR(ctx.Check());
+    if (iterations.ok()) {
+      solution_ = *s;
+      return iterations;
+    }
+    z.cotan = true;
+  }
+  const double c = 0.5 * std::sqrt(adt / 2);  // see Schur
+  if (z.refactor || c != z.c) GF_RETURN_IF_ERROR(z.Factorize(geometry, c));
+  Eigen::VectorXd half;
+  const LinearMap cotan = [&](const Eigen::VectorXd& x, Eigen::VectorXd* y) {
+    half = z.ldlt.solve(z.mass.cwiseProduct(x));  // no aliasing: the solve permutes into y
+    *y = z.ldlt.solve(z.mass.cwiseProduct(half));
+  };
+  *s = solution_;
+  const absl::StatusOr<int> iterations = SolveBicgstab(apply, cotan, rhs, s, tolerance, max_iterations);
+  GF_RETURN_IF_ERROR(ctx.Check());
+  if (!iterations.ok()) return iterations.status();
+  if (z.iterations_at_factor < 0) {
+    z.iterations_at_factor = *iterations;
+  } else if (*iterations > 2 * z.iterations_at_factor + 2) {
+    z.refactor = true;  // the geometry moved away from the preconditioner's
+  }
+  solution_ = *s;
+  return iterations;
+}
+
 absl::StatusOr<std::unique_ptr<FlowStepper>> FlowStepper::Create(const Mesh& mesh, const FlowOptions& options,
                                                                   const RunContext& ctx) {
   GF_RETURN_IF_ERROR(ValidateFlowOptions(options));
@@ -159,6 +275,8 @@ absl::StatusOr<std::unique_ptr<FlowStepper>> FlowStepper::Create(const Mesh& mes
   if (so.kind == SolverKind::kAuto) {  // see SolverOptions::kind
     so.kind = SolverKind::kBiCGSTAB;
     so.preconditioner = options.kind == FlowKind::kMeanCurvature ? Preconditioner::kDiagonal : Preconditioner::kIlut;
+    if (options.kind == FlowKind::kSurfaceDiffusion && options.scheme != FlowScheme::kExplicit)
+      s->schur_ = std::make_unique<Schur>();
   }
   s->solver_ = SparseSolver(so);
   return s;
@@ -204,6 +322,13 @@ absl::StatusOr<StepStats> FlowStepper::Step(const RunContext& ctx) {
   double solve_ms = 0;
   if (options_.scheme == FlowScheme::kExplicit) {
     s = diffusion ? Eigen::VectorXd(-dt * (B_ * c.mean)) : Eigen::VectorXd(dt * c.mean);  // (5.2.6), (5.2.8)
+  } else if (schur_) {
+    st.assemble_ms = watch.Millis() - st.fit_ms;
+    const Stopwatch solve_watch;
+    const absl::StatusOr<int> iterations = SolveSchur(fit_mesh, c.mean, alpha * dt, ctx, &s);
+    GF_RETURN_IF_ERROR(AtStep(iterations.status(), step, t));
+    st.solver_iterations = *iterations;
+    solve_ms = solve_watch.Millis();
   } else {
     const double adt = alpha * dt;
     Eigen::VectorXd rhs;

@@ -7,7 +7,8 @@
 //                         volume conserved, area decreasing)
 // Schemes: explicit Euler (5.2.6); semi-implicit (5.3.2)-(5.3.7) with motion along the
 // step-n normals, solved in the normal offsets s (x^{n+1} = x^n + s n^n): MCF
-// (I - dt K) s = dt M^n, SD [[I, dt B], [-K, I]] [s; mu] = [0; M^n]; and linearly
+// (I - dt K) s = dt M^n, SD [[I, dt B], [-K, I]] [s; mu] = [0; M^n] (by default reduced
+// to (I + dt B K) s = -dt B M^n, matrix-free BiCGSTAB with a cotan preconditioner); and linearly
 // implicit BDF2 (frames, first derivatives and normals from 2x^n - x^{n-1}, one
 // semi-implicit start step). K_ij = L_ij (n_j . m_i) with L the second-derivative stencil
 // of eq. (5.3.6) / (2 l^3), B the Laplace-Beltrami matrix (5.1.18).
@@ -36,7 +37,12 @@ const char* FlowSchemeName(FlowScheme s);     ///< "explicit", "semi_implicit", 
 absl::StatusOr<FlowKind> ParseFlowKind(const std::string& name);
 absl::StatusOr<FlowScheme> ParseFlowScheme(const std::string& name);
 
-/// The fit a flow uses unless told otherwise: LHF, degree 4 (Table 5.1).
+/// The fit a flow uses unless told otherwise: LHF, degree 4 (Table 5.1) on compact
+/// stencils: 1.5 rings grown to 1.1 x the coefficients (17 points at degree 4). The
+/// text's Table 5.1 matches these (368 vertices: 1.40e-4, 1.68e-4 in the text); the
+/// fitting default (2.5 rings, 1.5 x) gives 2.53e-4: the mean curvature's truncation
+/// error is a bias of one sign that the 50 steps accumulate, and it grows with the
+/// stencil's radius (bench/README.md, "Flows").
 FitOptions DefaultFlowFitOptions();
 
 struct FlowOptions {
@@ -92,12 +98,21 @@ class FlowStepper {
   double time() const { return steps_ * options_.dt; }
   int steps_taken() const { return steps_; }
   const SparseSolver& solver() const { return solver_; }
+  /// Surface diffusion with the default solver: cotan preconditioner factorizations so
+  /// far (0 while Jacobi suffices; 1 for a run whose geometry changes slowly).
+  int preconditioner_factorizations() const;
+
+  ~FlowStepper();
 
  private:
-  FlowStepper() = default;
+  FlowStepper();
   struct Curvature;  // per-step linearization, see flow.cc
+  struct Schur;      // surface diffusion's reduced system, see flow.cc
   absl::Status Linearize(const Mesh& fit_mesh, const Positions& base, const RunContext& ctx, Curvature* c,
                          double* fit_ms);
+  /// Surface diffusion's semi-implicit system reduced to s: (I + a B K) s = -a B M.
+  absl::StatusOr<int> SolveSchur(const Mesh& geometry, const Eigen::VectorXd& mean, double adt,
+                                 const RunContext& ctx, Eigen::VectorXd* s);
 
   FlowOptions options_;
   Mesh mesh_;            // current positions
@@ -108,6 +123,7 @@ class FlowStepper {
   SparseMatrix K_, B_, system_;
   SparseSolver solver_;
   Eigen::VectorXd solution_;  // the last solve's, a warm start for the next
+  std::unique_ptr<Schur> schur_;  // set for surface diffusion with SolverKind::kAuto
   int steps_ = 0;
 };
 

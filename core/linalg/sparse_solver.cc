@@ -177,4 +177,50 @@ absl::Status SparseSolver::Solve(const Eigen::VectorXd& b, Eigen::VectorXd* x) {
   return absl::OkStatus();
 }
 
+absl::StatusOr<int> SolveBicgstab(const LinearMap& A, const LinearMap& preconditioner, const Eigen::VectorXd& b,
+                                  Eigen::VectorXd* x, double tolerance, int max_iterations) {
+  const Eigen::Index n = b.size();
+  if (x->size() != n) x->setZero(n);
+  const double target = tolerance * b.norm();
+  if (target == 0) {
+    x->setZero();
+    return 0;
+  }
+  Eigen::VectorXd r(n), ax(n), y(n), z(n), v = Eigen::VectorXd::Zero(n), p = Eigen::VectorXd::Zero(n), s(n), t(n);
+  A(*x, &ax);
+  r = b - ax;
+  Eigen::VectorXd r0 = r;
+  double rho = 1, alpha = 1, w = 1;
+  const double eps2 = Eigen::NumTraits<double>::epsilon() * Eigen::NumTraits<double>::epsilon();
+  int it = 0;
+  for (; r.norm() > target; ++it) {
+    if (it == max_iterations || !r.allFinite())
+      return absl::FailedPreconditionError(
+          absl::StrFormat("bicgstab: no convergence in %d iterations (relative residual %.2e)", it, r.norm() / b.norm()));
+    const double rho_old = rho;
+    rho = r0.dot(r);
+    if (w == 0 || std::abs(rho) < eps2 * r0.squaredNorm()) {  // breakdown (w = 0, r0 . r = 0): restart
+      r0 = r;
+      rho = r.squaredNorm();
+      p.setZero();
+      v.setZero();
+      alpha = w = 1;
+    }
+    const double beta = (rho / rho_old) * (alpha / w);
+    p = r + beta * (p - w * v);
+    preconditioner(p, &y);
+    A(y, &v);
+    alpha = rho / r0.dot(v);
+    s = r - alpha * v;
+    preconditioner(s, &z);
+    A(z, &t);
+    const double tt = t.squaredNorm();
+    w = tt > 0 ? t.dot(s) / tt : 0;
+    *x += alpha * y + w * z;
+    r = s - w * t;
+  }
+  if (!x->allFinite()) return absl::FailedPreconditionError("bicgstab: the solution is not finite");
+  return it;
+}
+
 }  // namespace geomfit

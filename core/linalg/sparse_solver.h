@@ -2,6 +2,7 @@
 // Sparse linear solvers for time stepping: the pattern of the system stays the same from
 // step to step (topology is fixed), so the symbolic analysis (ordering, elimination tree)
 // is done once and only the numeric factorization is repeated.
+#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
@@ -33,11 +34,15 @@ bool SolverAvailable(SolverKind kind);
 
 struct SolverOptions {
   /// kAuto lets the caller choose. Flows take BiCGSTAB, warm-started: with Jacobi for
-  /// MCF, and with ILUT for surface diffusion's block system (on which Jacobi stalls).
+  /// MCF; for surface diffusion, on the system reduced to the normal offsets,
+  /// (I + dt B K) s = -dt B M, matrix-free, with Jacobi, or once Jacobi needs more than
+  /// 300 iterations with the cotan square (I - c Lc)^2, c = sqrt(dt / 2) / 2, whose
+  /// factorization is reused while it works (FlowStepper::Schur in flow.cc). Any other
+  /// kind solves SD's 2n block system (ILUT for BiCGSTAB: Jacobi stalls there).
   /// GFD stencils of 25-40 points per row fill direct factorizations badly: MCF at 5768
-  /// vertices solves in ~10 ms against ~1 s for SparseLU, UMFPACK or KLU; SD at 10k
-  /// vertices in ~0.7 s against 5 s for UMFPACK, the best direct one
-  /// (bench/README.md, "Flows").
+  /// vertices solves in ~10 ms against ~1 s for SparseLU, UMFPACK or KLU; SD's block
+  /// system at 10k vertices in ~0.7 s (ILUT) against 5 s for UMFPACK, the best direct
+  /// one (bench/README.md, "Flows").
   SolverKind kind = SolverKind::kAuto;
   double tolerance = 1e-12;   ///< BiCGSTAB relative residual
   int max_iterations = 1000;  ///< BiCGSTAB
@@ -81,5 +86,16 @@ class SparseSolver {
   int analyses_ = 0;
   int iterations_ = 0;
 };
+
+/// y = A x for an operator given only by its action (matrix-free); `*y` is resized.
+using LinearMap = std::function<void(const Eigen::VectorXd& x, Eigen::VectorXd* y)>;
+
+/// Right-preconditioned BiCGSTAB (van der Vorst; Eigen's variant, restarting when the
+/// shadow residual turns orthogonal) for A x = b given as maps: `preconditioner` applies
+/// an approximation of A^{-1}. Starts from `*x` when it has b's size (warm start), else
+/// from zero; stops at ||b - A x|| <= tolerance ||b||. Returns the iterations;
+/// FAILED_PRECONDITION when max_iterations pass first or the result is not finite.
+absl::StatusOr<int> SolveBicgstab(const LinearMap& A, const LinearMap& preconditioner, const Eigen::VectorXd& b,
+                                  Eigen::VectorXd* x, double tolerance, int max_iterations);
 
 }  // namespace geomfit

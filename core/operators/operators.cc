@@ -252,4 +252,34 @@ absl::StatusOr<SparseMatrix> WeingartenMatrix(const SurfaceFits& fits, const Run
   return OneShot(OperatorKind::kWeingarten, fits, ctx);
 }
 
+CotanLaplacian BuildCotanLaplacian(const Mesh& mesh) {
+  const int nv = mesh.NumVertices();
+  CotanLaplacian c;
+  c.mass.setZero(nv);
+  std::vector<Eigen::Triplet<double>> t;
+  t.reserve(12 * static_cast<size_t>(mesh.NumFaces()));
+  auto triangle = [&](int a, int b, int d) {
+    const int v[3] = {a, b, d};
+    const Eigen::Vector3d p[3] = {mesh.positions.row(a), mesh.positions.row(b), mesh.positions.row(d)};
+    const double twice_area = (p[1] - p[0]).cross(p[2] - p[0]).norm();
+    for (int k = 0; k < 3; ++k) {
+      c.mass(v[k]) += twice_area / 6;
+      const Eigen::Vector3d e1 = p[(k + 1) % 3] - p[k], e2 = p[(k + 2) % 3] - p[k];
+      const double w = twice_area > 0 ? 0.5 * e1.dot(e2) / twice_area : 0.0;  // cot at corner k / 2
+      const int i = v[(k + 1) % 3], j = v[(k + 2) % 3];
+      t.emplace_back(i, j, w);
+      t.emplace_back(j, i, w);
+      t.emplace_back(i, i, -w);
+      t.emplace_back(j, j, -w);
+    }
+  };
+  for (int f = 0; f < mesh.NumFaces(); ++f) {
+    triangle(mesh.faces(f, 0), mesh.faces(f, 1), mesh.faces(f, 2));
+    if (mesh.FaceSize(f) == 4) triangle(mesh.faces(f, 0), mesh.faces(f, 2), mesh.faces(f, 3));
+  }
+  c.stiffness.resize(nv, nv);
+  c.stiffness.setFromTriplets(t.begin(), t.end());
+  return c;
+}
+
 }  // namespace geomfit

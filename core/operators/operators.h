@@ -96,4 +96,15 @@ absl::StatusOr<SparseMatrix> LaplaceBeltramiMatrix(const SurfaceFits& fits, cons
 absl::StatusOr<SparseMatrix> HessianMatrix(const SurfaceFits& fits, const RunContext& ctx = RunContext());
 absl::StatusOr<SparseMatrix> WeingartenMatrix(const SurfaceFits& fits, const RunContext& ctx = RunContext());
 
+/// The classic low-order (1-ring) Laplace-Beltrami of a triangle mesh (quads split along
+/// the diagonal 0-2): Laplace-Beltrami u ~ M^{-1} S u with the symmetric, negative
+/// semidefinite cotan stiffness (S u)_i = 1/2 sum_j (cot a_ij + cot b_ij)(u_j - u_i) and
+/// the lumped (barycentric) mass M. Compact and symmetric, so cheap to factorize: the
+/// flows use it to precondition the GFD systems (and bench/ as the peer scheme).
+struct CotanLaplacian {
+  Eigen::SparseMatrix<double> stiffness;  ///< S, n x n, column-major (Eigen's Cholesky)
+  Eigen::VectorXd mass;                   ///< M's diagonal: a third of the adjacent areas
+};
+CotanLaplacian BuildCotanLaplacian(const Mesh& mesh);
+
 }  // namespace geomfit

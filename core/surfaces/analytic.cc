@@ -1,5 +1,6 @@
 #include "core/surfaces/analytic.h"
 
+#include <algorithm>
 #include <cmath>
 #include <map>
 #include <random>
@@ -272,6 +273,55 @@ Mesh GenerateBumpMesh(const GeneratorOptions& o) {
     const double x = g.params[i].x(), y = g.params[i].y();
     m.positions.row(i) << x, y, GaussianBump::Eval(x, y).f;
   }
+  return m;
+}
+
+Mesh GenerateDelaunaySphereMesh(int vertices, double jitter, uint64_t seed, double radius) {
+  const int n = std::max(vertices, 4);
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> uniform(-1, 1);
+  const double golden = M_PI * (3 - std::sqrt(5.0)), spacing = std::sqrt(4 * M_PI / n);
+  std::vector<Vector3d> p(n);
+  for (int i = 0; i < n; ++i) {
+    const double z = 1 - (2 * i + 1.0) / n, r = std::sqrt(1 - z * z);
+    p[i] = Vector3d(r * std::cos(golden * i), r * std::sin(golden * i), z);
+    if (jitter > 0) {
+      const Vector3d d(uniform(rng), uniform(rng), uniform(rng));
+      p[i] = (p[i] + jitter * spacing * (d - d.dot(p[i]) * p[i])).normalized();
+    }
+  }
+  // Incremental convex hull (all points are on it). Faces stay outward: a new face
+  // (a, b, q) takes the horizon edge a -> b in the orientation of the visible face.
+  // Start from four spread-out points (a tetrahedron of positive volume).
+  const int t[4] = {0, n / 3, 2 * n / 3, n - 1};
+  std::vector<Eigen::Vector3i> faces = {{t[0], t[2], t[1]}, {t[0], t[1], t[3]}, {t[1], t[2], t[3]}, {t[2], t[0], t[3]}};
+  const Vector3d inside = (p[t[0]] + p[t[1]] + p[t[2]] + p[t[3]]) / 4;
+  auto outward = [&](const Eigen::Vector3i& f) {
+    return (p[f(1)] - p[f(0)]).cross(p[f(2)] - p[f(0)]);
+  };
+  for (Eigen::Vector3i& f : faces)
+    if (outward(f).dot(p[f(0)] - inside) < 0) std::swap(f(1), f(2));
+  for (int q = 1; q < n - 1; ++q) {
+    if (q == t[1] || q == t[2]) continue;
+    std::set<std::pair<int, int>> edges;  // directed edges of the visible faces
+    std::vector<Eigen::Vector3i> kept;
+    kept.reserve(faces.size() + 2);
+    for (const Eigen::Vector3i& f : faces) {
+      if (outward(f).dot(p[q] - p[f(0)]) > 1e-15) {
+        for (int k = 0; k < 3; ++k) edges.emplace(f(k), f((k + 1) % 3));
+      } else {
+        kept.push_back(f);
+      }
+    }
+    for (const auto& [a, b] : edges)
+      if (!edges.count({b, a})) kept.emplace_back(a, b, q);
+    faces = std::move(kept);
+  }
+  Mesh m;
+  m.positions.resize(n, 3);
+  for (int i = 0; i < n; ++i) m.positions.row(i) = radius * p[i].transpose();
+  m.faces.setConstant(static_cast<Eigen::Index>(faces.size()), 4, -1);
+  for (size_t f = 0; f < faces.size(); ++f) m.faces.row(f).head<3>() = faces[f].transpose();
   return m;
 }
 

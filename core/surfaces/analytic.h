@@ -56,6 +56,13 @@ Mesh GenerateOpenCylinderMesh(const GeneratorOptions& o, double radius = 1.0);
 /// jagged rim), vertices renumbered.
 Mesh GenerateHemisphereMesh(const GeneratorOptions& o, double radius = 1.0);
 
+/// An unstructured sphere of exactly `vertices` vertices (e.g. the text's 368 / 1450 /
+/// 5804, §5.4): the convex hull, i.e. the spherical Delaunay triangulation, of the
+/// golden-angle (Fibonacci) spiral, whose near-equilateral triangles (valences 5-7) are
+/// what advancing-front and Delaunay meshers give. Each point is first moved along the
+/// sphere by up to `jitter` x the spacing (seeded), then the hull is taken.
+Mesh GenerateDelaunaySphereMesh(int vertices, double jitter = 0, uint64_t seed = 1, double radius = 1.0);
+
 /// A closed cylinder x^2 + y^2 = 1, |z| <= 1, with flat caps: sharp circular edges
 /// (4.1.4). 4n segments around, 2n rows on the side, n rings per cap.
 Mesh GenerateCylinderMesh(int n);

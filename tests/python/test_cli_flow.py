@@ -2,12 +2,15 @@
 .vtp snapshots VTK reads back (python3-vtk9): the first frame is the input, the last
 the mesh's final revision on the server; `geomfit operator` writes Matrix Market."""
 import os
+import re
+import signal
 import subprocess
 import xml.etree.ElementTree as ET
 
 import numpy as np
 
 import geomfit
+from geomfit.v1 import geomfit_pb2 as pb
 import vtk  # noqa: E402  (python3-vtk9, installed by scripts/install-deps.sh)
 from vtk.util.numpy_support import vtk_to_numpy  # noqa: E402
 
@@ -72,3 +75,70 @@ def test_flow_local_and_operator(server, data_dir):
         i, j, v = line.split()
         sums[int(i) - 1] += float(v)
     assert np.abs(sums).max() < 1e-8
+
+
+def start_cli(*args):
+    """The geomfit CLI as a child whose stderr we read line by line."""
+    binary = os.environ.get("GEOMFIT_CLI_BINARY")
+    assert binary and os.path.exists(binary), "GEOMFIT_CLI_BINARY must name the geomfit binary"
+    return subprocess.Popen([binary, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def interrupt_after(proc, stream, marker):
+    """Reads `stream` until a line containing `marker`, sends SIGINT, and returns the
+    exit code (within 10 s: Ctrl-C must stop the work at once) and every line read."""
+    lines = []
+    for line in stream:
+        lines.append(line)
+        if marker in line:
+            break
+    assert proc.poll() is None, "the command ended before the interrupt: %s" % "".join(lines)
+    proc.send_signal(signal.SIGINT)
+    try:
+        rest = stream.read()
+        code = proc.wait(timeout=10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    return code, "".join(lines) + rest
+
+
+def test_ctrl_c_cancels_the_remote_flow_job(server, data_dir):
+    torus_obj = os.path.join(REPO, "data", "torus.obj")
+    prefix = os.path.join(data_dir, "cut")
+    proc = start_cli("flow", torus_obj, "--server", server.address, "--dt", "1e-6", "--steps", "100000",
+                     "--degree", "3", "--output-series", prefix)
+    code, err = interrupt_after(proc, proc.stderr, "geomfit: step 2/")
+    assert code == 130, err
+    job_id = re.search(r"started flow job (\S+)", err).group(1)
+    assert "cancelling job %s" % job_id in err
+    with geomfit.Client(server.address) as client:
+        job = client.get_job(job_id)
+    assert job.state == pb.JOB_STATE_CANCELLED, job
+    # The series written so far stays readable.
+    sets = ET.parse(prefix + ".pvd").getroot().find("Collection").findall("DataSet")
+    assert len(sets) >= 3
+
+
+def test_ctrl_c_in_jobs_watch_cancels_the_job(server):
+    pos, tris = torus(48, 24)
+    with geomfit.Client(server.address) as client:
+        mesh = client.upload(pos, tris)
+        job = client.start_flow(mesh.mesh_id, dt=1e-6, steps=100000, degree=3)
+        proc = start_cli("jobs", "watch", "--server", server.address, job.job_id)
+        code, out = interrupt_after(proc, proc.stdout, " step 1")
+        assert code == 130, out + proc.stderr.read()
+        assert client.get_job(job.job_id).state == pb.JOB_STATE_CANCELLED
+
+
+def test_ctrl_c_stops_a_local_flow(data_dir):
+    torus_obj = os.path.join(REPO, "data", "torus.obj")
+    prefix = os.path.join(data_dir, "local_cut")
+    proc = start_cli("flow", torus_obj, "--local", "--dt", "1e-6", "--steps", "100000", "--degree", "3",
+                     "--output-series", prefix)
+    code, err = interrupt_after(proc, proc.stderr, "geomfit: step 2/")
+    assert code == 130, err
+    assert "flow cancelled after" in err
+    sets = ET.parse(prefix + ".pvd").getroot().find("Collection").findall("DataSet")
+    assert len(sets) >= 3

@@ -67,3 +67,32 @@ def test_operator_and_apply_operator(server):
         assert "field" in e.value.details
         with pytest.raises(ValueError):
             client.operator(mesh.mesh_id, "curl")
+
+
+def test_operator_is_a_scipy_matrix_equal_to_the_csr_arrays(server, monkeypatch):
+    """With scipy (python3-scipy, installed by scripts/install-deps.sh) client.operator
+    returns a scipy.sparse CSR matrix; without it, the numpy CSR arrays: the same matrix."""
+    import sys
+
+    import scipy.sparse
+    with geomfit.Client(server.address) as client:
+        positions, faces = torus(24, 12)
+        mesh = client.upload(positions, faces, name="torus")
+        n = len(positions)
+        for name, shape in [("laplace_beltrami", (n, n)), ("gradient", (3 * n, n)), ("divergence", (n, 3 * n))]:
+            m = client.operator(mesh.mesh_id, name, degree=3)
+            assert scipy.sparse.issparse(m) and m.format == "csr" and m.shape == shape
+            with monkeypatch.context() as patch:  # scipy not importable: the numpy fallback
+                patch.setitem(sys.modules, "scipy", None)
+                patch.setitem(sys.modules, "scipy.sparse", None)
+                offsets, columns, values, arrays_shape = client.operator(mesh.mesh_id, name, degree=3)
+            assert arrays_shape == shape
+            np.testing.assert_array_equal(m.indptr, offsets)
+            np.testing.assert_array_equal(m.indices, columns)
+            np.testing.assert_array_equal(m.data, values)
+            dense = np.zeros(shape)
+            rows = np.repeat(np.arange(shape[0]), np.diff(offsets))
+            dense[rows, columns] = values
+            np.testing.assert_array_equal(m.toarray(), dense)
+        L = client.operator(mesh.mesh_id, "laplace_beltrami", degree=3)
+        np.testing.assert_allclose(L @ np.ones(n), 0, atol=1e-8)  # L 1 = 0, through scipy

@@ -24,6 +24,7 @@ namespace geomfit::cli {
 inline constexpr int kExitOk = 0;
 inline constexpr int kExitRuntimeError = 1;
 inline constexpr int kExitUsageError = 2;
+inline constexpr int kExitInterrupted = 130;  ///< Ctrl-C stopped the work (interrupt.h)
 
 /// An INVALID_ARGUMENT status marked as a usage error (bad command line), so that
 /// Main() exits with 2 rather than 1.
@@ -187,6 +188,15 @@ std::string FormatJobEvent(const v1::JobEvent& event);
 /// Starts a refine job and watches it (progress lines on stderr) to its end: the level
 /// meshes (coarsest first), or the job's error.
 absl::StatusOr<std::vector<v1::JobResultMesh>> RunRefineJob(Client& client, const v1::RefineJob& spec);
+/// Client::WatchJob with Ctrl-C cancelling the job on the server (the watch then ends
+/// with the job's final CANCELLED event; see InterruptHandler). `*last` gets the last
+/// event seen.
+absl::Status WatchJobCancellingOnInterrupt(Client& client, const std::string& job_id, int64_t from_event,
+                                           const std::function<bool(const v1::JobEvent&)>& on_event,
+                                           v1::JobEvent* last);
+/// OK for a SUCCEEDED final event; CANCELLED for a job cancelled (e.g. by Ctrl-C);
+/// else a runtime error naming the job's end. `what` names the job ("job", "flow job").
+absl::Status JobOutcome(const v1::JobEvent& last, const std::string& what = "job");
 #endif
 
 /// Names of the service-only commands (for help text and a clear error when the

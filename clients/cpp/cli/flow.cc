@@ -11,6 +11,7 @@
 #include "absl/strings/ascii.h"
 #include "absl/strings/str_format.h"
 #include "clients/cpp/cli/cli.h"
+#include "clients/cpp/cli/interrupt.h"
 #include "core/flow/flow.h"
 #include "core/mesh/io.h"
 #include "core/util/status_macros.h"
@@ -75,7 +76,9 @@ absl::Status RunLocal(const FlowArgs& a) {
   const double area0 = MeshArea(mesh), volume0 = MeshVolume(mesh);
   FlowResult result;
   bool stopped = false;
-  const absl::Status s = RunFlow(mesh, o, RunContext(nullptr, a.threads), &result,
+  CancellationToken cancel;  // Ctrl-C
+  const InterruptHandler interrupt([&] { cancel.Cancel(); });
+  const absl::Status s = RunFlow(mesh, o, RunContext(&cancel, a.threads), &result,
                                  [&](const StepStats& st, const Mesh& m) -> absl::Status {
                                    std::fprintf(stderr, "%s\n",
                                                 StepLine(st.step, total, st.t, st.area, st.volume, st.max_speed,
@@ -87,7 +90,12 @@ absl::Status RunLocal(const FlowArgs& a) {
                                      GF_RETURN_IF_ERROR(series.Add(st.step, st.t, m.positions));
                                    return stopped ? absl::CancelledError("stop condition") : absl::OkStatus();
                                  });
-  if (!s.ok() && !stopped) return s;
+  if (!s.ok() && !stopped) {
+    if (cancel.IsCancelled())
+      return absl::CancelledError(absl::StrFormat("flow cancelled after %zu steps%s", result.steps.size(),
+                                                  a.series.empty() ? "" : absl::StrCat("; ", a.series, ".pvd holds them")));
+    return s;
+  }
   if (stopped) std::fprintf(stderr, "geomfit: stopped at a stop condition after %zu steps\n", result.steps.size());
   return absl::OkStatus();
 }
@@ -120,8 +128,7 @@ absl::Status RunRemote(const FlowArgs& a) {
   if (!a.series.empty()) GF_RETURN_IF_ERROR(series.Add(0, 0, mesh.positions));
   absl::Status write = absl::OkStatus();
   v1::JobEvent last;
-  GF_RETURN_IF_ERROR(client->WatchJob(job.job_id(), 0, [&](const v1::JobEvent& e) {
-    last = e;
+  GF_RETURN_IF_ERROR(WatchJobCancellingOnInterrupt(*client, job.job_id(), 0, [&](const v1::JobEvent& e) {
     if (e.phase() == "step") {
       const auto value = [&](const char* k) { return e.values().count(k) ? e.values().at(k) : 0.0; };
       const int64_t iters = e.counts().count("solver_iterations") ? e.counts().at("solver_iterations") : 0;
@@ -146,15 +153,12 @@ absl::Status RunRemote(const FlowArgs& a) {
       std::fprintf(stderr, "geomfit: %s\n", FormatJobEvent(e).c_str());
     }
     return true;
-  }));
+  }, &last));
   if (!write.ok()) {
     client->CancelJob(job.job_id()).IgnoreError();
     return write;
   }
-  if (!last.final()) return absl::UnavailableError(absl::StrCat("job ", job.job_id(), ": the watch ended early"));
-  if (last.state() != v1::JOB_STATE_SUCCEEDED)
-    return absl::AbortedError(absl::StrCat("flow job ", job.job_id(), ": ", last.message()));
-  return absl::OkStatus();
+  return JobOutcome(last, "flow job");
 }
 #endif
 
@@ -167,7 +171,8 @@ absl::Status RunFlowCommand(const std::vector<std::string>& argv) {
               "diffusion, refitting every step. With --server it runs as a job (MESH: a file,\n"
               "uploaded, or a mesh id; snapshots become revisions of the mesh); --local runs it\n"
               "in-process. Progress lines go to stderr; --output-series writes PREFIX.pvd and\n"
-              "PREFIX_NNNNN.vtp (a ParaView animation).");
+              "PREFIX_NNNNN.vtp (a ParaView animation). Ctrl-C cancels the flow (the server's job,\n"
+              "or the local run) and exits (130) once it stopped; the series keeps its steps.");
   p.Positional("MESH", &a.mesh, "mesh file (or a stored mesh id with --server)")
       .String("server", &a.server, "geomfit server", "HOST:PORT")
       .Flag("local", &a.local, "run in this process")

@@ -7,6 +7,7 @@
 #include "absl/strings/str_format.h"
 #include "absl/strings/strip.h"
 #include "clients/cpp/cli/cli.h"
+#include "clients/cpp/cli/interrupt.h"
 #include "clients/cpp/cli/progress.h"
 #include "clients/cpp/client/client.h"
 #include "core/util/status_macros.h"
@@ -34,14 +35,29 @@ absl::Status PrintJobs(const std::vector<v1::Job>& jobs) {
   return absl::OkStatus();
 }
 
-/// OK for a SUCCEEDED final event, else a runtime error naming the job's end.
-absl::Status Outcome(const v1::JobEvent& last) {
-  if (!last.final()) return absl::UnavailableError(absl::StrCat("job ", last.job_id(), ": the watch ended early"));
+}  // namespace
+
+absl::Status JobOutcome(const v1::JobEvent& last, const std::string& what) {
+  if (!last.final()) return absl::UnavailableError(absl::StrCat(what, " ", last.job_id(), ": the watch ended early"));
   if (last.state() == v1::JOB_STATE_SUCCEEDED) return absl::OkStatus();
-  return absl::AbortedError(absl::StrCat("job ", last.job_id(), " ", StateName(last.state()), ": ", last.message()));
+  const std::string text = absl::StrCat(what, " ", last.job_id(), " ", StateName(last.state()), ": ", last.message());
+  return last.state() == v1::JOB_STATE_CANCELLED ? absl::CancelledError(text) : absl::AbortedError(text);
 }
 
-}  // namespace
+absl::Status WatchJobCancellingOnInterrupt(Client& client, const std::string& job_id, int64_t from_event,
+                                           const std::function<bool(const v1::JobEvent&)>& on_event,
+                                           v1::JobEvent* last) {
+  const InterruptHandler interrupt([&] {
+    std::fprintf(stderr, "\ngeomfit: interrupted: cancelling job %s\n", job_id.c_str());
+    if (const absl::StatusOr<v1::Job> job = client.CancelJob(job_id); !job.ok())
+      std::fprintf(stderr, "geomfit: could not cancel job %s: %s\n", job_id.c_str(),
+                   std::string(job.status().message()).c_str());
+  });
+  return client.WatchJob(job_id, from_event, [&](const v1::JobEvent& e) {
+    *last = e;
+    return on_event(e);
+  });
+}
 
 std::string FormatJobEvent(const v1::JobEvent& e) {
   std::string line = absl::StrFormat("job %s #%d %s", e.job_id(), e.seq(), StateName(e.state()));
@@ -64,7 +80,8 @@ absl::Status RunJobs(const std::vector<std::string>& args) {
     std::printf("%s\n\nLong-running jobs on a geomfit server (started e.g. by 'geomfit refine --job').\n"
                 "  list    every job: id, kind, state, times, last event, results, error\n"
                 "  get     one job\n"
-                "  watch   a job's events as they come (one line each) until it ends; --from N resumes\n"
+                "  watch   a job's events as they come (one line each) until it ends; --from N resumes;\n"
+                "          Ctrl-C cancels the job\n"
                 "  cancel  cancels a job (it then stores nothing)\n",
                 usage.c_str());
     return absl::OkStatus();
@@ -94,7 +111,8 @@ absl::Status RunJobs(const std::vector<std::string>& args) {
     int from = 0;
     ArgParser p("geomfit jobs watch", "--server HOST:PORT JOB_ID [--from N]",
                 "Prints the job's events, one line each, as they come; ends with the job (exit 1\n"
-                "unless it SUCCEEDED). After a disconnect, --from LAST+1 resumes.");
+                "unless it SUCCEEDED). After a disconnect, --from LAST+1 resumes. Ctrl-C cancels\n"
+                "the job on the server and exits (130) once it stopped.");
     p.Server(&server, "geomfit server")
         .Positional("JOB_ID", &id, "the job")
         .Int("from", &from, "first event (seq) to print; 0 = from the beginning");
@@ -102,13 +120,12 @@ absl::Status RunJobs(const std::vector<std::string>& args) {
     if (!run) return absl::OkStatus();
     if (from < 0) return UsageError("--from must not be negative");
     v1::JobEvent last;
-    GF_RETURN_IF_ERROR(ConnectTo(server)->WatchJob(id, from, [&](const v1::JobEvent& e) {
+    GF_RETURN_IF_ERROR(WatchJobCancellingOnInterrupt(*ConnectTo(server), id, from, [&](const v1::JobEvent& e) {
       std::printf("%s\n", FormatJobEvent(e).c_str());
       std::fflush(stdout);
-      last = e;
       return true;
-    }));
-    return Outcome(last);
+    }, &last));
+    return JobOutcome(last);
   }
   return UsageError(absl::StrCat("unknown jobs subcommand '", sub, "'; ", usage));
 }
@@ -121,16 +138,15 @@ absl::StatusOr<std::vector<v1::JobResultMesh>> RunRefineJob(Client& client, cons
                job.job_id().c_str());
   v1::JobEvent last;
   ProgressBar& bar = ProgressBar::Get();
-  GF_RETURN_IF_ERROR(client.WatchJob(job.job_id(), 0, [&](const v1::JobEvent& e) {
+  GF_RETURN_IF_ERROR(WatchJobCancellingOnInterrupt(client, job.job_id(), 0, [&](const v1::JobEvent& e) {
     if (bar.enabled()) {
       if (!e.phase().empty()) bar.Update(absl::StrCat(e.phase(), " ", e.step()), e.done(), e.total());
     } else {
       std::fprintf(stderr, "geomfit: %s\n", FormatJobEvent(e).c_str());
     }
-    last = e;
     return true;
-  }));
-  GF_RETURN_IF_ERROR(Outcome(last));
+  }, &last));
+  GF_RETURN_IF_ERROR(JobOutcome(last));
   return std::vector<v1::JobResultMesh>(last.results().begin(), last.results().end());
 }
 

@@ -9,6 +9,7 @@
 #include "absl/strings/str_join.h"
 #include "absl/strings/str_replace.h"
 #include "clients/cpp/cli/cli.h"
+#include "clients/cpp/cli/interrupt.h"
 #include "clients/cpp/cli/progress.h"
 
 namespace geomfit::cli {
@@ -111,6 +112,10 @@ int Main(int argc, char** argv) {
   }
   ProgressBar::Get().Finish();
   if (status.ok()) return kExitOk;
+  if (status.code() == absl::StatusCode::kCancelled && InterruptHandler::Interrupted()) {
+    std::fprintf(stderr, "geomfit: interrupted: %s\n", std::string(status.message()).c_str());
+    return kExitInterrupted;
+  }
   // One line on stderr, whatever the message holds.
   const std::string message = absl::StrReplaceAll(status.message(), {{"\r", " "}, {"\n", "; "}});
   std::fprintf(stderr, "geomfit: error: %s\n", message.c_str());
