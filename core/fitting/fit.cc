@@ -18,6 +18,7 @@ struct FitInput {
   const Neighborhoods& nb;
   const Positions& normals;  // per-vertex normals for frames and the safeguard weights
   const FitOptions& o;
+  double cos_cut;  // cos(safeguard angle) of (2.2.1)
 };
 
 struct FitOutput {
@@ -63,7 +64,7 @@ bool SetUpVertex(int v, const FitInput& in, const FitOutput& out, WlsProblem& P)
   const LocalFrame frame = FrameFromNormal(x0, m0);
   *out.frame = frame;
 
-  const double cos_cut = std::cos(o.safeguard_angle_deg * M_PI / 180.0);
+  const double cos_cut = in.cos_cut;
   P.dims = dims;
   P.rows = n_pts - first;
   int used = first;
@@ -249,7 +250,7 @@ class SurfaceFitter {
         f.stencil_offsets_[v + 1] = f.stencil_offsets_[v] + static_cast<size_t>(f.stencil_rows_) * nb->Size(v);
       f.stencils_.assign(f.stencil_offsets_[nv], 0.0);
     }
-    const FitInput in{mesh, *nb, normals, o};
+    const FitInput in{mesh, *nb, normals, o, std::cos(o.safeguard_angle_deg * M_PI / 180.0)};
     const WlsSettings settings = SettingsFor(o, f.stencil_rows_);
     constexpr int64_t kGrain = 512;
     return ParallelFor((nv + kGrain - 1) / kGrain, ctx, [&](int64_t chunk) {

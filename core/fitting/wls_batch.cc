@@ -55,11 +55,15 @@ GEOMFIT_INLINE int Solve(const WlsProblem* const problems[], int count, const Wl
     const WlsProblem& P = *problems[l];
     if (P.dims != dims) continue;
     double radius2 = 0;
-    for (int r = 0; r < P.rows; ++r) {
-      if (!(P.gamma[r] > 0)) continue;
-      keep[l][rows[l]++] = r;
-      radius2 = radius2 < P.u[r] * P.u[r] + P.v[r] * P.v[r] ? P.u[r] * P.u[r] + P.v[r] * P.v[r] : radius2;
+    int n = 0;
+    for (int r = 0; r < P.rows; ++r) {  // branch-free compaction
+      const bool kept = P.gamma[r] > 0;
+      const double d2 = P.u[r] * P.u[r] + P.v[r] * P.v[r];
+      keep[l][n] = r;
+      n += kept;
+      radius2 = kept && radius2 < d2 ? d2 : radius2;
     }
+    rows[l] = n;
     if (rows[l] < kCols || radius2 == 0) {
       rows[l] = 0;
       continue;
