@@ -253,10 +253,14 @@ class SurfaceFitter {
     const FitInput in{mesh, *nb, normals, o, std::cos(o.safeguard_angle_deg * M_PI / 180.0)};
     const WlsSettings settings = SettingsFor(o, f.stencil_rows_);
     constexpr int64_t kGrain = 512;
+    // Vertices in the topology's locality order (neighbouring stencils share cache
+    // lines), unless blocks must be reported as index ranges.
+    const bool local_order = !(on_fitted && *on_fitted) && static_cast<int>(topo.locality_order.size()) == nv;
     return ParallelFor((nv + kGrain - 1) / kGrain, ctx, [&](int64_t chunk) {
       const int64_t end = std::min<int64_t>(nv, (chunk + 1) * kGrain);
       auto batch = std::make_unique<FitBatch>();
-      for (int64_t v = chunk * kGrain; v < end; ++v) {
+      for (int64_t k = chunk * kGrain; k < end; ++k) {
+        const int64_t v = local_order ? topo.locality_order[k] : k;
         if (topo.is_boundary[v]) f.diagnostics_[v].flags |= kFlagBoundary;
         const FitOutput out{&f.frames_[v], f.coefficients_.data() + v * f.dims() * f.num_coefficients(),
                             &f.diagnostics_[v], req.stencils ? f.stencils_.data() + f.stencil_offsets_[v] : nullptr,

@@ -105,7 +105,8 @@ struct FitRequest {
   bool batched_kernel = true;
 };
 
-/// Called once vertices [begin, end) of the final pass are fitted, from the fitting
+/// Without this callback vertices are fitted in Topology::locality_order; with it, in
+/// index blocks. Called once vertices [begin, end) of the final pass are fitted, from the fitting
 /// thread(s): blocks arrive in any order, possibly concurrently. `fits` is still being
 /// built; only the vertices of blocks already reported may be read. Lets a caller
 /// evaluate and send results while the rest of the mesh is being fitted.
