@@ -4,6 +4,7 @@
 //
 //   BM_Pipeline/<degree>/<threads>      BuildNeighborhoods + FitSurface + ComputeDifferentials(all)
 //   BM_FitQuantities/<degree>/<threads> FitSurface + ComputeDifferentials(all), stencils precomputed
+//   BM_FitQuantitiesScalar/<d>/<t>      the same with the scalar kernel (batched_kernel = false)
 //   BM_Neighborhoods/<degree>/<threads> BuildNeighborhoods alone (for the breakdown)
 //   BM_Topology                         BuildTopology alone (not part of the pipeline above)
 //   BM_CgalJet/<degree>/<threads>       CGAL Monge_via_jet_fitting(d_fitting = degree, d_monge = 2)
@@ -108,6 +109,22 @@ void BM_FitQuantities(benchmark::State& state) {
   SetRates(state, o.degree);
 }
 
+// The same with the scalar SolveWls for every vertex (FitRequest::batched_kernel = false).
+void BM_FitQuantitiesScalar(benchmark::State& state) {
+  const Fixture& f = F();
+  const FitOptions o = Options(static_cast<int>(state.range(0)));
+  const RunContext ctx(nullptr, static_cast<int>(state.range(1)));
+  FitRequest req;
+  req.batched_kernel = false;
+  for (auto _ : state) {
+    auto fits = FitSurface(f.mesh, f.topo, o, f.nb[o.degree], req, ctx).value();
+    Differentials d = ComputeDifferentials(*fits, kAllQuantities, ctx.threads());
+    benchmark::DoNotOptimize(d.mean.data());
+    benchmark::ClobberMemory();
+  }
+  SetRates(state, o.degree);
+}
+
 void BM_Neighborhoods(benchmark::State& state) {
   const Fixture& f = F();
   const FitOptions o = Options(static_cast<int>(state.range(0)));
@@ -179,6 +196,7 @@ void Args(benchmark::internal::Benchmark* b) {
 
 BENCHMARK(BM_Pipeline)->Apply(Args);
 BENCHMARK(BM_FitQuantities)->Apply(Args);
+BENCHMARK(BM_FitQuantitiesScalar)->Apply(Args);
 BENCHMARK(BM_Neighborhoods)->Apply(Args);
 BENCHMARK(BM_Topology)->Unit(benchmark::kMillisecond)->UseRealTime();
 BENCHMARK(BM_CgalJet)->Apply(Args);

@@ -6,6 +6,7 @@
 
 #include "absl/strings/str_format.h"
 #include "core/fitting/wls.h"
+#include "core/fitting/wls_batch.h"
 #include "core/util/parallel.h"
 
 namespace geomfit {
@@ -17,6 +18,7 @@ struct FitInput {
   const Neighborhoods& nb;
   const Positions& normals;  // per-vertex normals for frames and the safeguard weights
   const FitOptions& o;
+  double cos_cut;  // cos(safeguard angle) of (2.2.1)
 };
 
 struct FitOutput {
@@ -27,9 +29,21 @@ struct FitOutput {
   int stencil_rows;      // leading Taylor coefficients kept in `stencil`
 };
 
-// The fit of one vertex (2.2-2.4): its stencil in the frame of its approximate normal,
-// rows filtered by the normal-angle safeguard gamma_i of (2.2.1), solved by SolveWls.
-void FitVertex(int v, const FitInput& in, const FitOutput& out) {
+WlsSettings SettingsFor(const FitOptions& o, int stencil_rows) {
+  WlsSettings S;
+  S.degree = o.degree;
+  S.interpolate = o.interpolate;
+  S.weight_epsilon = o.weight_epsilon;
+  S.cond_threshold = o.cond_threshold;
+  S.oscillation_safeguard = o.oscillation_safeguard;
+  S.op_rows = stencil_rows;
+  return S;
+}
+
+// The problem of one vertex (2.2-2.4): its stencil in the frame of its approximate
+// normal, rows filtered by the normal-angle safeguard gamma_i of (2.2.1). Returns false
+// for an isolated vertex (no frame, nothing to solve; its outputs are written).
+bool SetUpVertex(int v, const FitInput& in, const FitOutput& out, WlsProblem& P) {
   const FitOptions& o = in.o;
   const int n_pts = in.nb.Size(v);
   const int32_t* pts = in.nb.Points(v);
@@ -45,13 +59,12 @@ void FitVertex(int v, const FitInput& in, const FitOutput& out) {
     diag.flags |= kFlagIsolated;
     *out.frame = FrameFromNormal(x0, Eigen::Vector3d::UnitZ());
     std::fill(out.coefficients, out.coefficients + dims * ncoef, 0.0);
-    return;
+    return false;
   }
   const LocalFrame frame = FrameFromNormal(x0, m0);
   *out.frame = frame;
 
-  const double cos_cut = std::cos(o.safeguard_angle_deg * M_PI / 180.0);
-  WlsProblem P;
+  const double cos_cut = in.cos_cut;
   P.dims = dims;
   P.rows = n_pts - first;
   int used = first;
@@ -71,16 +84,13 @@ void FitVertex(int v, const FitInput& in, const FitOutput& out) {
   }
   diag.points = static_cast<int16_t>(used);
   if (used < ncoef) diag.flags |= kFlagTooFewPoints;
+  return true;
+}
 
-  WlsSettings S;
-  S.degree = o.degree;
-  S.interpolate = o.interpolate;
-  S.weight_epsilon = o.weight_epsilon;
-  S.cond_threshold = o.cond_threshold;
-  S.oscillation_safeguard = o.oscillation_safeguard;
-  S.op_rows = out.stencil_rows;
-  double op[kMaxCoefficients * kMaxStencil];
-  const WlsSolution sol = SolveWls(P, S, out.coefficients, out.stencil ? op : nullptr);
+// Diagnostics and stencil rows of a solved vertex; `op` is SolveWls's operator.
+void FinishVertex(int v, const FitInput& in, const FitOutput& out, const WlsProblem& P,
+                  const WlsSolution& sol, const double* op) {
+  VertexDiagnostics& diag = *out.diag;
   diag.degree_used = static_cast<int8_t>(sol.degree_used);
   diag.rank = static_cast<int16_t>(sol.rank);
   diag.condition = static_cast<float>(sol.condition);
@@ -88,16 +98,47 @@ void FitVertex(int v, const FitInput& in, const FitOutput& out) {
   if (sol.oscillation_downgraded) diag.flags |= kFlagOscillation;
 
   if (out.stencil) {  // operator rows over the stencil points (centre first)
+    const int n_pts = in.nb.Size(v), first = in.o.interpolate ? 1 : 0;
     std::fill(out.stencil, out.stencil + static_cast<size_t>(out.stencil_rows) * n_pts, 0.0);
     if (sol.degree_used < 1) return;
     for (int c = 0; c < out.stencil_rows; ++c) {
       double* row = out.stencil + static_cast<size_t>(c) * n_pts;
       double sum = 0;
       for (int r = 0; r < P.rows; ++r) sum += row[r + first] = op[c * P.rows + r];
-      if (o.interpolate) row[0] = (c == 0 ? 1.0 : 0.0) - sum;  // values relative to the centre
+      if (in.o.interpolate) row[0] = (c == 0 ? 1.0 : 0.0) - sum;  // values relative to the centre
     }
   }
 }
+
+// Vertices waiting for the batched kernel, kWlsLanes at a time (heap: ~400 KB).
+struct FitBatch {
+  WlsBatchWorkspace work;
+  WlsProblem problems[kWlsLanes];
+  double ops[kWlsLanes][kMaxCoefficients * kMaxStencil];
+  FitOutput outs[kWlsLanes];
+  int vertex[kWlsLanes];
+  int count = 0;
+
+  // Solves the queued vertices: the batched kernel first, SolveWls for the lanes it
+  // leaves (safeguard paths).
+  void Flush(const FitInput& in, const WlsSettings& S, bool batched) {
+    const WlsProblem* p[kWlsLanes];
+    double* coef[kWlsLanes];
+    double* op[kWlsLanes];
+    WlsSolution sol[kWlsLanes];
+    for (int l = 0; l < count; ++l) {
+      p[l] = &problems[l];
+      coef[l] = outs[l].coefficients;
+      op[l] = outs[l].stencil ? ops[l] : nullptr;
+    }
+    const int solved = batched ? SolveWlsBatch(p, count, S, coef, op, sol, work) : 0;
+    for (int l = 0; l < count; ++l) {
+      if (!(solved >> l & 1)) sol[l] = SolveWls(problems[l], S, coef[l], op[l]);
+      FinishVertex(vertex[l], in, outs[l], problems[l], sol[l], op[l]);
+    }
+    count = 0;
+  }
+};
 
 }  // namespace
 
@@ -209,17 +250,28 @@ class SurfaceFitter {
         f.stencil_offsets_[v + 1] = f.stencil_offsets_[v] + static_cast<size_t>(f.stencil_rows_) * nb->Size(v);
       f.stencils_.assign(f.stencil_offsets_[nv], 0.0);
     }
-    const FitInput in{mesh, *nb, normals, o};
+    const FitInput in{mesh, *nb, normals, o, std::cos(o.safeguard_angle_deg * M_PI / 180.0)};
+    const WlsSettings settings = SettingsFor(o, f.stencil_rows_);
     constexpr int64_t kGrain = 512;
+    // Vertices in the topology's locality order (neighbouring stencils share cache
+    // lines), unless blocks must be reported as index ranges.
+    const bool local_order = !(on_fitted && *on_fitted) && static_cast<int>(topo.locality_order.size()) == nv;
     return ParallelFor((nv + kGrain - 1) / kGrain, ctx, [&](int64_t chunk) {
       const int64_t end = std::min<int64_t>(nv, (chunk + 1) * kGrain);
-      for (int64_t v = chunk * kGrain; v < end; ++v) {
+      auto batch = std::make_unique<FitBatch>();
+      for (int64_t k = chunk * kGrain; k < end; ++k) {
+        const int64_t v = local_order ? topo.locality_order[k] : k;
         if (topo.is_boundary[v]) f.diagnostics_[v].flags |= kFlagBoundary;
-        FitOutput out{&f.frames_[v], f.coefficients_.data() + v * f.dims() * f.num_coefficients(),
-                      &f.diagnostics_[v], req.stencils ? f.stencils_.data() + f.stencil_offsets_[v] : nullptr,
-                      f.stencil_rows_};
-        FitVertex(static_cast<int>(v), in, out);
+        const FitOutput out{&f.frames_[v], f.coefficients_.data() + v * f.dims() * f.num_coefficients(),
+                            &f.diagnostics_[v], req.stencils ? f.stencils_.data() + f.stencil_offsets_[v] : nullptr,
+                            f.stencil_rows_};
+        const int slot = batch->count;
+        if (!SetUpVertex(static_cast<int>(v), in, out, batch->problems[slot])) continue;
+        batch->outs[slot] = out;
+        batch->vertex[slot] = static_cast<int>(v);
+        if (++batch->count == kWlsLanes) batch->Flush(in, settings, req.batched_kernel);
       }
+      batch->Flush(in, settings, req.batched_kernel);
       if (on_fitted && *on_fitted) (*on_fitted)(f, chunk * kGrain, end);
     }, 1, "fit");
   }

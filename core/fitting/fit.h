@@ -100,9 +100,13 @@ struct FitRequest {
   /// Keep only the stencil rows of Taylor order <= this (2: value, first and second
   /// derivatives, what the GFD operators need); -1 keeps every row.
   int stencil_order = -1;
+  /// Solve kWlsLanes vertices at once with the batched SIMD kernel (wls_batch.h); false
+  /// solves every vertex with the scalar SolveWls (same results to round-off).
+  bool batched_kernel = true;
 };
 
-/// Called once vertices [begin, end) of the final pass are fitted, from the fitting
+/// Without this callback vertices are fitted in Topology::locality_order; with it, in
+/// index blocks. Called once vertices [begin, end) of the final pass are fitted, from the fitting
 /// thread(s): blocks arrive in any order, possibly concurrently. `fits` is still being
 /// built; only the vertices of blocks already reported may be read. Lets a caller
 /// evaluate and send results while the rest of the mesh is being fitted.

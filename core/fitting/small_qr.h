@@ -7,7 +7,6 @@ namespace geomfit {
 /// y <- (I - tau v v^T) y for the reflector v = (1, x[j+1..m)) acting on rows j..m-1.
 inline void ApplyReflector(const double* x, double tau, int j, int m, double* y) {
   double w = y[j];
-#pragma omp simd reduction(+ : w)
   for (int i = j + 1; i < m; ++i) w += x[i] * y[i];
   w *= tau;
   y[j] -= w;
@@ -26,7 +25,6 @@ inline void HouseholderQRInPlace(double* a, int ld, int m, int n, int nrhs, doub
   for (int j = 0; j < steps; ++j) {
     double* x = a + j * ld;
     double sigma = 0;
-#pragma omp simd reduction(+ : sigma)
     for (int i = j + 1; i < m; ++i) sigma += x[i] * x[i];
     const double alpha = x[j];
     if (sigma == 0) {  // already upper triangular in this column: H = I

@@ -123,7 +123,6 @@ WlsSolution SolveWls(const WlsProblem& P, const WlsSettings& S, double* coeffici
   double scale[kMaxCoef];
   for (int c = 0; c < cols; ++c) {
     double norm2 = 0;
-#pragma omp simd reduction(+ : norm2)
     for (int i = 0; i < rows; ++i) norm2 += a[c * ld + i] * a[c * ld + i];
     scale[c] = norm2 > 0 ? 1 / std::sqrt(norm2) : 1.0;
     for (int i = 0; i < rows; ++i) a[c * ld + i] *= scale[c];

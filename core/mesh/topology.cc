@@ -44,7 +44,8 @@ int Find(std::vector<int>& parent, int i) {
 }  // namespace
 
 size_t Topology::Bytes() const {
-  return sizeof(*this) + 4 * (vf_offsets.size() + vf_faces.size() + vv_offsets.size() + vv.size()) +
+  return sizeof(*this) +
+         4 * (vf_offsets.size() + vf_faces.size() + vv_offsets.size() + vv.size() + locality_order.size()) +
          is_boundary.size() + is_isolated.size();
 }
 
@@ -181,6 +182,25 @@ absl::StatusOr<Topology> BuildTopology(const Mesh& mesh) {
     if (fans > 1)
       return absl::InvalidArgumentError(absl::StrFormat(
           "non-manifold vertex %d: its %d faces form %d separate fans", v, k, fans));
+  }
+
+  // Locality order: breadth-first (Cuthill-McKee) sweeps over the edges from the lowest
+  // unvisited vertex, so vertices near in the order are near on the surface whatever
+  // the file's numbering.
+  t.locality_order.resize(nv);
+  {
+    std::vector<uint8_t> seen(nv, 0);
+    int head = 0, tail = 0;
+    for (int s = 0; s < nv; ++s) {
+      if (seen[s]) continue;
+      seen[s] = 1;
+      t.locality_order[tail++] = s;
+      for (; head < tail; ++head) {
+        const int v = t.locality_order[head];
+        for (int i = t.vv_offsets[v]; i < t.vv_offsets[v + 1]; ++i)
+          if (!seen[t.vv[i]]) seen[t.vv[i]] = 1, t.locality_order[tail++] = t.vv[i];
+      }
+    }
   }
   return t;
 }

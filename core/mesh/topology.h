@@ -19,6 +19,10 @@ struct Topology {
   std::vector<int32_t> vv_offsets, vv;
   std::vector<uint8_t> is_boundary;  ///< 1 for vertices on a boundary edge
   std::vector<uint8_t> is_isolated;  ///< 1 for vertices in no face (allowed, flagged)
+  /// Every vertex once, in breadth-first order over the edges: a work order with
+  /// neighbours close together (cache locality on meshes numbered in any order). Loops
+  /// may visit vertices in this order; outputs stay indexed by vertex.
+  std::vector<int32_t> locality_order;
   int num_boundary_edges = 0;
   int num_isolated = 0;
 

@@ -277,3 +277,38 @@ TEST(SharedFacesTest, CopiesShareUntilOneWrites) {
 }
 
 }  // namespace geomfit
+
+namespace geomfit {
+namespace {
+
+// The locality order visits every vertex once, components one after another, and keeps
+// neighbours close on a shuffled mesh: along the order, a vertex's first neighbour lies
+// within a ring's width of it, where the file's numbering puts it anywhere.
+TEST(TopologyTest, LocalityOrderIsABreadthFirstPermutation) {
+  GeneratorOptions g;
+  g.n = 24;
+  const Mesh shuffled = testing_util::ShuffleVertices(GenerateTorusMesh(g), 5);
+  const Topology t = BuildTopology(shuffled).value();
+  const int nv = t.num_vertices;
+  ASSERT_EQ(static_cast<int>(t.locality_order.size()), nv);
+  std::vector<int> position(nv, -1);
+  for (int k = 0; k < nv; ++k) {
+    ASSERT_EQ(position[t.locality_order[k]], -1) << "vertex visited twice";
+    position[t.locality_order[k]] = k;
+  }
+  double order_gap = 0, index_gap = 0;
+  for (int v = 0; v < nv; ++v) {
+    const int w = t.Neighbors(v)[0];
+    order_gap += std::abs(position[v] - position[w]);
+    index_gap += std::abs(v - w);
+  }
+  EXPECT_LT(order_gap / nv, 0.1 * index_gap / nv);
+  // Isolated vertices and separate components are visited too.
+  Mesh two = testing_util::MakeMesh({{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {5, 5, 5}, {7, 0, 0}, {8, 0, 0}, {7, 1, 0}},
+                      {{0, 1, 2}, {4, 5, 6}});
+  const Topology t2 = BuildTopology(two).value();
+  EXPECT_THAT(t2.locality_order, ::testing::ElementsAre(0, 1, 2, 3, 4, 5, 6));
+}
+
+}  // namespace
+}  // namespace geomfit

@@ -5,6 +5,7 @@
 #include "absl/strings/str_format.h"
 #include "clients/cpp/cli/cli.h"
 #include "clients/cpp/cli/progress.h"
+#include "core/fitting/fit.h"
 #include "core/mesh/topology.h"
 #include "core/surfaces/analytic.h"
 #include "core/util/status_macros.h"
@@ -45,12 +46,15 @@ absl::Status RunCurvature(const std::vector<std::string>& argv) {
   Stopwatch read_timer;
   bar.Begin("read");
   GF_ASSIGN_OR_RETURN(const Mesh mesh, ReadMesh(a.mesh));
-  GF_RETURN_IF_ERROR(WithPrefix(ValidateMesh(mesh).status(), a.mesh));
+  const absl::StatusOr<Topology> topo = ValidateMesh(mesh);  // built once, kept for the fit
+  GF_RETURN_IF_ERROR(WithPrefix(topo.status(), a.mesh));
   Verbose(a.verbose, absl::StrFormat("read %s: %d vertices, %d faces in %.3f s", a.mesh,
                                      mesh.NumVertices(), mesh.NumFaces(), read_timer.Seconds()));
 
   Stopwatch fit_timer;
-  GF_ASSIGN_OR_RETURN(const Differentials d, ComputeDifferentials(mesh, a.fit, kAllQuantities, bar.Context(a.threads)));
+  const RunContext ctx = bar.Context(a.threads);
+  GF_ASSIGN_OR_RETURN(const auto fits, FitSurface(mesh, *topo, a.fit, nullptr, {}, ctx));
+  GF_ASSIGN_OR_RETURN(const Differentials d, ComputeDifferentials(*fits, kAllQuantities, ctx));
   Verbose(a.verbose, absl::StrFormat("fit + quantities (degree %d, %s): %.3f s", a.fit.degree,
                                      FitMethodName(a.fit.method), fit_timer.Seconds()));
 

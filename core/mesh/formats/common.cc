@@ -62,13 +62,15 @@ absl::Status CheckWritable(const Mesh& mesh) {
 }
 
 void PutLE(std::string* out, uint64_t bits, int nbytes) {
-  for (int i = 0; i < nbytes; ++i) out->push_back(static_cast<char>((bits >> (8 * i)) & 0xff));
+  char buf[8];
+  StoreLE(buf, bits, nbytes);
+  out->append(buf, nbytes);
 }
 
 void PutDouble(std::string* out, double d) {
-  uint64_t u;
-  std::memcpy(&u, &d, 8);
-  PutLE(out, u, 8);
+  char buf[8];
+  StoreDouble(buf, d);
+  out->append(buf, 8);
 }
 
 void PutFloat(std::string* out, float f) {

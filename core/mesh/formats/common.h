@@ -1,4 +1,5 @@
 #pragma once
+#include <cstring>
 // Internal to core/mesh: pieces shared by the format readers and writers.
 #include <algorithm>
 #include <array>
@@ -67,6 +68,17 @@ std::string IndexRangeMessage(int64_t face, int64_t index, int64_t num_vertices)
 // ---------------------------------------------------------------------------
 // Little-endian bytes
 
+/// Stores the low `nbytes` bytes of `bits` at p, least significant first (one store on
+/// little-endian machines once inlined).
+inline void StoreLE(char* p, uint64_t bits, int nbytes) {
+  for (int i = 0; i < nbytes; ++i) p[i] = static_cast<char>(bits >> (8 * i));
+}
+inline void StoreDouble(char* p, double d) {
+  uint64_t u;
+  std::memcpy(&u, &d, 8);
+  StoreLE(p, u, 8);
+}
+/// Appends; for many values, size the output once and Store* into it instead.
 void PutLE(std::string* out, uint64_t bits, int nbytes);
 void PutDouble(std::string* out, double d);
 void PutFloat(std::string* out, float f);

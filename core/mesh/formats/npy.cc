@@ -7,7 +7,6 @@
 
 namespace geomfit {
 
-using mesh_io::PutDouble;
 using mesh_io::PutLE;
 
 std::string FormatNpy(const Eigen::Ref<const RowMajorMatrixXd>& a) {
@@ -19,9 +18,11 @@ std::string FormatNpy(const Eigen::Ref<const RowMajorMatrixXd>& a) {
   std::string out("\x93NUMPY\x01\x00", 8);
   PutLE(&out, dict.size(), 2);
   out += dict;
-  out.reserve(out.size() + 8 * a.size());
+  const size_t head = out.size();
+  out.resize(head + 8 * a.size());  // one block, filled in place
+  char* p = out.data() + head;
   for (Eigen::Index r = 0; r < a.rows(); ++r)
-    for (Eigen::Index c = 0; c < a.cols(); ++c) PutDouble(&out, a(r, c));
+    for (Eigen::Index c = 0; c < a.cols(); ++c, p += 8) mesh_io::StoreDouble(p, a(r, c));
   return out;
 }
 

@@ -71,11 +71,11 @@ int TypeBytes(ArrayType t) {
   return 0;
 }
 
-void PutValue(std::string* out, ArrayType t, double v) {
+void StoreValue(char* p, ArrayType t, double v) {
   if (t == ArrayType::kFloat64)
-    PutDouble(out, v);
+    mesh_io::StoreDouble(p, v);
   else
-    PutLE(out, static_cast<uint64_t>(static_cast<int64_t>(v)), TypeBytes(t));
+    mesh_io::StoreLE(p, static_cast<uint64_t>(static_cast<int64_t>(v)), TypeBytes(t));
 }
 
 /// The XML of one VTK file being built; binary data collects in the appended block.
@@ -104,10 +104,12 @@ class VtkXml {
       xml_ += " format=\"appended\" offset=\"";
       pieces_.push_back(std::move(xml_));
       xml_ = "\"/>\n";
-      std::string block;
-      block.reserve(8 + n * TypeBytes(type));
-      PutLE(&block, static_cast<uint64_t>(n) * TypeBytes(type), 8);
-      for (int64_t i = 0; i < n; ++i) PutValue(&block, type, value(i));
+      const int bytes = TypeBytes(type);
+      std::string block(8 + n * bytes, '\0');  // one block, filled in place
+      char* p = block.data();
+      mesh_io::StoreLE(p, static_cast<uint64_t>(n) * bytes, 8);
+      p += 8;
+      for (int64_t i = 0; i < n; ++i, p += bytes) StoreValue(p, type, value(i));
       blocks_.push_back(std::move(block));
       return;
     }

@@ -1,0 +1,313 @@
+#include "core/fitting/wls_batch.h"
+
+#include <cstdint>
+
+#include "core/fitting/fit.h"
+
+// Compiled with -fno-math-errno (core/CMakeLists.txt) so that square roots of vectors
+// become vector instructions, and with -ffp-contract=off: every lane performs SolveWls's
+// operations in SolveWls's order (sequential sums, no fused multiply-adds), so on x86-64
+// a lane's results are SolveWls's bit for bit.
+
+namespace geomfit {
+namespace {
+
+constexpr int W = kWlsLanes;
+typedef double V __attribute__((vector_size(W * sizeof(double))));
+typedef int64_t VMask __attribute__((vector_size(W * sizeof(double))));
+
+#define GEOMFIT_INLINE inline __attribute__((always_inline))
+
+GEOMFIT_INLINE V Splat(double x) { return V{} + x; }
+GEOMFIT_INLINE V Sqrt(V x) {
+  V r;
+  for (int l = 0; l < W; ++l) r[l] = __builtin_sqrt(x[l]);
+  return r;
+}
+GEOMFIT_INLINE V Abs(V x) { return x < 0 ? -x : x; }
+GEOMFIT_INLINE V Max(V a, V b) { return a < b ? b : a; }
+
+constexpr double Factorial(int n) { return n <= 1 ? 1.0 : n * Factorial(n - 1); }
+
+// y <- (I - tau x x^T) y over rows j..m-1 (x_j = 1 implied), lane by lane.
+GEOMFIT_INLINE void Reflect(const V* x, V tau, int j, int m, V* y) {
+  V w = y[j];
+  for (int i = j + 1; i < m; ++i) w += x[i] * y[i];
+  w *= tau;
+  y[j] -= w;
+  for (int i = j + 1; i < m; ++i) y[i] -= w * x[i];
+}
+
+// SolveWls (wls.cc) at degree D with the first First Taylor columns fixed, for the lanes
+// of `problems`; the order of operations follows SolveWls so results agree to round-off.
+template <int D, int First>
+GEOMFIT_INLINE int Solve(const WlsProblem* const problems[], int count, const WlsSettings& S,
+                         double* const coefficients[], double* const ops[], WlsSolution solutions[],
+                         WlsBatchWorkspace& work) {
+  constexpr int kN = NumCoefficients(D), kCols = kN - First;
+  const int dims = problems[0]->dims;
+  // Rows with a positive safeguard factor, per lane; lanes the plain path cannot take
+  // (too few rows for the columns: SolveWls's rank-deficient path) stay out of `mask`.
+  int keep[W][kMaxStencil], rows[W] = {};
+  double h[W];
+  int mask = 0, m = 0;
+  for (int l = 0; l < count; ++l) {
+    const WlsProblem& P = *problems[l];
+    if (P.dims != dims) continue;
+    double radius2 = 0;
+    int n = 0;
+    for (int r = 0; r < P.rows; ++r) {  // branch-free compaction
+      const bool kept = P.gamma[r] > 0;
+      const double d2 = P.u[r] * P.u[r] + P.v[r] * P.v[r];
+      keep[l][n] = r;
+      n += kept;
+      radius2 = kept && radius2 < d2 ? d2 : radius2;
+    }
+    rows[l] = n;
+    if (rows[l] < kCols || radius2 == 0) {
+      rows[l] = 0;
+      continue;
+    }
+    h[l] = __builtin_sqrt(radius2);
+    mask |= 1 << l;
+    m = m < rows[l] ? rows[l] : m;
+  }
+  if (mask == 0) return 0;
+  for (int l = 0; l < W; ++l)
+    if (!(mask >> l & 1)) rows[l] = 0, h[l] = 1;
+
+  // Workspace: [A | B] column-major with ld = m, then weights, gathered rows, Q's
+  // scratch column, R^-1 (k x k).
+  V* a = reinterpret_cast<V*>(work.data);
+  V* B = a + kCols * m;
+  V* weight = a + (kCols + 3) * m;
+  V* gu = weight + m;
+  V* gv = gu + m;
+  V* gg = gv + m;
+  V* grhs = gg + m;  // 3 x m
+  V* z = grhs + 3 * m;
+  V* rinv = z + m;
+  for (int i = 0; i < m; ++i) {
+    gu[i] = gv[i] = gg[i] = V{};
+    for (int d = 0; d < dims; ++d) grhs[d * m + i] = V{};
+  }
+  for (int l = 0; l < W; ++l) {
+    if (!(mask >> l & 1)) continue;
+    const WlsProblem& P = *problems[l];
+    for (int i = 0; i < rows[l]; ++i) {
+      const int r = keep[l][i];
+      gu[i][l] = P.u[r];
+      gv[i][l] = P.v[r];
+      gg[i][l] = P.gamma[r];
+      for (int d = 0; d < dims; ++d) grhs[d * m + i][l] = P.rhs[d][r];
+    }
+  }
+  V hv;
+  for (int l = 0; l < W; ++l) hv[l] = h[l];
+
+  // Weighted Vandermonde (2.3.5) with weights (2.2.1); padded rows get weight 0.
+  double inv_fact[kCols];
+  {
+    int c = 0;
+    for (int p = First; p <= D; ++p)
+      for (int k = 0; k <= p; ++k) inv_fact[c++] = 1.0 / (Factorial(p - k) * Factorial(k));
+  }
+  constexpr int kPowers = D % 2 == 0 ? D / 2 : D;
+  for (int i = 0; i < m; ++i) {
+    const V u = gu[i] / hv, v = gv[i] / hv;
+    const V s2 = u * u + v * v + S.weight_epsilon;
+    const V root = D % 2 == 0 ? Sqrt(s2) : Sqrt(Sqrt(s2));
+    V denom = root;
+    for (int e = 1; e < kPowers; ++e) denom *= root;
+    const V w = weight[i] = gg[i] > 0 ? gg[i] / denom : V{};
+    V up[D + 1], vp[D + 1];
+    up[0] = vp[0] = Splat(1);
+    for (int e = 1; e <= D; ++e) up[e] = up[e - 1] * u, vp[e] = vp[e - 1] * v;
+    int c = 0;
+    for (int p = First; p <= D; ++p)
+      for (int k = 0; k <= p; ++k, ++c) a[c * m + i] = w * inv_fact[c] * up[p - k] * vp[k];
+    for (int d = 0; d < dims; ++d) B[d * m + i] = w * grhs[d * m + i];
+  }
+  // Column scaling (2.6.6).
+  V scale[kCols];
+  for (int c = 0; c < kCols; ++c) {
+    V norm2 = V{};
+    for (int i = 0; i < m; ++i) norm2 += a[c * m + i] * a[c * m + i];
+    scale[c] = norm2 > 0 ? 1.0 / Sqrt(norm2) : Splat(1);
+    for (int i = 0; i < m; ++i) a[c * m + i] *= scale[c];
+  }
+  // Householder QR, [A | B] -> [R | Q^T B] (small_qr.h, lane by lane).
+  V tau[kCols];
+  for (int j = 0; j < kCols; ++j) {
+    V* x = a + j * m;
+    V sigma = V{};
+    for (int i = j + 1; i < m; ++i) sigma += x[i] * x[i];
+    const V alpha = x[j];
+    const V norm = Sqrt(alpha * alpha + sigma);
+    const V beta = alpha >= 0 ? -norm : norm;
+    const VMask identity = sigma == 0;  // already triangular in this column: H = I
+    const V inv = identity ? Splat(1) : 1.0 / (alpha - beta);
+    for (int i = j + 1; i < m; ++i) x[i] *= inv;
+    tau[j] = identity ? V{} : (beta - alpha) / beta;
+    x[j] = identity ? alpha : beta;
+    for (int c = j + 1; c < kCols + dims; ++c) Reflect(x, tau[j], j, m, a + c * m);
+  }
+  // Zero pivots and the condition cut-off (2.4) at degree D leave the plain path.
+  V amax = Abs(a[0]);
+  amax = amax < 1 ? Splat(1) : amax;
+  const V tiny = 1e-13 * amax;
+  VMask ok = VMask{} == 0;
+  for (int c = 0; c < kCols; ++c) ok &= Abs(a[c * m + c]) > tiny;
+  for (int c = 0; c < kCols; ++c) {  // R^-1 column by column (InvertUpper)
+    V* x = rinv + c * kCols;
+    for (int i = 0; i < kCols; ++i) x[i] = V{};
+    x[c] = Splat(1);
+    for (int i = c; i >= 0; --i) {
+      const V* ri = a + i * m;
+      const V xi = x[i] /= ri[i];
+      for (int l = 0; l < i; ++l) x[l] -= xi * ri[l];
+    }
+  }
+  V norm_r = V{}, norm_i = V{};  // 1-norms of R and R^-1
+  for (int c = 0; c < kCols; ++c) {
+    V sr = V{}, si = V{};
+    for (int i = 0; i <= c; ++i) sr += Abs(a[c * m + i]), si += Abs(rinv[c * kCols + i]);
+    norm_r = Max(norm_r, sr);
+    norm_i = Max(norm_i, si);
+  }
+  const V condition = norm_r * norm_i;
+  ok &= condition <= S.cond_threshold[D];
+  for (int l = 0; l < W; ++l)
+    if (!ok[l]) mask &= ~(1 << l);
+  if (mask == 0) return 0;
+
+  // Back substitution and unscaling: c_jk = s_c y_c / h^(j+k).
+  V hp[D + 1];
+  hp[0] = Splat(1);
+  for (int p = 1; p <= D; ++p) hp[p] = hp[p - 1] * hv;
+  for (int d = 0; d < dims; ++d) {
+    V y[kCols];
+    const V* qtb = B + d * m;
+    for (int i = kCols - 1; i >= 0; --i) {
+      V sum = qtb[i];
+      for (int l = i + 1; l < kCols; ++l) sum -= a[l * m + i] * y[l];
+      y[i] = sum / a[i * m + i];
+    }
+    int c = 0;
+    for (int p = First; p <= D; ++p)
+      for (int kk = 0; kk <= p; ++kk, ++c) {
+        const V coef = scale[c] * y[c] / hp[p];
+        const int t = TaylorIndex(p - kk, kk);
+        for (int l = 0; l < W; ++l)
+          if (mask >> l & 1) coefficients[l][d * kN + t] = coef[l];
+      }
+    for (int l = 0; l < W; ++l)
+      if (mask >> l & 1)
+        for (int t = 0; t < First; ++t) coefficients[l][d * kN + t] = 0;
+  }
+  for (int l = 0; l < W; ++l) {
+    if (!(mask >> l & 1)) continue;
+    WlsSolution& sol = solutions[l];
+    sol = WlsSolution{};
+    sol.degree_used = D;
+    sol.rank = kN;
+    sol.condition = condition[l];
+    sol.radius = h[l];
+  }
+
+  // Operator rows (SolveWls): row c = s_c / h^p * (Q z_c)^T Omega, z_c = R^-T e_c.
+  bool any_op = false;
+  for (int l = 0; l < count; ++l) any_op |= ops[l] != nullptr;
+  if (any_op) {
+    const int op_rows = S.op_rows < 0 ? kN : (S.op_rows < kN ? S.op_rows : kN);
+    for (int l = 0; l < W; ++l)
+      if (mask >> l & 1 && ops[l])
+        for (int i = 0, n = kN * problems[l]->rows; i < n; ++i) ops[l][i] = 0;
+    int c = 0;
+    for (int p = First; p <= D; ++p)
+      for (int kk = 0; kk <= p; ++kk, ++c) {
+        const int t = TaylorIndex(p - kk, kk);
+        if (t >= op_rows) continue;
+        for (int i = 0; i < m; ++i) z[i] = V{};
+        for (int l = c; l < kCols; ++l) z[l] = rinv[l * kCols + c];
+        for (int j = kCols - 1; j >= 0; --j) Reflect(a + j * m, tau[j], j, m, z);
+        for (int l = 0; l < W; ++l) {
+          if (!(mask >> l & 1) || !ops[l]) continue;
+          double* row = ops[l] + static_cast<size_t>(t) * problems[l]->rows;
+          for (int i = 0; i < rows[l]; ++i) row[keep[l][i]] = weight[i][l] * z[i][l] * scale[c][l] / hp[p][l];
+        }
+      }
+  }
+  return mask;
+}
+
+template <int First>
+GEOMFIT_INLINE int SolveDegree(const WlsProblem* const problems[], int count, const WlsSettings& S,
+                               double* const coefficients[], double* const ops[], WlsSolution solutions[],
+                               WlsBatchWorkspace& work) {
+  switch (S.degree) {
+    case 1: return Solve<1, First>(problems, count, S, coefficients, ops, solutions, work);
+    case 2: return Solve<2, First>(problems, count, S, coefficients, ops, solutions, work);
+    case 3: return Solve<3, First>(problems, count, S, coefficients, ops, solutions, work);
+    case 4: return Solve<4, First>(problems, count, S, coefficients, ops, solutions, work);
+    case 5: return Solve<5, First>(problems, count, S, coefficients, ops, solutions, work);
+    case 6: return Solve<6, First>(problems, count, S, coefficients, ops, solutions, work);
+    default: return 0;
+  }
+}
+
+GEOMFIT_INLINE int SolveAny(const WlsProblem* const problems[], int count, const WlsSettings& S,
+                            double* const coefficients[], double* const ops[], WlsSolution solutions[],
+                            WlsBatchWorkspace& work) {
+  if (count <= 0 || count > W || S.oscillation_safeguard) return 0;
+  return S.interpolate ? SolveDegree<1>(problems, count, S, coefficients, ops, solutions, work)
+                       : SolveDegree<0>(problems, count, S, coefficients, ops, solutions, work);
+}
+
+// One copy of the kernel per instruction set; `flatten` inlines the whole kernel into each.
+__attribute__((flatten)) int SolvePortable(const WlsProblem* const problems[], int count, const WlsSettings& S,
+                                           double* const coefficients[], double* const ops[],
+                                           WlsSolution solutions[], WlsBatchWorkspace& work) {
+  return SolveAny(problems, count, S, coefficients, ops, solutions, work);
+}
+
+#if defined(__x86_64__) && defined(__GNUC__)
+#define GEOMFIT_HAVE_AVX2_KERNEL 1
+__attribute__((flatten, target("avx2"))) int SolveAvx2(const WlsProblem* const problems[], int count,
+                                                           const WlsSettings& S, double* const coefficients[],
+                                                           double* const ops[], WlsSolution solutions[],
+                                                           WlsBatchWorkspace& work) {
+  return SolveAny(problems, count, S, coefficients, ops, solutions, work);
+}
+#endif
+
+using Kernel = int (*)(const WlsProblem* const[], int, const WlsSettings&, double* const[], double* const[],
+                       WlsSolution[], WlsBatchWorkspace&);
+
+struct Dispatch {
+  Kernel kernel = SolvePortable;
+  const char* isa = "portable";
+  Dispatch() {
+#ifdef GEOMFIT_HAVE_AVX2_KERNEL
+    __builtin_cpu_init();
+    if (__builtin_cpu_supports("avx2")) kernel = SolveAvx2, isa = "avx2";
+#endif
+  }
+};
+
+const Dispatch& Selected() {
+  static const Dispatch dispatch;
+  return dispatch;
+}
+
+}  // namespace
+
+int SolveWlsBatch(const WlsProblem* const problems[], int count, const WlsSettings& settings,
+                  double* const coefficients[], double* const ops[], WlsSolution solutions[],
+                  WlsBatchWorkspace& work) {
+  return Selected().kernel(problems, count, settings, coefficients, ops, solutions, work);
+}
+
+const char* WlsBatchIsa() { return Selected().isa; }
+
+}  // namespace geomfit

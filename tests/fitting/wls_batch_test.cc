@@ -1,0 +1,162 @@
+// The batched SIMD kernel (wls_batch.h) against the scalar SolveWls: the same fits,
+// normals, curvatures and stencil rows to 1e-12 relative, and the safeguard lanes left
+// to the scalar path.
+#include <cmath>
+#include <memory>
+#include <random>
+#include <string>
+
+#include <gtest/gtest.h>
+
+#include "core/fitting/fit.h"
+#include "core/fitting/wls_batch.h"
+#include "core/quantities/differentials.h"
+#include "core/surfaces/analytic.h"
+
+namespace geomfit {
+namespace {
+
+// |a - b| <= 1e-12 max(|b|, scale): relative, with `scale` the size of the quantity
+// (a curvature that vanishes by symmetry is compared at the size of the others).
+::testing::AssertionResult Near(double a, double b, double scale) {
+  if (std::abs(a - b) <= 1e-12 * std::max(std::abs(b), scale)) return ::testing::AssertionSuccess();
+  return ::testing::AssertionFailure() << a << " vs " << b << " (scale " << scale << ")";
+}
+
+struct Case {
+  const char* name;
+  Mesh mesh;
+};
+
+std::vector<Case> Meshes() {
+  GeneratorOptions g;
+  g.n = 10;
+  std::vector<Case> cases;
+  cases.push_back({"torus", GenerateTorusMesh(g)});
+  cases.push_back({"bump", GenerateBumpMesh(g)});  // open: boundary stencils
+  g.n = 6;
+  cases.push_back({"sphere", GenerateSphereMesh(g)});  // quads
+  return cases;
+}
+
+TEST(WlsBatchTest, FitsNormalsCurvaturesAndStencilsEqualTheScalarPath) {
+  int batched_vertices = 0, total = 0;
+  for (const Case& c : Meshes()) {
+    const Topology t = BuildTopology(c.mesh).value();
+    for (int degree = 1; degree <= kMaxDegree; ++degree)
+      for (FitMethod method : {FitMethod::kLHF, FitMethod::kLOP})
+        for (bool interpolate : {true, false}) {
+          SCOPED_TRACE(::testing::Message() << c.name << " degree " << degree << " "
+                                            << FitMethodName(method) << " interpolate " << interpolate);
+          FitOptions o;
+          o.degree = degree;
+          o.method = method;
+          o.interpolate = interpolate;
+          FitRequest scalar_req, batch_req;
+          scalar_req.stencils = batch_req.stencils = true;
+          scalar_req.batched_kernel = false;
+          const auto scalar = FitSurface(c.mesh, t, o, nullptr, scalar_req).value();
+          const auto batch = FitSurface(c.mesh, t, o, nullptr, batch_req).value();
+          const Differentials ds = ComputeDifferentials(*scalar);
+          const Differentials db = ComputeDifferentials(*batch);
+          const double kscale = std::max(ds.k1.cwiseAbs().maxCoeff(), ds.k2.cwiseAbs().maxCoeff());
+          for (int v = 0; v < c.mesh.NumVertices(); ++v) {
+            const VertexDiagnostics &a = batch->diagnostics(v), &b = scalar->diagnostics(v);
+            ASSERT_EQ(a.degree_used, b.degree_used) << v;
+            ASSERT_EQ(a.rank, b.rank) << v;
+            ASSERT_EQ(a.flags, b.flags) << v;
+            ASSERT_EQ(a.points, b.points) << v;
+            ASSERT_TRUE(Near(a.condition, b.condition, 0)) << "condition at vertex " << v;
+            // Taylor coefficients as heights at the stencil radius h (c_jk h^(j+k)), at the
+            // size of the largest: their rounding error grows with the condition of R (2.4).
+            const int nc = scalar->num_coefficients();
+            const double cond = std::max(1.0, static_cast<double>(b.condition));
+            double h = 0;
+            for (int k = 0; k < scalar->neighborhoods().Size(v); ++k)
+              h = std::max(h, (c.mesh.positions.row(scalar->neighborhoods().Points(v)[k]) - c.mesh.positions.row(v)).norm());
+            auto height = [&](const SurfaceFits& f, int d, int p, int i) { return f.coefficients(v)[d * nc + i] * std::pow(h, p); };
+            double cscale = 0;
+            for (int d = 0; d < scalar->dims(); ++d)
+              for (int p = 0; p <= degree; ++p)
+                for (int i = NumCoefficients(p - 1); i < NumCoefficients(p); ++i)
+                  cscale = std::max(cscale, std::abs(height(*scalar, d, p, i)));
+            for (int d = 0; d < scalar->dims(); ++d)
+              for (int p = 0; p <= degree; ++p)
+                for (int i = NumCoefficients(p - 1); i < NumCoefficients(p); ++i)
+                  ASSERT_LE(std::abs(height(*batch, d, p, i) - height(*scalar, d, p, i)), 1e-11 * cond * cscale)
+                      << "coefficient " << i << " at vertex " << v;
+            for (int k = 0; k < 3; ++k) ASSERT_TRUE(Near(db.normals(v, k), ds.normals(v, k), 1)) << "normal at vertex " << v;
+            ASSERT_TRUE(Near(db.mean(v), ds.mean(v), kscale)) << "H at vertex " << v;
+            ASSERT_TRUE(Near(db.gaussian(v), ds.gaussian(v), kscale * kscale)) << "K at vertex " << v;
+            ASSERT_TRUE(Near(db.k1(v), ds.k1(v), kscale)) << "k1 at vertex " << v;
+            ASSERT_TRUE(Near(db.k2(v), ds.k2(v), kscale)) << "k2 at vertex " << v;
+            // Stencil rows likewise: row i of order p in units of h^-p.
+            const int n = scalar->neighborhoods().Size(v);
+            auto entry = [&](const SurfaceFits& f, int p, int i, int k) { return f.stencil(v)[i * n + k] * std::pow(h, p); };
+            double sscale = 0;
+            for (int p = 0; NumCoefficients(p - 1) < scalar->stencil_rows(); ++p)
+              for (int i = NumCoefficients(p - 1); i < NumCoefficients(p); ++i)
+                for (int k = 0; k < n; ++k) sscale = std::max(sscale, std::abs(entry(*scalar, p, i, k)));
+            for (int p = 0; NumCoefficients(p - 1) < scalar->stencil_rows(); ++p)
+              for (int i = NumCoefficients(p - 1); i < NumCoefficients(p); ++i)
+                for (int k = 0; k < n; ++k)
+                  ASSERT_LE(std::abs(entry(*batch, p, i, k) - entry(*scalar, p, i, k)), 1e-11 * cond * sscale)
+                      << "stencil row " << i << " at vertex " << v;
+            total++;
+            batched_vertices += b.degree_used == degree;
+          }
+        }
+  }
+  // Most vertices take the batched path (no degree drop); the rest were compared too.
+  EXPECT_GT(batched_vertices, total * 3 / 4);
+}
+
+// A random stencil of `rows` points on a paraboloid, every row with weight 1.
+WlsProblem RandomProblem(int rows, std::mt19937& rng) {
+  std::uniform_real_distribution<double> uni(-1, 1);
+  WlsProblem P;
+  P.rows = rows;
+  P.dims = 1;
+  for (int r = 0; r < rows; ++r) {
+    P.u[r] = uni(rng);
+    P.v[r] = uni(rng);
+    P.gamma[r] = r % 5 == 4 ? 0.0 : 1.0;  // some rows dropped by the angle safeguard
+    P.rhs[0][r] = 0.3 * P.u[r] * P.u[r] - 0.2 * P.u[r] * P.v[r] + 0.1 * P.v[r] * P.v[r] + 0.01 * uni(rng);
+  }
+  return P;
+}
+
+TEST(WlsBatchTest, LanesLeavingThePlainPathAreLeftToTheScalarSolver) {
+  std::mt19937 rng(7);
+  WlsSettings S;
+  S.degree = 2;
+  const double thresholds[kMaxDegree + 1] = {0, 1e3, 1e3, 3.3e3, 1e4, 1e5, 1e6};
+  S.cond_threshold = thresholds;
+  WlsProblem P[kWlsLanes] = {RandomProblem(20, rng), RandomProblem(4, rng), RandomProblem(30, rng),
+                             RandomProblem(12, rng)};
+  // Lane 3: all points on the line v = 0 make R singular (a zero pivot).
+  for (int r = 0; r < P[3].rows; ++r) P[3].v[r] = 0;
+  const WlsProblem* p[kWlsLanes] = {&P[0], &P[1], &P[2], &P[3]};
+  double coef[kWlsLanes][kMaxCoefficients], op[kWlsLanes][kMaxCoefficients * kMaxStencil];
+  double* c[kWlsLanes] = {coef[0], coef[1], coef[2], coef[3]};
+  double* o[kWlsLanes] = {op[0], op[1], op[2], op[3]};
+  WlsSolution sol[kWlsLanes];
+  auto work = std::make_unique<WlsBatchWorkspace>();
+  // Lane 1 has 4 rows (3 kept) for 5 columns.
+  EXPECT_EQ(SolveWlsBatch(p, kWlsLanes, S, c, o, sol, *work), 0b0101);
+  for (int l : {0, 2}) {
+    double ref[kMaxCoefficients], ref_op[kMaxCoefficients * kMaxStencil];
+    const WlsSolution s = SolveWls(P[l], S, ref, ref_op);
+    EXPECT_EQ(sol[l].degree_used, s.degree_used);
+    EXPECT_NEAR(sol[l].condition, s.condition, 1e-12 * s.condition);
+    for (int i = 0; i < NumCoefficients(2); ++i) EXPECT_NEAR(coef[l][i], ref[i], 1e-12 * std::abs(ref[i]) + 1e-15);
+    for (int i = 0; i < NumCoefficients(2) * P[l].rows; ++i) EXPECT_NEAR(op[l][i], ref_op[i], 1e-12);
+  }
+  // The oscillation safeguard is never batched.
+  S.oscillation_safeguard = true;
+  EXPECT_EQ(SolveWlsBatch(p, kWlsLanes, S, c, o, sol, *work), 0);
+  EXPECT_TRUE(std::string(WlsBatchIsa()) == "avx2" || std::string(WlsBatchIsa()) == "portable");
+}
+
+}  // namespace
+}  // namespace geomfit
