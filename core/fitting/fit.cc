@@ -5,7 +5,9 @@
 
 
 #include "absl/strings/str_format.h"
+#include "core/fitting/noise.h"
 #include "core/fitting/wls.h"
+#include "core/util/status_macros.h"
 #include "core/util/parallel.h"
 
 namespace geomfit {
@@ -171,9 +173,22 @@ class SurfaceFitter {
       return absl::InvalidArgumentError("neighborhoods do not match the mesh");
 
     Positions normals = ApproximateVertexNormals(mesh, topo, o.frame_normals, ctx.threads());
+    // Noise-aware fitting (noise.h): `o` resolved, smoothing-by-projection passes first.
+    FitOptions eff = o;
+    if (o.noise == NoiseMode::kAuto) {
+      GF_ASSIGN_OR_RETURN(const NoiseEstimate est, EstimateNoise(mesh, topo, normals, ctx));
+      eff.noise = est.noisy ? NoiseMode::kOn : NoiseMode::kOff;
+      if (RingSpecFor(eff).rings != RingSpecFor(o).rings || RingSpecFor(eff).min_points != RingSpecFor(o).min_points)
+        nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, mesh, RingSpecFor(eff), ctx.threads()));
+    }
+    eff.interpolate = eff.Interpolates();
+    if (eff.noise == NoiseMode::kOn) eff.weight_epsilon = kNoiseWeightEpsilon;
+    const int smoothing = eff.SmoothingPasses(), passes = smoothing + (o.two_pass ? 2 : 1);
+    Mesh smoothed;  // positions after the smoothing passes (faces unused)
+    const Mesh* input = &mesh;
     auto fits = std::make_shared<SurfaceFits>();
-    for (int pass = 0; pass < (o.two_pass ? 2 : 1); ++pass) {
-      if (pass == 1) {  // frames and safeguard weights from the first pass's fitted normals
+    for (int pass = 0; pass < passes; ++pass) {
+      if (pass > 0) {  // frames and safeguard weights from the previous pass's fitted normals
         ParallelFor(mesh.NumVertices(), ctx.threads(), [&](int64_t v) {
           if (fits->diagnostics_[v].degree_used < 1) return;
           const SurfaceJet jet = fits->Jet(static_cast<int>(v));
@@ -182,9 +197,16 @@ class SurfaceFitter {
           if (n.norm() > 0) normals.row(v) = n.normalized();
         });
       }
+      if (pass > 0 && pass <= smoothing) {
+        smoothed.positions = ProjectOntoFits(*fits, input->positions, ctx.threads());
+        smoothed.faces = mesh.faces;
+        input = &smoothed;
+      }
+      FitOptions pass_options = eff;
+      if (pass < smoothing) pass_options.interpolate = false;  // smoothing fits approximate
       fits = std::make_shared<SurfaceFits>();
-      const bool last = pass == (o.two_pass ? 1 : 0);
-      if (absl::Status s = FitAll(mesh, topo, o, nb, normals, req, ctx, last ? &on_fitted : nullptr, *fits); !s.ok()) return s;
+      const bool last = pass == passes - 1;
+      if (absl::Status s = FitAll(*input, topo, pass_options, nb, normals, req, ctx, last ? &on_fitted : nullptr, *fits); !s.ok()) return s;
     }
     return std::shared_ptr<const SurfaceFits>(std::move(fits));
   }
