@@ -6,6 +6,7 @@
 
 #include "absl/strings/str_format.h"
 #include "core/fitting/noise.h"
+#include "core/fitting/parametric.h"
 #include "core/fitting/wls.h"
 #include "core/util/status_macros.h"
 #include "core/util/parallel.h"
@@ -19,6 +20,7 @@ struct FitInput {
   const Neighborhoods& nb;
   const Positions& normals;  // per-vertex normals for frames and the safeguard weights
   const FitOptions& o;
+  const Topology& topo;      // for the comparison parametrizations (parametric.h)
 };
 
 struct FitOutput {
@@ -71,6 +73,8 @@ void FitVertex(int v, const FitInput& in, const FitOutput& out) {
       for (int q = 0; q < 3; ++q) P.rhs[q][r] = d(q);
     }
   }
+  if (o.method == FitMethod::kXu || o.method == FitMethod::kLSCM)
+    ParametrizeStencil(o.method, in.mesh, in.topo, pts, n_pts, first, frame, &P);
   diag.points = static_cast<int16_t>(used);
   if (used < ncoef) diag.flags |= kFlagTooFewPoints;
 
@@ -82,7 +86,8 @@ void FitVertex(int v, const FitInput& in, const FitOutput& out) {
   S.oscillation_safeguard = o.oscillation_safeguard;
   S.op_rows = out.stencil_rows;
   double op[kMaxCoefficients * kMaxStencil];
-  const WlsSolution sol = SolveWls(P, S, out.coefficients, out.stencil ? op : nullptr);
+  const WlsSolution sol = o.solver == WlsSolver::kSVD ? SolveWlsSvd(P, S, out.coefficients, out.stencil ? op : nullptr)
+                                                      : SolveWls(P, S, out.coefficients, out.stencil ? op : nullptr);
   diag.degree_used = static_cast<int8_t>(sol.degree_used);
   diag.rank = static_cast<int16_t>(sol.rank);
   diag.condition = static_cast<float>(sol.condition);
@@ -231,7 +236,7 @@ class SurfaceFitter {
         f.stencil_offsets_[v + 1] = f.stencil_offsets_[v] + static_cast<size_t>(f.stencil_rows_) * nb->Size(v);
       f.stencils_.assign(f.stencil_offsets_[nv], 0.0);
     }
-    const FitInput in{mesh, *nb, normals, o};
+    const FitInput in{mesh, *nb, normals, o, topo};
     constexpr int64_t kGrain = 512;
     return ParallelFor((nv + kGrain - 1) / kGrain, ctx, [&](int64_t chunk) {
       const int64_t end = std::min<int64_t>(nv, (chunk + 1) * kGrain);

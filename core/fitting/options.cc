@@ -8,7 +8,17 @@
 
 namespace geomfit {
 
-const char* FitMethodName(FitMethod m) { return m == FitMethod::kLHF ? "lhf" : "lop"; }
+const char* FitMethodName(FitMethod m) {
+  switch (m) {
+    case FitMethod::kLHF: return "lhf";
+    case FitMethod::kLOP: return "lop";
+    case FitMethod::kXu: return "xu";
+    case FitMethod::kLSCM: return "lscm";
+  }
+  return "?";
+}
+
+const char* WlsSolverName(WlsSolver s) { return s == WlsSolver::kSVD ? "svd" : "qr"; }
 
 const char* NoiseModeName(NoiseMode m) {
   return m == NoiseMode::kOn ? "on" : m == NoiseMode::kAuto ? "auto" : "off";
@@ -70,6 +80,7 @@ FitOptionsBits FitOptionsIdentity(const FitOptions& o) {
   for (int d = 1; d <= kMaxDegree; ++d) b[13 + d] = Bits(o.cond_threshold[d]);
   b[14 + kMaxDegree] = static_cast<uint64_t>(o.noise);
   b[15 + kMaxDegree] = static_cast<uint64_t>(o.SmoothingPasses());
+  b[16 + kMaxDegree] = static_cast<uint64_t>(o.solver);
   return b;
 }
 
@@ -80,7 +91,7 @@ std::string FitOptionsKey(const FitOptions& o) {
       FitMethodName(o.method), o.safeguard_angle_deg, o.Interpolates(), o.two_pass,
       static_cast<int>(o.frame_normals), o.weight_epsilon, o.oscillation_safeguard);
   for (int d = 1; d <= kMaxDegree; ++d) absl::StrAppendFormat(&key, " c%g", o.cond_threshold[d]);
-  absl::StrAppendFormat(&key, " n%s sp%d", NoiseModeName(o.noise), o.SmoothingPasses());
+  absl::StrAppendFormat(&key, " n%s sp%d %s", NoiseModeName(o.noise), o.SmoothingPasses(), WlsSolverName(o.solver));
   return key;
 }
 

@@ -11,6 +11,16 @@ namespace geomfit {
 enum class FitMethod {
   kLHF,  ///< local height function over a tangent plane (Table 3.1, right column)
   kLOP,  ///< local orthogonal projection; parametric fit of x, y, z (Table 3.1, left)
+  /// Comparison methods of chapters 2-3 (parametric fits of x, y, z; differentials only,
+  /// not reconstruction): see core/fitting/parametric.h.
+  kXu,    ///< Xu's 1-ring parametrization (2.2): angles scaled to 2 pi, edge lengths kept
+  kLSCM,  ///< least-squares conformal map of each stencil's faces (2.2)
+};
+
+/// The least-squares solver (2.4).
+enum class WlsSolver {
+  kQR,   ///< column-scaled Householder QR, whole degrees dropped by condition (the default)
+  kSVD,  ///< SVD of the same scaled matrix, singular values below sigma_1 / cut-off dropped
 };
 
 /// How approximate vertex normals (for frames and the weight safeguard) average faces.
@@ -62,6 +72,7 @@ struct FitOptions {
   /// Smoothing-by-projection passes before the final fit (§4.2.3: every vertex moves to
   /// its own approximating fit, then all are refitted); -1 = automatic: 0, or 2 with noise.
   int smoothing_passes = -1;
+  WlsSolver solver = WlsSolver::kQR;
 
   /// The ring size actually used as the starting ring: (d+1)/2 for clean input, d/2+1
   /// with noise (2.1).
@@ -91,10 +102,11 @@ std::string FitOptionsKey(const FitOptions& options);
 /// as exact bit patterns: two option sets give identical fits iff their bits are equal.
 /// Cache keys are built from these, never from formatted text (`%g` aliases 1.5 and
 /// 1.5000001).
-using FitOptionsBits = std::array<uint64_t, 16 + kMaxDegree>;
+using FitOptionsBits = std::array<uint64_t, 17 + kMaxDegree>;
 FitOptionsBits FitOptionsIdentity(const FitOptions& options);
 
 const char* FitMethodName(FitMethod m);
 const char* NoiseModeName(NoiseMode m);  ///< "off", "on", "auto"
+const char* WlsSolverName(WlsSolver s);  ///< "qr", "svd"
 
 }  // namespace geomfit
