@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "bench/cgal_jet.h"
+#include "bench/bench_args.h"
 #include "core/fitting/fit.h"
 #include "core/fitting/noise.h"
 #include "core/mesh/topology.h"
@@ -24,13 +25,6 @@
 using namespace geomfit;
 
 namespace {
-
-std::vector<std::string> Split(const char* arg, const char* fallback) {
-  std::vector<std::string> out;
-  std::stringstream ss(arg ? arg : fallback);
-  for (std::string s; std::getline(ss, s, ',');) out.push_back(s);
-  return out;
-}
 
 struct Series {
   std::string name;
@@ -65,12 +59,12 @@ void Print(const Series& s, const std::vector<double>& hs, const Series* ref) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  const auto surfaces = Split(argc > 1 ? argv[1] : nullptr, "torus,bump");
-  const auto powers = Split(argc > 2 ? argv[2] : nullptr, "2,3");
-  const auto degrees = Split(argc > 3 ? argv[3] : nullptr, "2,3,4");
-  const auto ns = Split(argc > 4 ? argv[4] : nullptr, "16,32,64");
+  const auto surfaces = SplitList(argc > 1 ? argv[1] : nullptr, "torus,bump");
+  const auto powers = SplitList(argc > 2 ? argv[2] : nullptr, "2,3");
+  const auto degrees = SplitList(argc > 3 ? argv[3] : nullptr, "2,3,4");
+  const auto ns = SplitList(argc > 4 ? argv[4] : nullptr, "16,32,64");
   const double alpha = argc > 5 ? std::atof(argv[5]) : 0.1;
-  const auto passes = Split(argc > 6 ? argv[6] : nullptr, "-1");
+  const auto passes = SplitList(argc > 6 ? argv[6] : nullptr, "-1");
   std::printf("columns per level: normal L2, normal Linf, H L2, K L2; orders in the same order; "
               "alpha = %g\n", alpha);
   for (const std::string& name : surfaces) {
