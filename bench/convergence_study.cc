@@ -1,5 +1,6 @@
 // Convergence study: errors and observed orders of fitted normals and curvatures on the
 // project's analytic test meshes. Usage: convergence_study [surface] [method] [n0] [levels]
+//   [dmin] [dmax] [2 = two-pass]; method lhf|lop|xu|lscm, "-svd" appended for the SVD solver.
 #include <cstdio>
 #include <cstdlib>
 #include <string>
@@ -32,7 +33,11 @@ int main(int argc, char** argv) {
       FitOptions o;
       o.degree = d;
       o.two_pass = two_pass;
-      o.method = method == "lop" ? FitMethod::kLOP : FitMethod::kLHF;
+      o.method = method.rfind("lop", 0) == 0    ? FitMethod::kLOP
+                 : method.rfind("xu", 0) == 0   ? FitMethod::kXu
+                 : method.rfind("lscm", 0) == 0 ? FitMethod::kLSCM
+                                                : FitMethod::kLHF;
+      if (method.find("-svd") != std::string::npos) o.solver = WlsSolver::kSVD;
       auto diff = ComputeDifferentials(mesh, o).value();
       int down = 0;
       for (auto& dg : diff.diagnostics) down += (dg.flags & kFlagDowngraded) != 0;

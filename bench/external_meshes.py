@@ -11,8 +11,8 @@ meshes of a torus) with meshes from two independent generators:
       implicit torus on N^3 grids, N = 32, 64, 128, 256, vertices projected
       onto the torus (poorly shaped but exact);
   b2  the same marching-cubes meshes with the raw vertices (O(h^2) position
-      error, the dissertation's "noisy" case), run both with --approximate and
-      rings d/2+1 and with geomfit's default settings.
+      error, the dissertation's "noisy" case), run with --noise on, with
+      --approximate and rings d/2+1, and with geomfit's default settings.
 
 Torus: centre circle radius R = 1 in the xy-plane, tube radius r = 0.3. Faces
 are oriented outward (positive enclosed volume) and checked for consistent
@@ -565,7 +565,8 @@ def main():
               geomfit, range(1, 7), [], args.threads, args.outdir, print_,
               [None if m["welded"] is None else (m["welded"]["exact"], m["welded"]["Vp"], m["welded"]["h_proj"]) for m in mc])
     if "b2" in fams:
-        for label, extra_fn in (("--approximate, rings d/2+1", lambda d: ["--approximate", "--rings", str(d // 2 + 1)]),
+        for label, extra_fn in (("--noise on", lambda d: ["--noise", "on"]),
+                                ("--approximate, rings d/2+1", lambda d: ["--approximate", "--rings", str(d // 2 + 1)]),
                                 ("default settings", lambda d: [])):
             study(f"(b2) raw marching-cubes vertices, {label}",
                   [m["raw"] for m in mc], [m["V"] for m in mc], [m["stats_raw"]["h"] for m in mc],

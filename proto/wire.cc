@@ -93,7 +93,23 @@ absl::StatusOr<FitOptions> FromProto(const v1::FitOptions& p, FitOptions o) {
     case v1::FIT_METHOD_UNSPECIFIED:
     case v1::FIT_METHOD_LHF: o.method = FitMethod::kLHF; break;
     case v1::FIT_METHOD_LOP: o.method = FitMethod::kLOP; break;
+    case v1::FIT_METHOD_XU: o.method = FitMethod::kXu; break;
+    case v1::FIT_METHOD_LSCM: o.method = FitMethod::kLSCM; break;
     default: return absl::InvalidArgumentError(absl::StrCat("options.method: unknown value ", p.method()));
+  }
+  switch (p.noise()) {
+    case v1::NOISE_MODE_UNSPECIFIED:
+    case v1::NOISE_MODE_OFF: o.noise = NoiseMode::kOff; break;
+    case v1::NOISE_MODE_ON: o.noise = NoiseMode::kOn; break;
+    case v1::NOISE_MODE_AUTO: o.noise = NoiseMode::kAuto; break;
+    default: return absl::InvalidArgumentError(absl::StrCat("options.noise: unknown value ", p.noise()));
+  }
+  if (p.has_smoothing_passes()) o.smoothing_passes = p.smoothing_passes();
+  switch (p.solver()) {
+    case v1::WLS_SOLVER_UNSPECIFIED:
+    case v1::WLS_SOLVER_QR: o.solver = WlsSolver::kQR; break;
+    case v1::WLS_SOLVER_SVD: o.solver = WlsSolver::kSVD; break;
+    default: return absl::InvalidArgumentError(absl::StrCat("options.solver: unknown value ", p.solver()));
   }
   if (p.has_safeguard_angle_deg()) o.safeguard_angle_deg = p.safeguard_angle_deg();
   if (p.has_interpolate()) o.interpolate = p.interpolate();
@@ -163,7 +179,17 @@ v1::FitOptions ToProto(const FitOptions& o) {
   p.set_degree(o.degree);
   p.set_rings(o.rings);
   p.set_adaptive(o.adaptive);
-  p.set_method(o.method == FitMethod::kLOP ? v1::FIT_METHOD_LOP : v1::FIT_METHOD_LHF);
+  switch (o.method) {
+    case FitMethod::kLHF: p.set_method(v1::FIT_METHOD_LHF); break;
+    case FitMethod::kLOP: p.set_method(v1::FIT_METHOD_LOP); break;
+    case FitMethod::kXu: p.set_method(v1::FIT_METHOD_XU); break;
+    case FitMethod::kLSCM: p.set_method(v1::FIT_METHOD_LSCM); break;
+  }
+  p.set_noise(o.noise == NoiseMode::kOn     ? v1::NOISE_MODE_ON
+              : o.noise == NoiseMode::kAuto ? v1::NOISE_MODE_AUTO
+                                            : v1::NOISE_MODE_OFF);
+  p.set_smoothing_passes(o.smoothing_passes);
+  p.set_solver(o.solver == WlsSolver::kSVD ? v1::WLS_SOLVER_SVD : v1::WLS_SOLVER_QR);
   p.set_safeguard_angle_deg(o.safeguard_angle_deg);
   p.set_interpolate(o.interpolate);
   p.set_two_pass(o.two_pass);

@@ -5,8 +5,11 @@
 
 
 #include "absl/strings/str_format.h"
+#include "core/fitting/noise.h"
+#include "core/fitting/parametric.h"
 #include "core/fitting/wls.h"
 #include "core/fitting/wls_batch.h"
+#include "core/util/status_macros.h"
 #include "core/util/parallel.h"
 
 namespace geomfit {
@@ -19,6 +22,7 @@ struct FitInput {
   const Positions& normals;  // per-vertex normals for frames and the safeguard weights
   const FitOptions& o;
   double cos_cut;  // cos(safeguard angle) of (2.2.1)
+  const Topology& topo;      // for the comparison parametrizations (parametric.h)
 };
 
 struct FitOutput {
@@ -82,6 +86,8 @@ bool SetUpVertex(int v, const FitInput& in, const FitOutput& out, WlsProblem& P)
       for (int q = 0; q < 3; ++q) P.rhs[q][r] = d(q);
     }
   }
+  if (o.method == FitMethod::kXu || o.method == FitMethod::kLSCM)
+    ParametrizeStencil(o.method, in.mesh, in.topo, pts, n_pts, first, frame, &P);
   diag.points = static_cast<int16_t>(used);
   if (used < ncoef) diag.flags |= kFlagTooFewPoints;
   return true;
@@ -131,9 +137,11 @@ struct FitBatch {
       coef[l] = outs[l].coefficients;
       op[l] = outs[l].stencil ? ops[l] : nullptr;
     }
-    const int solved = batched ? SolveWlsBatch(p, count, S, coef, op, sol, work) : 0;
+    const bool svd = in.o.solver == WlsSolver::kSVD;  // the comparison solver: scalar only
+    const int solved = batched && !svd ? SolveWlsBatch(p, count, S, coef, op, sol, work) : 0;
     for (int l = 0; l < count; ++l) {
-      if (!(solved >> l & 1)) sol[l] = SolveWls(problems[l], S, coef[l], op[l]);
+      if (!(solved >> l & 1))
+        sol[l] = svd ? SolveWlsSvd(problems[l], S, coef[l], op[l]) : SolveWls(problems[l], S, coef[l], op[l]);
       FinishVertex(vertex[l], in, outs[l], problems[l], sol[l], op[l]);
     }
     count = 0;
@@ -212,9 +220,22 @@ class SurfaceFitter {
       return absl::InvalidArgumentError("neighborhoods do not match the mesh");
 
     Positions normals = ApproximateVertexNormals(mesh, topo, o.frame_normals, ctx.threads());
+    // Noise-aware fitting (noise.h): `o` resolved, smoothing-by-projection passes first.
+    FitOptions eff = o;
+    if (o.noise == NoiseMode::kAuto) {
+      GF_ASSIGN_OR_RETURN(const NoiseEstimate est, EstimateNoise(mesh, topo, normals, ctx));
+      eff.noise = est.noisy ? NoiseMode::kOn : NoiseMode::kOff;
+      if (RingSpecFor(eff).rings != RingSpecFor(o).rings || RingSpecFor(eff).min_points != RingSpecFor(o).min_points)
+        nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, mesh, RingSpecFor(eff), ctx.threads()));
+    }
+    eff.interpolate = eff.Interpolates();
+    if (eff.noise == NoiseMode::kOn) eff.weight_epsilon = kNoiseWeightEpsilon;
+    const int smoothing = eff.SmoothingPasses(), passes = smoothing + (o.two_pass ? 2 : 1);
+    Mesh smoothed;  // positions after the smoothing passes (faces unused)
+    const Mesh* input = &mesh;
     auto fits = std::make_shared<SurfaceFits>();
-    for (int pass = 0; pass < (o.two_pass ? 2 : 1); ++pass) {
-      if (pass == 1) {  // frames and safeguard weights from the first pass's fitted normals
+    for (int pass = 0; pass < passes; ++pass) {
+      if (pass > 0) {  // frames and safeguard weights from the previous pass's fitted normals
         ParallelFor(mesh.NumVertices(), ctx.threads(), [&](int64_t v) {
           if (fits->diagnostics_[v].degree_used < 1) return;
           const SurfaceJet jet = fits->Jet(static_cast<int>(v));
@@ -223,9 +244,16 @@ class SurfaceFitter {
           if (n.norm() > 0) normals.row(v) = n.normalized();
         });
       }
+      if (pass > 0 && pass <= smoothing) {
+        smoothed.positions = ProjectOntoFits(*fits, input->positions, ctx.threads());
+        smoothed.faces = mesh.faces;
+        input = &smoothed;
+      }
+      FitOptions pass_options = eff;
+      if (pass < smoothing) pass_options.interpolate = false;  // smoothing fits approximate
       fits = std::make_shared<SurfaceFits>();
-      const bool last = pass == (o.two_pass ? 1 : 0);
-      if (absl::Status s = FitAll(mesh, topo, o, nb, normals, req, ctx, last ? &on_fitted : nullptr, *fits); !s.ok()) return s;
+      const bool last = pass == passes - 1;
+      if (absl::Status s = FitAll(*input, topo, pass_options, nb, normals, req, ctx, last ? &on_fitted : nullptr, *fits); !s.ok()) return s;
     }
     return std::shared_ptr<const SurfaceFits>(std::move(fits));
   }
@@ -250,7 +278,7 @@ class SurfaceFitter {
         f.stencil_offsets_[v + 1] = f.stencil_offsets_[v] + static_cast<size_t>(f.stencil_rows_) * nb->Size(v);
       f.stencils_.assign(f.stencil_offsets_[nv], 0.0);
     }
-    const FitInput in{mesh, *nb, normals, o, std::cos(o.safeguard_angle_deg * M_PI / 180.0)};
+    const FitInput in{mesh, *nb, normals, o, std::cos(o.safeguard_angle_deg * M_PI / 180.0), topo};
     const WlsSettings settings = SettingsFor(o, f.stencil_rows_);
     constexpr int64_t kGrain = 512;
     // Vertices in the topology's locality order (neighbouring stencils share cache

@@ -17,6 +17,7 @@ RingSpec RingSpecFor(const FitOptions& o) {
   s.min_points_boundary = static_cast<int>(std::ceil(o.boundary_points_factor * n));
   s.max_rings = std::max(o.max_rings, s.rings);
   s.max_points = o.max_points;
+  if (o.method == FitMethod::kXu) s.rings = 1, s.adaptive = false, s.max_rings = std::max(1.0, o.max_rings);  // 1-ring only
   return s;
 }
 

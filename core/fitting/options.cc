@@ -8,7 +8,21 @@
 
 namespace geomfit {
 
-const char* FitMethodName(FitMethod m) { return m == FitMethod::kLHF ? "lhf" : "lop"; }
+const char* FitMethodName(FitMethod m) {
+  switch (m) {
+    case FitMethod::kLHF: return "lhf";
+    case FitMethod::kLOP: return "lop";
+    case FitMethod::kXu: return "xu";
+    case FitMethod::kLSCM: return "lscm";
+  }
+  return "?";
+}
+
+const char* WlsSolverName(WlsSolver s) { return s == WlsSolver::kSVD ? "svd" : "qr"; }
+
+const char* NoiseModeName(NoiseMode m) {
+  return m == NoiseMode::kOn ? "on" : m == NoiseMode::kAuto ? "auto" : "off";
+}
 
 absl::Status ValidateFitOptions(const FitOptions& o) {
   auto bad = [](auto&&... args) { return absl::InvalidArgumentError(absl::StrCat(args...)); };
@@ -35,6 +49,8 @@ absl::Status ValidateFitOptions(const FitOptions& o) {
   for (int d = 1; d <= kMaxDegree; ++d)
     if (!(o.cond_threshold[d] >= 1))
       return bad("fit option cond_threshold[", d, "] = ", o.cond_threshold[d], " must be >= 1");
+  if (o.smoothing_passes < -1 || o.smoothing_passes > 5)
+    return bad("fit option smoothing_passes = ", o.smoothing_passes, " must be -1 (automatic) or in [0, 5]");
   return absl::OkStatus();
 }
 
@@ -56,12 +72,15 @@ FitOptionsBits FitOptionsIdentity(const FitOptions& o) {
                    static_cast<uint64_t>(o.max_points),
                    static_cast<uint64_t>(o.method),
                    Bits(o.safeguard_angle_deg),
-                   o.interpolate,
+                   o.Interpolates(),
                    o.two_pass,
                    static_cast<uint64_t>(o.frame_normals),
                    Bits(o.weight_epsilon),
                    o.oscillation_safeguard};
   for (int d = 1; d <= kMaxDegree; ++d) b[13 + d] = Bits(o.cond_threshold[d]);
+  b[14 + kMaxDegree] = static_cast<uint64_t>(o.noise);
+  b[15 + kMaxDegree] = static_cast<uint64_t>(o.SmoothingPasses());
+  b[16 + kMaxDegree] = static_cast<uint64_t>(o.solver);
   return b;
 }
 
@@ -69,9 +88,10 @@ std::string FitOptionsKey(const FitOptions& o) {
   std::string key = absl::StrFormat(
       "d%d r%g a%d f%g b%g mr%g mp%d %s s%g i%d t%d w%d e%g o%d", o.degree, o.StartRings(),
       o.adaptive, o.MinPointsFactor(), o.boundary_points_factor, o.max_rings, o.max_points,
-      FitMethodName(o.method), o.safeguard_angle_deg, o.interpolate, o.two_pass,
+      FitMethodName(o.method), o.safeguard_angle_deg, o.Interpolates(), o.two_pass,
       static_cast<int>(o.frame_normals), o.weight_epsilon, o.oscillation_safeguard);
   for (int d = 1; d <= kMaxDegree; ++d) absl::StrAppendFormat(&key, " c%g", o.cond_threshold[d]);
+  absl::StrAppendFormat(&key, " n%s sp%d %s", NoiseModeName(o.noise), o.SmoothingPasses(), WlsSolverName(o.solver));
   return key;
 }
 

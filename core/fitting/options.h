@@ -11,10 +11,29 @@ namespace geomfit {
 enum class FitMethod {
   kLHF,  ///< local height function over a tangent plane (Table 3.1, right column)
   kLOP,  ///< local orthogonal projection; parametric fit of x, y, z (Table 3.1, left)
+  /// Comparison methods of chapters 2-3 (parametric fits of x, y, z; differentials only,
+  /// not reconstruction): see core/fitting/parametric.h.
+  kXu,    ///< Xu's 1-ring parametrization (2.2): angles scaled to 2 pi, edge lengths kept
+  kLSCM,  ///< least-squares conformal map of each stencil's faces (2.2)
+};
+
+/// The least-squares solver (2.4).
+enum class WlsSolver {
+  kQR,   ///< column-scaled Householder QR, whole degrees dropped by condition (the default)
+  kSVD,  ///< SVD of the same scaled matrix, singular values below sigma_1 / cut-off dropped
 };
 
 /// How approximate vertex normals (for frames and the weight safeguard) average faces.
 enum class NormalWeighting { kArea, kAngle };
+
+/// Noise-aware fitting for input whose positions carry O(h^2) or O(h^3) errors
+/// (marching cubes, perturbed or measured data; §3.3 noisy tests). See core/fitting/noise.h.
+enum class NoiseMode {
+  kOff,   ///< the fits of chapters 2-3 as configured (the default)
+  kOn,    ///< approximating fits on d/2+1 rings (2.1), >= 3x the coefficient count, flat
+          ///< weights (eps = 1), after smoothing-by-projection passes (§4.2.3)
+  kAuto,  ///< kOn where the mesh looks noisy (EstimateNoise), else kOff
+};
 
 /// Largest supported fitting degree (28 Taylor coefficients).
 inline constexpr int kMaxDegree = 6;
@@ -47,11 +66,29 @@ struct FitOptions {
   /// Condition-number cut-off of the column-scaled QR (2.4) per degree 1..6; a fit whose
   /// R exceeds it drops its highest degree, repeatedly. Index 0 unused.
   double cond_threshold[kMaxDegree + 1] = {0, 1e3, 1e3, 3.3e3, 1e4, 1e5, 1e6};
+  /// Noise-aware fitting; kOn changes the automatic rings / min_points_factor and makes
+  /// the fits approximating with eps = 1 (interpolate and weight_epsilon are ignored).
+  NoiseMode noise = NoiseMode::kOff;
+  /// Smoothing-by-projection passes before the final fit (§4.2.3: every vertex moves to
+  /// its own approximating fit, then all are refitted); -1 = automatic: 0, or 2 with noise.
+  int smoothing_passes = -1;
+  WlsSolver solver = WlsSolver::kQR;
 
-  /// The ring size actually used as the starting ring.
-  double StartRings() const { return rings > 0 ? rings : (degree + 1) / 2.0; }
-  /// The interior growth factor actually used.
-  double MinPointsFactor() const { return min_points_factor > 0 ? min_points_factor : (degree <= 2 ? 2.0 : 1.5); }
+  /// The ring size actually used as the starting ring: (d+1)/2 for clean input, d/2+1
+  /// with noise (2.1).
+  double StartRings() const {
+    return rings > 0 ? rings : noise == NoiseMode::kOn ? degree / 2.0 + 1 : (degree + 1) / 2.0;
+  }
+  /// The interior growth factor actually used (3 with noise: averaging needs points).
+  double MinPointsFactor() const {
+    return min_points_factor > 0 ? min_points_factor
+           : noise == NoiseMode::kOn ? 3.0
+                                     : (degree <= 2 ? 2.0 : 1.5);
+  }
+  /// Smoothing passes actually run.
+  int SmoothingPasses() const { return smoothing_passes >= 0 ? smoothing_passes : noise == NoiseMode::kOn ? 2 : 0; }
+  /// Whether fits pass through their centre vertex.
+  bool Interpolates() const { return interpolate && noise != NoiseMode::kOn; }
 };
 
 /// OK, or INVALID_ARGUMENT naming the field and its valid range.
@@ -65,9 +102,11 @@ std::string FitOptionsKey(const FitOptions& options);
 /// as exact bit patterns: two option sets give identical fits iff their bits are equal.
 /// Cache keys are built from these, never from formatted text (`%g` aliases 1.5 and
 /// 1.5000001).
-using FitOptionsBits = std::array<uint64_t, 14 + kMaxDegree>;
+using FitOptionsBits = std::array<uint64_t, 17 + kMaxDegree>;
 FitOptionsBits FitOptionsIdentity(const FitOptions& options);
 
 const char* FitMethodName(FitMethod m);
+const char* NoiseModeName(NoiseMode m);  ///< "off", "on", "auto"
+const char* WlsSolverName(WlsSolver s);  ///< "qr", "svd"
 
 }  // namespace geomfit

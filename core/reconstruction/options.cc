@@ -23,6 +23,10 @@ FitOptions DefaultReconstructionFit() {
 
 absl::Status ReconstructionOptions::Validate() const {
   if (absl::Status s = ValidateFitOptions(fit); !s.ok()) return absl::InvalidArgumentError(absl::StrCat("fit: ", s.message()));
+  if (fit.method == FitMethod::kXu || fit.method == FitMethod::kLSCM)
+    return absl::InvalidArgumentError(absl::StrCat("fit: method ", FitMethodName(fit.method),
+                                                   " is a comparison method for differentials; reconstruction "
+                                                   "needs lhf or lop"));
   if (!(feature_angle_deg >= 0 && feature_angle_deg <= 180))
     return absl::InvalidArgumentError(
         absl::StrFormat("feature_angle_deg = %g is out of range [0, 180]", feature_angle_deg));

@@ -485,6 +485,19 @@ absl::StatusOr<std::unique_ptr<AnalyticSurface>> NamedSurface(const std::string&
   return absl::InvalidArgumentError(absl::StrCat("unknown surface '", name, "'"));
 }
 
+Mesh PerturbAlongNormals(const Mesh& mesh, const AnalyticSurface& surface, double alpha, int power,
+                         uint64_t seed) {
+  Mesh out = mesh;
+  const double scale = alpha * std::pow(AverageEdgeLength(mesh), power);
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> gauss(0.0, 0.5);
+  for (int v = 0; v < mesh.NumVertices(); ++v) {
+    const double a = std::clamp(gauss(rng), -1.0, 1.0);
+    out.positions.row(v) += a * scale * surface.At(mesh.positions.row(v).transpose()).normal.transpose();
+  }
+  return out;
+}
+
 double AverageEdgeLength(const Mesh& mesh) {
   std::set<std::pair<int, int>> seen;
   double sum = 0;

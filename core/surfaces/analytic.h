@@ -75,6 +75,13 @@ absl::StatusOr<Mesh> GenerateNamedMesh(const std::string& name, const GeneratorO
 /// The analytic surface of a named mesh (same names).
 absl::StatusOr<std::unique_ptr<AnalyticSurface>> NamedSurface(const std::string& name);
 
+/// `mesh` with every vertex moved along the surface normal by alpha_v h^power (h the
+/// average edge length), alpha_v a Gaussian of standard deviation `alpha` / 2 clipped to
+/// [-alpha, alpha] (the controlled-noise tests of 3.3; Figs 3.18-3.21 use alpha = 0.1
+/// and power 2 or 3). Deterministic for a seed.
+Mesh PerturbAlongNormals(const Mesh& mesh, const AnalyticSurface& surface, double alpha, int power,
+                         uint64_t seed = 7);
+
 /// Average edge length (the h of convergence studies).
 double AverageEdgeLength(const Mesh& mesh);
 

@@ -15,9 +15,17 @@ TEST(WireTest, FitOptionsRoundTripAndUnsetMeansDefault) {
   o.oscillation_safeguard = true;
   o.frame_normals = NormalWeighting::kAngle;
   o.cond_threshold[3] = 42;
+  o.noise = NoiseMode::kAuto;
+  o.smoothing_passes = 3;
+  o.solver = WlsSolver::kSVD;
   auto back = FromProto(ToProto(o));
   ASSERT_TRUE(back.ok()) << back.status();
   EXPECT_EQ(FitOptionsKey(*back), FitOptionsKey(o));
+  EXPECT_EQ(FitOptionsIdentity(*back), FitOptionsIdentity(o));
+  for (FitMethod m : {FitMethod::kLHF, FitMethod::kLOP, FitMethod::kXu, FitMethod::kLSCM}) {
+    o.method = m;
+    EXPECT_EQ(FromProto(ToProto(o))->method, m);
+  }
   auto defaults = FromProto(v1::FitOptions());
   ASSERT_TRUE(defaults.ok());
   EXPECT_EQ(FitOptionsKey(*defaults), FitOptionsKey(FitOptions()));

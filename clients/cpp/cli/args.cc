@@ -192,8 +192,17 @@ void AddCurvatureOptions(ArgParser* p, CurvatureArgs* a) {
       .Int("degree", &f.degree, "fitting degree, 1..6")
       .Double("rings", &f.rings,
               "starting k-ring size in half steps (1, 1.5, 2, ...); 0 = (degree+1)/2")
-      .String("method", &a->method, "lhf (local height function) or lop (orthogonal projection)",
-              "lhf|lop")
+      .String("method", &a->method,
+              "lhf (local height function), lop (orthogonal projection); comparison methods: xu "
+              "(1-ring), lscm (conformal map of the stencil)",
+              "lhf|lop|xu|lscm")
+      .String("noise", &a->noise,
+              "noise-aware fitting for O(h^2)-noisy input: approximating flat-weight fits on "
+              "d/2+1 rings after smoothing passes (on), or where the mesh looks noisy (auto)",
+              "off|on|auto")
+      .Int("smoothing-passes", &f.smoothing_passes,
+           "smoothing-by-projection passes before the fit; -1 = automatic (2 with --noise on)")
+      .String("solver", &a->solver, "least-squares solver: qr (the default) or svd", "qr|svd")
       .Flag("two-pass", &f.two_pass, "refit in frames from the first pass's fitted normals")
       .Flag("interpolate", &a->interpolate, "the fit passes through the vertex (the default)")
       .Flag("approximate", &a->approximate,
@@ -228,8 +237,28 @@ absl::Status ParseCurvatureArgs(const std::vector<std::string>& argv, CurvatureA
     a->fit.method = FitMethod::kLHF;
   } else if (a->method == "lop") {
     a->fit.method = FitMethod::kLOP;
+  } else if (a->method == "xu") {
+    a->fit.method = FitMethod::kXu;
+  } else if (a->method == "lscm") {
+    a->fit.method = FitMethod::kLSCM;
   } else {
-    return UsageError(absl::StrCat("option --method: '", a->method, "' is not lhf or lop"));
+    return UsageError(absl::StrCat("option --method: '", a->method, "' is not lhf, lop, xu or lscm"));
+  }
+  if (a->noise == "off") {
+    a->fit.noise = NoiseMode::kOff;
+  } else if (a->noise == "on") {
+    a->fit.noise = NoiseMode::kOn;
+  } else if (a->noise == "auto") {
+    a->fit.noise = NoiseMode::kAuto;
+  } else {
+    return UsageError(absl::StrCat("option --noise: '", a->noise, "' is not off, on or auto"));
+  }
+  if (a->solver == "qr") {
+    a->fit.solver = WlsSolver::kQR;
+  } else if (a->solver == "svd") {
+    a->fit.solver = WlsSolver::kSVD;
+  } else {
+    return UsageError(absl::StrCat("option --solver: '", a->solver, "' is not qr or svd"));
   }
   if (a->interpolate && a->approximate)
     return UsageError("--interpolate and --approximate exclude each other");

@@ -102,6 +102,8 @@ struct CurvatureArgs {
   std::string method = "lhf";
   bool interpolate = false;  ///< --interpolate: explicit default
   bool approximate = false;  ///< --approximate: fit need not pass through the vertex
+  std::string noise = "off";  ///< --noise off|on|auto
+  std::string solver = "qr";  ///< --solver qr|svd
   std::string output;        ///< .vtp, .vtu, .npy, .tsv / .txt; empty = TSV on stdout
   bool ascii = false;        ///< --ascii: .vtp/.vtu arrays as text (default binary appended)
   bool verbose = false;

@@ -26,7 +26,10 @@ QUANTITIES = {
     "directions": pb.QUANTITY_PRINCIPAL_DIRECTIONS,  # dir1, dir2
     "tensor": pb.QUANTITY_CURVATURE_TENSOR,
 }
-_METHODS = {"lhf": pb.FIT_METHOD_LHF, "lop": pb.FIT_METHOD_LOP}
+_METHODS = {"lhf": pb.FIT_METHOD_LHF, "lop": pb.FIT_METHOD_LOP, "xu": pb.FIT_METHOD_XU, "lscm": pb.FIT_METHOD_LSCM}
+# FitOptions enums that callers may give by name (noise="auto", solver="svd").
+_FIT_ENUMS = {"noise": {"off": pb.NOISE_MODE_OFF, "on": pb.NOISE_MODE_ON, "auto": pb.NOISE_MODE_AUTO},
+              "solver": {"qr": pb.WLS_SOLVER_QR, "svd": pb.WLS_SOLVER_SVD}}
 _SURFACES = {"walf": pb.RECONSTRUCTION_WALF, "cmf": pb.RECONSTRUCTION_CMF, "linear": pb.RECONSTRUCTION_LINEAR}
 _ARRAYS = ("normals", "mean", "gaussian", "k1", "k2", "dir1", "dir2", "tensor")
 _TRANSPORTS = ("auto", "native", "grpcio")
@@ -556,8 +559,9 @@ class Client:
                   quantities: Iterable[str] = ("normals", "mean", "gaussian", "principal"),
                   revision: int = 0, diagnostics: bool = False, **options) -> Differentials:
         """Differential quantities per vertex. `options` are further FitOptions fields
-        (rings, adaptive, safeguard_angle_deg, interpolate, two_pass, ...); unset ones
-        take the server defaults (degree 0 = 2)."""
+        (rings, adaptive, safeguard_angle_deg, interpolate, two_pass, noise="off"|"on"|"auto",
+        smoothing_passes, solver="qr"|"svd", ...); unset ones take the server defaults
+        (degree 0 = 2). method: "lhf", "lop", or the comparison methods "xu", "lscm"."""
         request = self._compute_request(mesh_id, revision, degree, method, tuple(quantities), diagnostics, options)
         if self._native is not None:
             summary, arrays, diag = self._call_native(lambda: self._native.compute(request))
@@ -595,7 +599,13 @@ class Client:
         tail = self._request_tails.get(key)
         if tail is None:
             if method.lower() not in _METHODS:
-                raise ValueError("method must be 'lhf' or 'lop', got %r" % method)
+                raise ValueError("method must be one of %s, got %r" % (sorted(_METHODS), method))
+            options = dict(options)
+            for name, values in _FIT_ENUMS.items():
+                if isinstance(options.get(name), str):
+                    if options[name].lower() not in values:
+                        raise ValueError("%s must be one of %s, got %r" % (name, sorted(values), options[name]))
+                    options[name] = values[options[name].lower()]
             unknown = [q for q in quantities if q not in QUANTITIES]
             if unknown:
                 raise ValueError("unknown quantities %s; choose from %s" % (unknown, sorted(QUANTITIES)))

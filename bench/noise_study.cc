@@ -1,0 +1,121 @@
+// Noise-aware fitting (FitOptions::noise) on perturbed meshes against CGAL Jet_fitting_3
+// at equal degree. Every vertex of a generated mesh moves along the exact normal by
+// alpha_v h^k (PerturbAlongNormals, the controlled-noise tests of 3.3); errors are measured
+// at the unperturbed points (MeasureErrors). CGAL is fed the noise mode's stencils (d/2+1
+// rings grown to 3x the coefficients: the larger of the two, CGAL's best case) and, as
+// "CGAL-d", the default stencils.
+//
+// Usage: noise_study [surfaces=torus,bump] [powers=2,3] [degrees=2,3,4] [n list=16,32,64]
+//                    [alpha=0.1] [smoothing passes list=-1]
+#include <cstdio>
+#include <cstdlib>
+#include <memory>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "bench/cgal_jet.h"
+#include "bench/bench_args.h"
+#include "core/fitting/fit.h"
+#include "core/fitting/noise.h"
+#include "core/mesh/topology.h"
+#include "core/surfaces/analytic.h"
+#include "core/surfaces/errors.h"
+
+using namespace geomfit;
+
+namespace {
+
+struct Series {
+  std::string name;
+  std::vector<DifferentialErrors> errors;
+};
+
+void Print(const Series& s, const std::vector<double>& hs, const Series* ref) {
+  std::printf("  %-12s", s.name.c_str());
+  for (const DifferentialErrors& e : s.errors)
+    std::printf(" | %8.2e %8.2e %8.2e %8.2e", e.normal.l2, e.normal.linf, e.mean.l2, e.gaussian.l2);
+  auto order = [&](auto get) {
+    std::vector<double> v;
+    for (const DifferentialErrors& e : s.errors) v.push_back(get(e));
+    return ConvergenceOrder(hs, v);
+  };
+  std::printf(" || orders %5.2f %5.2f %5.2f %5.2f", order([](auto& e) { return e.normal.l2; }),
+              order([](auto& e) { return e.normal.linf; }), order([](auto& e) { return e.mean.l2; }),
+              order([](auto& e) { return e.gaussian.l2; }));
+  if (ref) {  // worst ratio to the reference over levels and the four norms
+    double worst = 0;
+    for (size_t i = 0; i < s.errors.size(); ++i) {
+      const DifferentialErrors &a = s.errors[i], &b = ref->errors[i];
+      for (double r : {a.normal.l2 / b.normal.l2, a.normal.linf / b.normal.linf, a.mean.l2 / b.mean.l2,
+                       a.gaussian.l2 / b.gaussian.l2})
+        worst = std::max(worst, r);
+    }
+    std::printf(" | max ratio to %s %.2f", ref->name.c_str(), worst);
+  }
+  std::printf("\n");
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  const auto surfaces = SplitList(argc > 1 ? argv[1] : nullptr, "torus,bump");
+  const auto powers = SplitList(argc > 2 ? argv[2] : nullptr, "2,3");
+  const auto degrees = SplitList(argc > 3 ? argv[3] : nullptr, "2,3,4");
+  const auto ns = SplitList(argc > 4 ? argv[4] : nullptr, "16,32,64");
+  const double alpha = argc > 5 ? std::atof(argv[5]) : 0.1;
+  const auto passes = SplitList(argc > 6 ? argv[6] : nullptr, "-1");
+  std::printf("columns per level: normal L2, normal Linf, H L2, K L2; orders in the same order; "
+              "alpha = %g\n", alpha);
+  for (const std::string& name : surfaces) {
+    auto surface = NamedSurface(name).value();
+    for (const std::string& pw : powers) {
+      for (const std::string& ds : degrees) {
+        const int k = std::atoi(pw.c_str()), d = std::atoi(ds.c_str());
+        std::vector<Series> series;
+        series.push_back({"default", {}});
+        for (const std::string& p : passes) series.push_back({"noise sp=" + p, {}});
+        series.push_back({"CGAL", {}});
+        series.push_back({"CGAL-d", {}});
+        std::vector<double> hs;
+        for (const std::string& n : ns) {
+          GeneratorOptions g;
+          g.n = std::atoi(n.c_str());
+          const Mesh clean = GenerateNamedMesh(name, g).value();
+          const Mesh mesh = PerturbAlongNormals(clean, *surface, alpha, k);
+          const Topology topo = BuildTopology(mesh).value();
+          hs.push_back(AverageEdgeLength(clean));
+          FitOptions o;
+          o.degree = d;
+          const Differentials def = ComputeDifferentials(*FitSurface(mesh, topo, o).value());
+          series[0].errors.push_back(MeasureErrors(clean, *surface, def));
+          for (size_t i = 0; i < passes.size(); ++i) {
+            FitOptions on = o;
+            on.noise = NoiseMode::kOn;
+            on.smoothing_passes = std::atoi(passes[i].c_str());
+            if (const char* e = std::getenv("NOISE_EPS")) on.weight_epsilon = std::atof(e);
+            if (const char* e = std::getenv("NOISE_MPF")) on.min_points_factor = std::atof(e);
+            if (const char* e = std::getenv("NOISE_RINGS")) on.rings = std::atof(e);
+            series[1 + i].errors.push_back(MeasureErrors(clean, *surface, ComputeDifferentials(*FitSurface(mesh, topo, on).value())));
+          }
+          FitOptions on = o;
+          on.noise = NoiseMode::kOn;
+          int few = 0;
+          const Neighborhoods nb = BuildNeighborhoods(topo, mesh, RingSpecFor(on));
+          series[series.size() - 2].errors.push_back(
+              MeasureErrors(clean, *surface, CgalDifferentials(mesh, nb, d, def.normals, &few)));
+          const Neighborhoods nbd = BuildNeighborhoods(topo, mesh, RingSpecFor(o));
+          series.back().errors.push_back(MeasureErrors(clean, *surface, CgalDifferentials(mesh, nbd, d, def.normals, &few)));
+          const Positions normals = ApproximateVertexNormals(mesh, topo, NormalWeighting::kArea);
+          const NoiseEstimate est = EstimateNoise(mesh, topo, normals).value();
+          std::printf("%s O(h^%d) d=%d n=%s: noise estimate ratio %.3f level/h %.2e -> %s\n", name.c_str(), k, d,
+                      n.c_str(), est.residual_ratio, est.noise_over_h, est.noisy ? "noisy" : "clean");
+        }
+        std::printf("%s, O(h^%d) perturbation, degree %d\n", name.c_str(), k, d);
+        const Series& cgal = series[series.size() - 2];
+        for (const Series& s : series) Print(s, hs, &s == &cgal ? nullptr : &cgal);
+      }
+    }
+  }
+  return 0;
+}

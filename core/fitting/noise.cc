@@ -1,0 +1,95 @@
+#include "core/fitting/noise.h"
+
+#include <algorithm>
+#include <cmath>
+#include <vector>
+
+#include "core/fitting/wls.h"
+#include "core/surfaces/analytic.h"
+#include "core/util/parallel.h"
+
+namespace geomfit {
+
+Positions ProjectOntoFits(const SurfaceFits& fits, const Positions& positions, int num_threads) {
+  Positions out = positions;
+  ParallelFor(fits.num_vertices(), num_threads, [&](int64_t v) {
+    if (fits.diagnostics(static_cast<int>(v)).degree_used >= 1)
+      out.row(v) = fits.Jet(static_cast<int>(v)).x.transpose();
+  });
+  return out;
+}
+
+namespace {
+
+// rms of the residual of an approximating fit of `degree` (0 if it could not be solved).
+double ResidualRms(const WlsProblem& P, int degree) {
+  WlsSettings S;
+  S.degree = degree;
+  S.interpolate = false;
+  S.weight_epsilon = 1;  // nearly flat weights: the residual of the whole stencil counts
+  static constexpr double kNoCutoff[kMaxDegree + 1] = {0, 1e12, 1e12, 1e12, 1e12, 1e12, 1e12};
+  S.cond_threshold = kNoCutoff;
+  double c[kMaxCoefficients];
+  const WlsSolution sol = SolveWls(P, S, c, nullptr);
+  if (sol.degree_used != degree) return 0;
+  double sum = 0;
+  for (int r = 0; r < P.rows; ++r) {
+    double f;
+    EvalTaylor(c, degree, P.u[r], P.v[r], &f, nullptr, nullptr);
+    sum += (P.rhs[0][r] - f) * (P.rhs[0][r] - f);
+  }
+  return std::sqrt(sum / P.rows);
+}
+
+}  // namespace
+
+absl::StatusOr<NoiseEstimate> EstimateNoise(const Mesh& mesh, const Topology& topo, const Positions& normals,
+                                            const RunContext& ctx) {
+  constexpr int kMaxSamples = 2000;
+  const int nv = mesh.NumVertices();
+  const int stride = std::max(1, nv / kMaxSamples);
+  RingSpec spec;
+  spec.rings = 2.5;
+  spec.min_points = 40;
+  spec.min_points_boundary = 40;
+  spec.max_points = 80;
+  const Neighborhoods nb = BuildNeighborhoods(topo, mesh, spec, ctx.threads());
+  const int samples = (nv + stride - 1) / stride;
+  std::vector<double> ratio(samples, -1), level(samples, -1);
+  const double h = AverageEdgeLength(mesh);
+  absl::Status s = ParallelFor(samples, ctx, [&](int64_t i) {
+    const int v = static_cast<int>(i * stride);
+    const Eigen::Vector3d m0 = normals.row(v).transpose();
+    if (topo.is_boundary[v] || m0.squaredNorm() == 0 || nb.Size(v) < 30) return;
+    const LocalFrame fr = FrameFromNormal(mesh.positions.row(v).transpose(), m0);
+    WlsProblem P;
+    P.rows = 0;
+    for (int k = 0; k < nb.Size(v); ++k) {
+      const int p = nb.Points(v)[k];
+      if (normals.row(p).dot(m0) < 0.5) continue;  // folded parts of coarse stencils
+      const Eigen::Vector3d d = mesh.positions.row(p).transpose() - fr.origin;
+      P.u[P.rows] = d.dot(fr.t1);
+      P.v[P.rows] = d.dot(fr.t2);
+      P.gamma[P.rows] = 1;
+      P.rhs[0][P.rows++] = d.dot(fr.normal);
+    }
+    if (P.rows < 30) return;
+    const double r2 = ResidualRms(P, 2), r4 = ResidualRms(P, 4);
+    if (r2 > 0) ratio[i] = r4 / r2, level[i] = r4 / h;
+  }, 64);
+  if (!s.ok()) return s;
+  NoiseEstimate est;
+  auto median = [](std::vector<double> x) {
+    x.erase(std::remove_if(x.begin(), x.end(), [](double a) { return a < 0; }), x.end());
+    if (x.empty()) return 0.0;
+    std::nth_element(x.begin(), x.begin() + x.size() / 2, x.end());
+    return x[x.size() / 2];
+  };
+  est.samples = static_cast<int>(std::count_if(ratio.begin(), ratio.end(), [](double a) { return a >= 0; }));
+  est.residual_ratio = median(ratio);
+  est.noise_over_h = median(level);
+  est.noisy = est.residual_ratio > kNoisyResidualRatio;
+  return est;
+}
+
+}  // namespace geomfit
