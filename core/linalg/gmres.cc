@@ -10,7 +10,7 @@
 
 namespace geomfit {
 
-absl::Status Gmres(const LinearMap& A, const LinearMap& preconditioner, const Eigen::VectorXd& b,
+absl::Status Gmres(const CheckedLinearMap& A, const CheckedLinearMap& preconditioner, const Eigen::VectorXd& b,
                    const GmresOptions& o, Eigen::VectorXd* x, GmresResult* result, const RunContext& ctx) {
   const Eigen::Index n = b.size();
   x->setZero(n);

@@ -22,13 +22,14 @@ struct GmresResult {
   double residual = 0;  ///< relative, as estimated by the Arnoldi recurrence
 };
 
-/// y = A x and y = M^{-1} x (the preconditioner); both overwrite y.
-using LinearMap = std::function<absl::Status(const Eigen::VectorXd& x, Eigen::VectorXd* y)>;
+/// y = A x and y = M^{-1} x (the preconditioner); both overwrite y. Unlike LinearMap
+/// (sparse_solver.h) a map may fail (a factorization that cannot solve), and Gmres passes it on.
+using CheckedLinearMap = std::function<absl::Status(const Eigen::VectorXd& x, Eigen::VectorXd* y)>;
 
 /// Solves A x = b from x = 0. FAILED_PRECONDITION when the tolerance is not reached in
 /// max_iterations (x holds the best iterate); errors of the maps pass through; polls ctx
 /// every iteration.
-absl::Status Gmres(const LinearMap& A, const LinearMap& preconditioner, const Eigen::VectorXd& b,
+absl::Status Gmres(const CheckedLinearMap& A, const CheckedLinearMap& preconditioner, const Eigen::VectorXd& b,
                    const GmresOptions& options, Eigen::VectorXd* x, GmresResult* result,
                    const RunContext& ctx = RunContext());
 

@@ -320,8 +320,9 @@ Mesh GenerateDelaunaySphereMesh(int vertices, double jitter, uint64_t seed, doub
   Mesh m;
   m.positions.resize(n, 3);
   for (int i = 0; i < n; ++i) m.positions.row(i) = radius * p[i].transpose();
-  m.faces.setConstant(static_cast<Eigen::Index>(faces.size()), 4, -1);
-  for (size_t f = 0; f < faces.size(); ++f) m.faces.row(f).head<3>() = faces[f].transpose();
+  Faces& mf = m.faces.Mutable();
+  mf.setConstant(static_cast<Eigen::Index>(faces.size()), 4, -1);
+  for (size_t f = 0; f < faces.size(); ++f) mf.row(f).head<3>() = faces[f].transpose();
   return m;
 }
 

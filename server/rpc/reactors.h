@@ -359,7 +359,7 @@ class PullReactor final : public grpc::ServerWriteReactor<Response> {
         return true;
       });
     }
-    if (!pool->TrySubmit([this] { Start(); })) Done(QueueFull(pool == service->compute() ? "compute" : "io"));
+    if (absl::Status queued = pool->Submit(tenant_, [this] { Start(); }); !queued.ok()) Done(queued);
   }
 
   void OnWriteDone(bool ok) override {
