@@ -34,15 +34,12 @@ void ForEachTriangle(const Mesh& m, Fn&& fn) {
   }
 }
 
-// y = A x, rows in parallel; y is NaN once ctx trips (so that an iterative solve stops).
+// y = A x; y is NaN once ctx trips (so that an iterative solve stops). Serial, like the
+// MCF solve's: a parallel product synchronizes threads 4 times per BiCGSTAB iteration,
+// which on a loaded machine cost 50x (SD at 10k vertices, 2 threads: 8.3 s vs 0.17 s).
 void Multiply(const SparseMatrix& A, const Eigen::VectorXd& x, Eigen::VectorXd* y, const RunContext& ctx) {
-  y->resize(A.rows());
-  const absl::Status s = ParallelFor(A.rows(), ctx, [&](int64_t i) {
-    double acc = 0;
-    for (SparseMatrix::InnerIterator it(A, i); it; ++it) acc += it.value() * x(it.col());
-    (*y)(i) = acc;
-  }, 4096);
-  if (!s.ok()) y->setConstant(std::nan(""));
+  *y = A * x;
+  if (ctx.cancelled()) y->setConstant(std::nan(""));
 }
 
 }  // namespace
@@ -158,7 +155,7 @@ absl::Status FlowStepper::Linearize(const Mesh& fit_mesh, const Positions& base,
 // from [[I, a B], [-K, I]]), solved matrix-free by BiCGSTAB warm-started from the last
 // step, first with Jacobi (the diagonal of I + a B K): no set-up, parallel, the fastest
 // while a |B K| is moderate (bench/README.md: 27 iterations at 10k vertices, dt = 1e-6).
-// When Jacobi needs more than kJacobiIterations, the flow switches for good to the cotan
+// When Jacobi does not converge within max_iterations, the flow switches for good to the cotan
 // square P = (I - c M^{-1} S)^2: with B ~ Laplace-Beltrami and K ~ Laplace-Beltrami / 2,
 // a B K ~ (a/2) Laplace-Beltrami^2, and P^{-1} = ((M - c S)^{-1} M)^2 costs one sparse
 // Cholesky factorization of the 1-ring matrix M - c S, kept while the iterations stay
@@ -169,7 +166,6 @@ absl::Status FlowStepper::Linearize(const Mesh& fit_mesh, const Positions& base,
 // equivalent to the GFD system (wide stencils barely see the mesh's highest
 // frequencies): iterations grow with n (bench/README.md, "Flows").
 struct FlowStepper::Schur {
-  static constexpr int kJacobiIterations = 300;
   bool cotan = false;             // switched from Jacobi
   Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> ldlt;
   Eigen::VectorXd mass;
@@ -226,7 +222,7 @@ absl::StatusOr<int> FlowStepper::SolveSchur(const Mesh& geometry, const Eigen::V
     };
     *s = solution_;  // warm start
     const absl::StatusOr<int> iterations =
-        SolveBicgstab(apply, jacobi, rhs, s, tolerance, std::min(max_iterations, Schur::kJacobiIterations));
+        SolveBicgstab(apply, jacobi, rhs, s, tolerance, max_iterations);
     GF_RETURN_IF_ERROR(ctx.Check());
     if (iterations.ok()) {
       solution_ = *s;
