@@ -34,11 +34,20 @@ void ForEachTriangle(const Mesh& m, Fn&& fn) {
   }
 }
 
-// y = A x; y is NaN once ctx trips (so that an iterative solve stops). Serial, like the
-// MCF solve's: a parallel product synchronizes threads 4 times per BiCGSTAB iteration,
-// which on a loaded machine cost 50x (SD at 10k vertices, 2 threads: 8.3 s vs 0.17 s).
+// y = A x; y is NaN once ctx trips (so that an iterative solve stops). A plain serial
+// loop: parallel products (ParallelFor, or Eigen's OpenMP one for row-major A) make
+// threads meet 4 times per BiCGSTAB iteration, which on a loaded machine cost 40-50x
+// (SD at 10k vertices: 7.4-8.3 s against 0.17 s per solve).
 void Multiply(const SparseMatrix& A, const Eigen::VectorXd& x, Eigen::VectorXd* y, const RunContext& ctx) {
-  *y = A * x;
+  y->resize(A.rows());
+  const int* outer = A.outerIndexPtr();
+  const int* inner = A.innerIndexPtr();
+  const double* values = A.valuePtr();
+  for (Eigen::Index i = 0; i < A.rows(); ++i) {
+    double acc = 0;
+    for (int p = outer[i]; p < outer[i + 1]; ++p) acc += values[p] * x(inner[p]);
+    (*y)(i) = acc;
+  }
   if (ctx.cancelled()) y->setConstant(std::nan(""));
 }
 
