@@ -34,15 +34,21 @@ void ForEachTriangle(const Mesh& m, Fn&& fn) {
   }
 }
 
-// y = A x, rows in parallel; y is NaN once ctx trips (so that an iterative solve stops).
+// y = A x; y is NaN once ctx trips (so that an iterative solve stops). A plain serial
+// loop: parallel products (ParallelFor, or Eigen's OpenMP one for row-major A) make
+// threads meet 4 times per BiCGSTAB iteration, which on a loaded machine cost 40-50x
+// (SD at 10k vertices: 7.4-8.3 s against 0.17 s per solve).
 void Multiply(const SparseMatrix& A, const Eigen::VectorXd& x, Eigen::VectorXd* y, const RunContext& ctx) {
   y->resize(A.rows());
-  const absl::Status s = ParallelFor(A.rows(), ctx, [&](int64_t i) {
+  const int* outer = A.outerIndexPtr();
+  const int* inner = A.innerIndexPtr();
+  const double* values = A.valuePtr();
+  for (Eigen::Index i = 0; i < A.rows(); ++i) {
     double acc = 0;
-    for (SparseMatrix::InnerIterator it(A, i); it; ++it) acc += it.value() * x(it.col());
+    for (int p = outer[i]; p < outer[i + 1]; ++p) acc += values[p] * x(inner[p]);
     (*y)(i) = acc;
-  }, 4096);
-  if (!s.ok()) y->setConstant(std::nan(""));
+  }
+  if (ctx.cancelled()) y->setConstant(std::nan(""));
 }
 
 }  // namespace
@@ -158,7 +164,7 @@ absl::Status FlowStepper::Linearize(const Mesh& fit_mesh, const Positions& base,
 // from [[I, a B], [-K, I]]), solved matrix-free by BiCGSTAB warm-started from the last
 // step, first with Jacobi (the diagonal of I + a B K): no set-up, parallel, the fastest
 // while a |B K| is moderate (bench/README.md: 27 iterations at 10k vertices, dt = 1e-6).
-// When Jacobi needs more than kJacobiIterations, the flow switches for good to the cotan
+// When Jacobi does not converge within max_iterations, the flow switches for good to the cotan
 // square P = (I - c M^{-1} S)^2: with B ~ Laplace-Beltrami and K ~ Laplace-Beltrami / 2,
 // a B K ~ (a/2) Laplace-Beltrami^2, and P^{-1} = ((M - c S)^{-1} M)^2 costs one sparse
 // Cholesky factorization of the 1-ring matrix M - c S, kept while the iterations stay
@@ -169,7 +175,6 @@ absl::Status FlowStepper::Linearize(const Mesh& fit_mesh, const Positions& base,
 // equivalent to the GFD system (wide stencils barely see the mesh's highest
 // frequencies): iterations grow with n (bench/README.md, "Flows").
 struct FlowStepper::Schur {
-  static constexpr int kJacobiIterations = 300;
   bool cotan = false;             // switched from Jacobi
   Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> ldlt;
   Eigen::VectorXd mass;
@@ -226,7 +231,7 @@ absl::StatusOr<int> FlowStepper::SolveSchur(const Mesh& geometry, const Eigen::V
     };
     *s = solution_;  // warm start
     const absl::StatusOr<int> iterations =
-        SolveBicgstab(apply, jacobi, rhs, s, tolerance, std::min(max_iterations, Schur::kJacobiIterations));
+        SolveBicgstab(apply, jacobi, rhs, s, tolerance, max_iterations);
     GF_RETURN_IF_ERROR(ctx.Check());
     if (iterations.ok()) {
       solution_ = *s;

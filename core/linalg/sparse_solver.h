@@ -35,8 +35,8 @@ bool SolverAvailable(SolverKind kind);
 struct SolverOptions {
   /// kAuto lets the caller choose. Flows take BiCGSTAB, warm-started: with Jacobi for
   /// MCF; for surface diffusion, on the system reduced to the normal offsets,
-  /// (I + dt B K) s = -dt B M, matrix-free, with Jacobi, or once Jacobi needs more than
-  /// 300 iterations with the cotan square (I - c Lc)^2, c = sqrt(dt / 2) / 2, whose
+  /// (I + dt B K) s = -dt B M, matrix-free, with Jacobi, or once Jacobi does not
+  /// converge within max_iterations with the cotan square (I - c Lc)^2, c = sqrt(dt / 2) / 2, whose
   /// factorization is reused while it works (FlowStepper::Schur in flow.cc). Any other
   /// kind solves SD's 2n block system (ILUT for BiCGSTAB: Jacobi stalls there).
   /// GFD stencils of 25-40 points per row fill direct factorizations badly: MCF at 5768

@@ -362,9 +362,11 @@ TEST(FlowStepper, SolversAgree) {
   for (int i = 0; i < bumpy.NumVertices(); ++i)
     bumpy.positions.row(i) *= 1 + 1e-2 * Legendre(4, bumpy.positions(i, 2) / bumpy.positions.row(i).norm());
   for (double dt : {1e-4, 1e4}) {
-    const FlowOptions o = Options(FlowKind::kSurfaceDiffusion, FlowScheme::kSemiImplicit, dt, 0);
+    FlowOptions o = Options(FlowKind::kSurfaceDiffusion, FlowScheme::kSemiImplicit, dt, 0);
+    o.solver.max_iterations = 200;  // Jacobi needs ~300 at dt = 1e4: the cotan square takes over
     auto stepper = FlowStepper::Create(bumpy, o).value();
     FlowOptions direct = o;
+    direct.solver = SolverOptions();
     direct.solver.kind = SolverKind::kSparseLU;
     auto reference = FlowStepper::Create(bumpy, direct).value();
     for (int i = 0; i < 3; ++i) {
@@ -375,7 +377,7 @@ TEST(FlowStepper, SolversAgree) {
                   dt, st.step, st.solver_iterations, stepper->preconditioner_factorizations(), moved,
                   (stepper->mesh().positions - reference->mesh().positions).cwiseAbs().maxCoeff());
       EXPECT_LT((stepper->mesh().positions - reference->mesh().positions).cwiseAbs().maxCoeff(), 1e-7 * moved);
-      EXPECT_LE(st.solver_iterations, dt < 1 ? 40 : 300) << st.step;
+      EXPECT_LE(st.solver_iterations, dt < 1 ? 40 : 200) << st.step;
     }
     EXPECT_EQ(stepper->preconditioner_factorizations(), dt < 1 ? 0 : 1);
   }
