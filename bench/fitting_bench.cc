@@ -12,9 +12,11 @@
 //                                       vertices with one fitter per thread (CGAL itself is serial)
 //
 // Rates: items_per_second and the "tri/s" counter are triangles per second of wall time.
-// See bench/README.md.
+// `--mesh=FILE` runs every line on that mesh instead (e.g. a gmsh torus). See bench/README.md.
 #include <cstdio>
+#include <cstring>
 #include <memory>
+#include <string>
 #include <vector>
 
 #include <benchmark/benchmark.h>
@@ -26,6 +28,7 @@
 #include "core/fitting/fit.h"
 #include "core/fitting/frames.h"
 #include "core/fitting/neighborhood.h"
+#include "core/mesh/io.h"
 #include "core/mesh/topology.h"
 #include "core/quantities/differentials.h"
 #include "core/surfaces/analytic.h"
@@ -39,6 +42,7 @@ using CgalPoint = Kernel::Point_3;
 using MongeVia = CGAL::Monge_via_jet_fitting<Kernel>;
 
 constexpr int kTorusN = 168;
+std::string g_mesh_path;  // --mesh=FILE: that mesh instead of the torus (e.g. a gmsh one)
 
 struct Fixture {
   Mesh mesh;
@@ -48,9 +52,13 @@ struct Fixture {
   double avg_stencil[kMaxDegree + 1] = {};
 
   Fixture() {
-    GeneratorOptions g;
-    g.n = kTorusN;
-    mesh = GenerateTorusMesh(g);
+    if (!g_mesh_path.empty()) {
+      mesh = ReadMesh(g_mesh_path).value();
+    } else {
+      GeneratorOptions g;
+      g.n = kTorusN;
+      mesh = GenerateTorusMesh(g);
+    }
     topo = BuildTopology(mesh).value();
     normals = ApproximateVertexNormals(mesh, topo, NormalWeighting::kArea, 0);
     for (int d = 1; d <= kMaxDegree; ++d) {
@@ -204,11 +212,18 @@ BENCHMARK(BM_CgalJet)->Apply(Args);
 }  // namespace
 
 int main(int argc, char** argv) {
+  for (int i = 1; i < argc; ++i)
+    if (std::strncmp(argv[i], "--mesh=", 7) == 0) {
+      g_mesh_path = argv[i] + 7;
+      for (int j = i; j + 1 < argc; ++j) argv[j] = argv[j + 1];
+      --argc;
+      break;
+    }
   benchmark::Initialize(&argc, argv);
   if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
   const Fixture& f = F();  // build the torus and stencils before any timing
-  std::fprintf(stderr, "torus n=%d: %d vertices, %d triangles; mean stencil size d2 %.1f d4 %.1f d6 %.1f\n",
-               kTorusN, f.mesh.NumVertices(), f.NumTriangles(), f.avg_stencil[2], f.avg_stencil[4],
+  std::fprintf(stderr, "%s: %d vertices, %d triangles; mean stencil size d2 %.1f d4 %.1f d6 %.1f\n",
+               g_mesh_path.empty() ? "torus n=168" : g_mesh_path.c_str(), f.mesh.NumVertices(), f.NumTriangles(), f.avg_stencil[2], f.avg_stencil[4],
                f.avg_stencil[6]);
   benchmark::RunSpecifiedBenchmarks();
   benchmark::Shutdown();
