@@ -126,7 +126,10 @@ expect_error 2 "degree" curvature --local t.obj --degree 9 --output bad.tsv
 expect_error 2 "not an integer" curvature --local t.obj --degree two
 expect_error 2 "requires a value" curvature --local t.obj --degree
 expect_error 2 "unknown option '--bogus'" curvature --local t.obj --bogus
-expect_error 2 "lhf or lop" curvature --local t.obj --method xyz
+expect_error 2 "lhf, lop, xu or lscm" curvature --local t.obj --method xyz
+expect_error 2 "off, on or auto" curvature --local t.obj --noise sometimes
+expect_error 2 "qr or svd" curvature --local t.obj --solver lu
+run_ok curvature --local t.obj --noise auto --solver svd --output noise.tsv
 expect_error 2 "unknown extension" curvature --local t.obj --output out.png
 expect_error 2 "needs MESH" curvature --local
 expect_error 2 "unknown command" frobnicate

@@ -54,6 +54,28 @@ def test_upload_curvature_update_download(server, torus_mesh, transport):
         assert back_info.revision == 2
 
 
+def test_noise_modes_solvers_and_comparison_methods_by_name(server, torus_mesh):
+    positions, faces = torus_mesh
+    rng = np.random.default_rng(3)
+    noisy = positions + 0.01 * rng.standard_normal(positions.shape)  # ~h^2 for this torus
+    with geomfit.Client(server.address) as client:
+        mesh_id = client.upload(noisy, faces, name="noisy torus").mesh_id
+        exact = exact_torus_mean(positions)
+        err = {}
+        for noise in ("off", "on", "auto"):
+            d = client.curvature(mesh_id, degree=2, quantities=["mean"], noise=noise)
+            err[noise] = np.linalg.norm(d.mean - exact) / np.linalg.norm(exact)
+        assert err["on"] < 0.5 * err["off"]
+        assert err["auto"] == err["on"]  # the residual test finds the noise
+        svd = client.curvature(mesh_id, degree=2, quantities=["mean"], solver="svd")
+        qr = client.curvature(mesh_id, degree=2, quantities=["mean"])
+        np.testing.assert_allclose(svd.mean, qr.mean, rtol=1e-6, atol=1e-8)
+        for method in ("xu", "lscm"):
+            assert np.all(np.isfinite(client.curvature(mesh_id, method=method, quantities=["mean"]).mean))
+        with pytest.raises(ValueError, match="noise must be one of"):
+            client.curvature(mesh_id, noise="sometimes")
+
+
 def test_errors_carry_code_and_message(server, torus_mesh, transport):
     positions, faces = torus_mesh
     with geomfit.Client(server.address, transport=transport) as client:
