@@ -10,7 +10,7 @@ pkgs=(
   build-essential cmake ninja-build pkg-config git
   libeigen3-dev libabsl-dev libspdlog-dev libfmt-dev
   libgrpc++-dev libprotobuf-dev protobuf-compiler protobuf-compiler-grpc
-  libsqlite3-dev prometheus-cpp-dev libsuitesparse-dev
+  libsqlite3-dev prometheus-cpp-dev libsuitesparse-dev zlib1g-dev
   libmimalloc-dev
 )
 if ((!server_only)); then

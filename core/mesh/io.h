@@ -75,6 +75,10 @@ enum class VtkEncoding {
   /// Raw little-endian bytes in one <AppendedData> block (UInt64 size headers), as
   /// VTK's own writers do: about a quarter of the ASCII size, read several times faster.
   kAppended,
+  /// As kAppended, each array zlib-compressed in 32 KiB blocks (VTK's
+  /// vtkZLibDataCompressor layout: UInt64 block count, block size, last block's size and
+  /// every block's compressed size, then the blocks): smaller files, slower to write.
+  kAppendedZlib,
 };
 
 struct VtkOptions {

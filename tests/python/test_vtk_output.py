@@ -65,15 +65,20 @@ def case(tmp_path_factory):
     return d, mesh, table
 
 
+ENCODING_FLAGS = {"bin": [], "ascii": ["--ascii"], "zlib": ["--zlib"]}
+
+
 @pytest.mark.parametrize("ext", ["vtp", "vtu"])
-@pytest.mark.parametrize("ascii", [False, True])
-def test_vtk_reads_curvature_output(case, ext, ascii):
+@pytest.mark.parametrize("encoding", ["bin", "ascii", "zlib"])
+def test_vtk_reads_curvature_output(case, ext, encoding):
     d, mesh, table = case
-    out = str(d / ("c_%s.%s" % ("ascii" if ascii else "bin", ext)))
-    run("curvature", "--local", mesh, "--degree", "3", "--output", out, *(["--ascii"] if ascii else []))
+    ascii = encoding == "ascii"
+    out = str(d / ("c_%s.%s" % (encoding, ext)))
+    run("curvature", "--local", mesh, "--degree", "3", "--output", out, *ENCODING_FLAGS[encoding])
     head = open(out, "rb").read(400)
     assert (b'format="ascii"' in open(out, "rb").read()) == ascii
     assert (b"header_type=\"UInt64\"" in head) == (not ascii)
+    assert (b'compressor="vtkZLibDataCompressor"' in head) == (encoding == "zlib")
 
     data = read_vtk(out)
     points, faces = read_obj(mesh)
@@ -115,13 +120,24 @@ def test_binary_is_much_smaller_than_ascii(case):
     run("curvature", "--local", case[1], "--degree", "3", "--output", str(d / "s.vtp"))
     run("curvature", "--local", case[1], "--degree", "3", "--output", str(d / "s_ascii.vtp"), "--ascii")
     assert os.path.getsize(str(d / "s.vtp")) * 2 < os.path.getsize(str(d / "s_ascii.vtp"))
+    # Flags, degrees and stencil sizes repeat: compressed is smaller still.
+    run("curvature", "--local", case[1], "--degree", "3", "--output", str(d / "s_zlib.vtp"), "--zlib")
+    assert os.path.getsize(str(d / "s_zlib.vtp")) < os.path.getsize(str(d / "s.vtp"))
 
 
-@pytest.mark.parametrize("ascii", [False, True])
-def test_meshio_reads_vtu(case, ascii):
+def test_ascii_and_zlib_exclude_each_other(case):
+    d, mesh, _ = case
+    r = subprocess.run([cli(), "curvature", "--local", mesh, "--output", str(d / "x.vtp"), "--ascii", "--zlib"],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "--ascii and --zlib" in r.stderr, r.stderr
+    assert not os.path.exists(str(d / "x.vtp"))
+
+
+@pytest.mark.parametrize("encoding", ["bin", "ascii", "zlib"])
+def test_meshio_reads_vtu(case, encoding):
     d, mesh, table = case
-    out = str(d / ("m_%s.vtu" % ascii))
-    run("curvature", "--local", mesh, "--degree", "3", "--output", out, *(["--ascii"] if ascii else []))
+    out = str(d / ("m_%s.vtu" % encoding))
+    run("curvature", "--local", mesh, "--degree", "3", "--output", out, *ENCODING_FLAGS[encoding])
     m = meshio.read(out)
     points, faces = read_obj(mesh)
     np.testing.assert_array_equal(m.points, points)
@@ -140,15 +156,38 @@ def test_converted_meshes_read_back(tmp_path, level):
     obj = str(tmp_path / "t.obj")
     run("generate", "torus", "--level", str(level), "--output", obj)
     points, faces = read_obj(obj)
-    for ext in ("vtp", "vtu"):
-        out = str(tmp_path / ("t." + ext))
-        run("convert", obj, out)
-        data = read_vtk(out)
-        np.testing.assert_array_equal(vtk_to_numpy(data.GetPoints().GetData()), points)
-        assert cells_of(data) == faces
-    m = meshio.read(str(tmp_path / "t.vtu"))
-    np.testing.assert_array_equal(m.points, points)
-    np.testing.assert_array_equal(m.cells_dict["triangle"], np.array(faces))
+    for flags in ([], ["--zlib"]):
+        for ext in ("vtp", "vtu"):
+            out = str(tmp_path / ("t." + ext))
+            run("convert", obj, out, *flags)
+            data = read_vtk(out)
+            np.testing.assert_array_equal(vtk_to_numpy(data.GetPoints().GetData()), points)
+            assert cells_of(data) == faces
+        m = meshio.read(str(tmp_path / "t.vtu"))
+        np.testing.assert_array_equal(m.points, points)
+        np.testing.assert_array_equal(m.cells_dict["triangle"], np.array(faces))
+
+
+def test_zlib_array_of_whole_blocks(tmp_path):
+    """4096 points are 3 x 32 KiB of Float64: the last compressed block is full (the
+    header's last-block size is 0)."""
+    n = 64
+    obj = str(tmp_path / "grid.obj")
+    with open(obj, "w") as f:
+        for j in range(n):
+            for i in range(n):
+                f.write("v %.17g %.17g %.17g\n" % (i / n, j / n, 0.1 * np.sin(i + j)))
+        for j in range(n - 1):
+            for i in range(n - 1):
+                a = j * n + i + 1
+                f.write("f %d %d %d\nf %d %d %d\n" % (a, a + 1, a + n + 1, a, a + n + 1, a + n))
+    points, faces = read_obj(obj)
+    assert len(points) * 24 == 3 * 32768
+    out = str(tmp_path / "grid.vtp")
+    run("convert", obj, out, "--zlib")
+    data = read_vtk(out)
+    np.testing.assert_array_equal(vtk_to_numpy(data.GetPoints().GetData()), points)
+    assert cells_of(data) == faces
 
 
 def test_mixed_triangles_and_quads(tmp_path):

@@ -212,6 +212,7 @@ void AddCurvatureOptions(ArgParser* p, CurvatureArgs* a) {
       .String("output", &a->output, ".vtp, .vtu, .npy, .tsv or .txt (default: TSV on stdout)",
               "FILE")
       .Flag("ascii", &a->ascii, ".vtp/.vtu arrays as text (default: binary, appended raw)")
+      .Flag("zlib", &a->zlib, ".vtp/.vtu appended arrays zlib-compressed (smaller, slower to write)")
       .Flag("verbose", &a->verbose, "print timings to stderr");
 }
 
@@ -233,6 +234,7 @@ absl::Status ParseCurvatureArgs(const std::vector<std::string>& argv, CurvatureA
     return absl::OkStatus();
   }
   if (a->local && !a->server.empty()) return UsageError("--local and --server exclude each other");
+  if (absl::Status e = VtkEncodingFromFlags(a->ascii, a->zlib).status(); !e.ok()) return e;
   if (a->method == "lhf") {
     a->fit.method = FitMethod::kLHF;
   } else if (a->method == "lop") {

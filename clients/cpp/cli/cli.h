@@ -106,6 +106,7 @@ struct CurvatureArgs {
   std::string solver = "qr";  ///< --solver qr|svd
   std::string output;        ///< .vtp, .vtu, .npy, .tsv / .txt; empty = TSV on stdout
   bool ascii = false;        ///< --ascii: .vtp/.vtu arrays as text (default binary appended)
+  bool zlib = false;         ///< --zlib: .vtp/.vtu appended arrays zlib-compressed
   bool verbose = false;
   int threads = 0;           ///< --threads; 0 = all cores
 };
@@ -144,10 +145,12 @@ std::string DifferentialsTsv(const Differentials& d);
 /// (UInt8) (those present).
 std::vector<PointField> DifferentialsFields(const Differentials& d);
 /// Writes by extension; an empty path writes TSV to stdout. `mesh` is needed for
-/// .vtp/.vtu, written binary appended (`ascii`: as text) with Normals and MeanCurvature
-/// as the active normals and scalars.
+/// .vtp/.vtu, written in `encoding` with Normals and MeanCurvature as the active normals
+/// and scalars.
 absl::Status WriteDifferentials(const std::string& path, const Mesh& mesh, const Differentials& d,
-                                bool ascii = false);
+                                VtkEncoding encoding = VtkEncoding::kAppended);
+/// The VTK encoding the --ascii and --zlib flags ask for (usage error when both).
+absl::StatusOr<VtkEncoding> VtkEncodingFromFlags(bool ascii, bool zlib);
 
 /// High-order elements (`geomfit nodes`) as VTK Lagrange triangles and quadrilaterals
 /// (binary appended), which ParaView draws curved.

@@ -60,7 +60,8 @@ absl::Status RunCurvature(const std::vector<std::string>& argv) {
 
   Stopwatch write_timer;
   bar.Begin("write");
-  GF_RETURN_IF_ERROR(WriteDifferentials(a.output, mesh, d, a.ascii));
+  GF_ASSIGN_OR_RETURN(const VtkEncoding encoding, VtkEncodingFromFlags(a.ascii, a.zlib));
+  GF_RETURN_IF_ERROR(WriteDifferentials(a.output, mesh, d, encoding));
   bar.Finish();
   Verbose(a.verbose, absl::StrFormat("wrote %s in %.3f s", a.output.empty() ? "stdout" : a.output,
                                      write_timer.Seconds()));
@@ -102,13 +103,14 @@ absl::Status RunGenerate(const std::vector<std::string>& argv) {
 
 absl::Status RunConvert(const std::vector<std::string>& argv) {
   std::string in, out;
-  bool verbose = false, ascii = false;
-  ArgParser p("geomfit convert", "IN OUT [--ascii]",
+  bool verbose = false, ascii = false, zlib = false;
+  ArgParser p("geomfit convert", "IN OUT [--ascii | --zlib]",
               "Converts a mesh between formats, chosen by extension. Reads .obj .off .ply\n"
               ".stl; writes those (PLY binary, STL binary), .vtp and .vtu.");
   p.Positional("IN", &in, "input mesh file")
       .Positional("OUT", &out, "output mesh file")
       .Flag("ascii", &ascii, ".vtp/.vtu as text (default: binary, appended raw)")
+      .Flag("zlib", &zlib, ".vtp/.vtu appended arrays zlib-compressed")
       .Flag("verbose", &verbose, "print timings to stderr");
   GF_RETURN_IF_ERROR(p.Parse(argv));
   if (p.help_requested()) {
@@ -116,6 +118,8 @@ absl::Status RunConvert(const std::vector<std::string>& argv) {
     return absl::OkStatus();
   }
   GF_RETURN_IF_ERROR(CheckMeshOutput(out));
+  VtkOptions vtk;
+  GF_ASSIGN_OR_RETURN(vtk.encoding, VtkEncodingFromFlags(ascii, zlib));
   if (IsOutputOnly(FormatFromPath(in).value_or(MeshFormat::kVtp)))
     return UsageError(absl::StrCat("input '", in, "': expected .obj, .off, .ply or .stl"));
 
@@ -124,8 +128,6 @@ absl::Status RunConvert(const std::vector<std::string>& argv) {
   Verbose(verbose, absl::StrFormat("read %s: %d vertices, %d faces in %.3f s", in,
                                    mesh.NumVertices(), mesh.NumFaces(), timer.Seconds()));
   Stopwatch write_timer;
-  VtkOptions vtk;
-  if (ascii) vtk.encoding = VtkEncoding::kAscii;
   GF_RETURN_IF_ERROR(WriteMeshOutput(mesh, out, vtk));
   Verbose(verbose, absl::StrFormat("wrote %s in %.3f s", out, write_timer.Seconds()));
   return absl::OkStatus();

@@ -159,8 +159,13 @@ absl::Status WriteMeshOutput(const Mesh& mesh, const std::string& path, const Vt
   return WriteFileAtomically(path, bytes);
 }
 
+absl::StatusOr<VtkEncoding> VtkEncodingFromFlags(bool ascii, bool zlib) {
+  if (ascii && zlib) return UsageError("--ascii and --zlib exclude each other (zlib compresses binary arrays)");
+  return ascii ? VtkEncoding::kAscii : zlib ? VtkEncoding::kAppendedZlib : VtkEncoding::kAppended;
+}
+
 absl::Status WriteDifferentials(const std::string& path, const Mesh& mesh, const Differentials& d,
-                                bool ascii) {
+                                VtkEncoding encoding) {
   if (path.empty() || path == "-") {
     const std::string tsv = DifferentialsTsv(d);
     if (std::fwrite(tsv.data(), 1, tsv.size(), stdout) != tsv.size() || std::fflush(stdout) != 0)
@@ -176,7 +181,7 @@ absl::Status WriteDifferentials(const std::string& path, const Mesh& mesh, const
     case OutputKind::kVtu: {
       const std::vector<PointField> fields = DifferentialsFields(d);
       VtkOptions options;
-      if (ascii) options.encoding = VtkEncoding::kAscii;
+      options.encoding = encoding;
       for (const PointField& f : fields) {
         if (f.name == "Normals") options.normals = f.name;
         if (f.name == "MeanCurvature") options.scalars = f.name;

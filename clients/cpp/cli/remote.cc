@@ -192,7 +192,8 @@ absl::Status RunCurvatureRemote(const CurvatureArgs& a) {
                  d.summary.fit_cache_hit ? "cached" : "computed", d.summary.fit_ms, d.summary.evaluate_ms);
   }
   ProgressBar::Get().Begin("write");
-  return WriteDifferentials(a.output, mesh, d.values, a.ascii);
+  GF_ASSIGN_OR_RETURN(const VtkEncoding encoding, VtkEncodingFromFlags(a.ascii, a.zlib));
+  return WriteDifferentials(a.output, mesh, d.values, encoding);
 }
 
 absl::Status RunRemoteCommand(const std::string& command, const std::vector<std::string>& args) {

@@ -1,4 +1,8 @@
-// VTK XML output: PolyData (.vtp) and UnstructuredGrid (.vtu), ASCII or binary appended.
+// VTK XML output: PolyData (.vtp) and UnstructuredGrid (.vtu), ASCII or binary appended
+// (raw or zlib-compressed).
+#include <zlib.h>
+
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <string>
@@ -83,13 +87,16 @@ class VtkXml {
  public:
   VtkXml(absl::string_view type, VtkEncoding encoding) : type_(type), encoding_(encoding) {
     absl::StrAppend(&xml_, "<?xml version=\"1.0\"?>\n<VTKFile type=\"", type_, "\" ");
-    xml_ += encoding_ == VtkEncoding::kAscii
-                ? "version=\"0.1\" byte_order=\"LittleEndian\">\n"
-                : "version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\">\n";
+    if (encoding_ == VtkEncoding::kAscii) {
+      xml_ += "version=\"0.1\" byte_order=\"LittleEndian\">\n";
+    } else {
+      xml_ += "version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\"";
+      xml_ += encoding_ == VtkEncoding::kAppendedZlib ? " compressor=\"vtkZLibDataCompressor\">\n" : ">\n";
+    }
     absl::StrAppend(&xml_, "  <", type_, ">\n");
   }
 
-  bool binary() const { return encoding_ == VtkEncoding::kAppended; }
+  bool binary() const { return encoding_ != VtkEncoding::kAscii; }
   std::string& xml() { return xml_; }
 
   /// One DataArray of `n` values value(i), `components` per tuple (0: no attribute).
@@ -110,7 +117,7 @@ class VtkXml {
       mesh_io::StoreLE(p, static_cast<uint64_t>(n) * bytes, 8);
       p += 8;
       for (int64_t i = 0; i < n; ++i, p += bytes) StoreValue(p, type, value(i));
-      blocks_.push_back(std::move(block));
+      blocks_.push_back(encoding_ == VtkEncoding::kAppendedZlib ? Compressed(block) : std::move(block));
       return;
     }
     bool finite = true;
@@ -135,6 +142,27 @@ class VtkXml {
       xml_ += '\n';
     }
     xml_ += "        </DataArray>\n";
+  }
+
+  /// An uncompressed block (8-byte size header, then the bytes) in VTK's zlib layout.
+  static std::string Compressed(const std::string& block) {
+    constexpr size_t kBlock = 32768;
+    const size_t size = block.size() - 8;
+    const size_t count = (size + kBlock - 1) / kBlock;
+    std::string header, data;
+    mesh_io::PutLE(&header, count, 8);
+    mesh_io::PutLE(&header, kBlock, 8);
+    mesh_io::PutLE(&header, size % kBlock, 8);  // 0: the last block is full
+    std::vector<Bytef> out(compressBound(kBlock));
+    for (size_t b = 0; b < count; ++b) {
+      const size_t len = std::min(kBlock, size - b * kBlock);
+      uLongf out_len = out.size();
+      compress2(out.data(), &out_len, reinterpret_cast<const Bytef*>(block.data() + 8 + b * kBlock), len,
+                Z_DEFAULT_COMPRESSION);  // cannot fail: the buffer is compressBound
+      mesh_io::PutLE(&header, out_len, 8);
+      data.append(reinterpret_cast<const char*>(out.data()), out_len);
+    }
+    return header + data;
   }
 
   std::string Finish() {
