@@ -41,6 +41,16 @@ inline std::unique_ptr<CancellationToken> TokenFor(grpc::CallbackServerContext* 
   return token;
 }
 
+/// Admits a server-streaming call and scopes its request's mesh ids to the caller's
+/// tenant (gRPC hands the request over for the call's lifetime); returns the tenant.
+inline absl::StatusOr<std::string> AdmitStream(Service* service, grpc::CallbackServerContext* ctx,
+                                               const google::protobuf::Message* request) {
+  absl::StatusOr<CallContext> who = service->Admit(ctx);
+  if (!who.ok()) return who.status();
+  ScopeIds(who->tenant, const_cast<google::protobuf::Message*>(request));
+  return who->tenant;
+}
+
 /// Client-streaming call, read as raw bytes so that a message that does not parse ends
 /// the call with INVALID_ARGUMENT (the typed API reports it like the end of the stream).
 /// Messages are folded into an Assembler on the gRPC thread (cheap copies); once the
@@ -208,13 +218,12 @@ class WriteReactor final : public grpc::ServerWriteReactor<Response>, private Ch
                const google::protobuf::Message* request, WorkFn work)
       : service_(service), ctx_(ctx), token_(TokenFor(ctx)), work_(std::move(work)), call_(std::move(call)) {
     service_->Begin();
-    absl::StatusOr<CallContext> who = service_->Admit(ctx);
-    if (!who.ok()) {
-      Done(who.status());
+    absl::StatusOr<std::string> tenant = AdmitStream(service_, ctx, request);
+    if (!tenant.ok()) {
+      Done(tenant.status());
       return;
     }
-    tenant_ = who->tenant;
-    ScopeIds(tenant_, const_cast<google::protobuf::Message*>(request));
+    tenant_ = *std::move(tenant);
     if (StreamLimits* limits = service_->stream_limits(); limits != nullptr) {
       watch_ = limits->Watch([this, idle = limits->idle()] { return Stalled(idle); });
     }
@@ -346,13 +355,12 @@ class PullReactor final : public grpc::ServerWriteReactor<Response> {
               const google::protobuf::Message* request, OpenFn open)
       : service_(service), ctx_(ctx), open_(std::move(open)), call_(std::move(call)) {
     service_->Begin();
-    absl::StatusOr<CallContext> who = service_->Admit(ctx);
-    if (!who.ok()) {
-      Done(who.status());
+    absl::StatusOr<std::string> tenant = AdmitStream(service_, ctx, request);
+    if (!tenant.ok()) {
+      Done(tenant.status());
       return;
     }
-    tenant_ = who->tenant;
-    ScopeIds(tenant_, const_cast<google::protobuf::Message*>(request));
+    tenant_ = *std::move(tenant);
     if (StreamLimits* limits = service_->stream_limits(); limits != nullptr) {
       watch_ = limits->Watch([this] {
         ctx_->TryCancel();
