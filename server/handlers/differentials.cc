@@ -2,6 +2,8 @@
 // (or a prefetch) computes it.
 #include <algorithm>
 #include <atomic>
+#include <memory>
+#include <optional>
 
 #include "absl/strings/str_cat.h"
 #include "core/quantities/differentials.h"
@@ -53,14 +55,23 @@ v1::ComputeDifferentialsResponse EncodeChunk(const Differentials& d, int64_t b, 
   return r;
 }
 
-/// One ComputeDifferentials response: chunks of `rows` vertices, sent as soon as their
-/// rows are final. The first chunk's summary is `header`; the last one's is complete.
+/// One ComputeDifferentials response: chunks of `rows` vertices, handed to the sink as
+/// soon as their rows are final, and encoded lazily (ChunkSink::PushLazy) from the
+/// arrays, which each pending chunk holds (through the evaluation that fills them, see
+/// Pin): neither a fitting thread nor the owner sending a follower's last chunks ever
+/// waits for a slow reader. The first chunk's summary is `header`; the last one's is
+/// complete.
 class DifferentialsStream {
  public:
   DifferentialsStream(uint32_t mask, bool diagnostics, int64_t n, int64_t rows, v1::FitSummary header,
                       ChunkSink<v1::ComputeDifferentialsResponse>* sink)
       : mask_(mask), diagnostics_(diagnostics), n_(n), rows_(rows), header_(std::move(header)), sink_(sink) {}
 
+  /// Keeps what Emit's arrays belong to alive until their chunks are written.
+  void Pin(std::shared_ptr<const void> owner) {
+    std::lock_guard<std::mutex> lock(mu_);
+    owner_ = std::move(owner);
+  }
   /// The row count that completes the next chunk.
   int64_t next() const {
     std::lock_guard<std::mutex> lock(mu_);
@@ -76,7 +87,7 @@ class DifferentialsStream {
   void Emit(const Differentials* d, int64_t filled) {
     std::lock_guard<std::mutex> lock(mu_);
     EmitLocked(d, filled);
-    if (d && sent_ + rows_ >= n_ && sent_ < filled && filled < n_) Send(*d, filled - sent_, nullptr);
+    if (d && sent_ + rows_ >= n_ && sent_ < filled && filled < n_) Send(Pinned(d), filled - sent_, nullptr);
   }
   /// Emit(ev.values(), ev.filled()) for the fitting threads of `ev`'s owner: a thread
   /// that finds another one sending leaves its rows to it instead of waiting.
@@ -89,7 +100,7 @@ class DifferentialsStream {
     } while (more_);
   }
   /// Sends the remaining rows; the last chunk carries `summary`.
-  void Finish(const Differentials& d, const v1::FitSummary& summary) {
+  void Finish(const std::shared_ptr<const Differentials>& d, const v1::FitSummary& summary) {
     std::lock_guard<std::mutex> lock(mu_);
     while (sent_ + rows_ < n_) Send(d, rows_, nullptr);
     Send(d, n_ - sent_, &summary);
@@ -97,17 +108,25 @@ class DifferentialsStream {
 
  private:
   void EmitLocked(const Differentials* d, int64_t filled) {
-    while (d && sent_ + rows_ <= filled && sent_ + rows_ < n_) Send(*d, rows_, nullptr);
+    while (d && sent_ + rows_ <= filled && sent_ + rows_ < n_) Send(Pinned(d), rows_, nullptr);
   }
-  void Send(const Differentials& d, int64_t m, const v1::FitSummary* summary) {
-    v1::ComputeDifferentialsResponse chunk = EncodeChunk(d, sent_, m, mask_, diagnostics_);
+  /// `d` (arrays of the pinned evaluation), owning the evaluation.
+  std::shared_ptr<const Differentials> Pinned(const Differentials* d) const { return {owner_, d}; }
+  void Send(const std::shared_ptr<const Differentials>& d, int64_t m, const v1::FitSummary* summary) {
+    std::optional<v1::FitSummary> says;
     if (summary) {
-      *chunk.mutable_summary() = *summary;
+      says = *summary;
     } else if (sent_ == 0) {
-      *chunk.mutable_summary() = header_;
+      says = header_;
     }
+    sink_->PushLazy(
+        [d, b = sent_, m, mask = mask_, diagnostics = diagnostics_, says = std::move(says)] {
+          v1::ComputeDifferentialsResponse chunk = EncodeChunk(*d, b, m, mask, diagnostics);
+          if (says) *chunk.mutable_summary() = *says;
+          return chunk;
+        },
+        summary != nullptr);
     sent_ += m;
-    sink_->Push(std::move(chunk), summary != nullptr);
   }
 
   const uint32_t mask_;
@@ -117,6 +136,7 @@ class DifferentialsStream {
   ChunkSink<v1::ComputeDifferentialsResponse>* sink_;
   mutable std::mutex mu_;
   int64_t sent_ = 0;
+  std::shared_ptr<const void> owner_;  ///< the evaluation Emit's arrays belong to
   std::atomic<bool> more_{false};  ///< EmitFrom has rows for the thread that is sending
 };
 
@@ -196,12 +216,13 @@ absl::Status Handlers::ComputeDifferentials(const v1::ComputeDifferentialsReques
   auto remember = [&] { ws_->Remember(snap, options, mask); };
   bool owner = false;
   const std::shared_ptr<Evaluation> ev = ws_->JoinEvaluation(snap, options, mask, &owner);
+  stream.Pin(ev);
   if (owner) {
     ev->SetListener([&stream, raw = ev.get()] { stream.EmitFrom(*raw); });
     const absl::StatusOr<Evaluated> e = ws_->Evaluate(snap, options, mask, ctx, ev.get());
     if (e.ok()) {
       remember();
-      stream.Finish(*e->values, Summarize(id, *e, options));
+      stream.Finish(e->values, Summarize(id, *e, options));
     }
     ws_->End(ev, e);  // then the followers' last chunks
     return e.status();
@@ -217,7 +238,7 @@ absl::Status Handlers::ComputeDifferentials(const v1::ComputeDifferentialsReques
     v1::FitSummary summary = Summarize(id, shared, options);
     summary.set_joined_compute_ms(result->fitted.ms + result->ms);
     remember();
-    stream.Finish(*shared.values, summary);
+    stream.Finish(shared.values, summary);
   });
   for (int64_t filled = 0; !ev->ended();) {
     const int64_t next = stream.next();
@@ -232,15 +253,14 @@ absl::Status Handlers::ComputeDifferentials(const v1::ComputeDifferentialsReques
   // the rows already sent agree.
   GF_ASSIGN_OR_RETURN(const Evaluated e, ws_->Evaluate(snap, options, mask, ctx));
   remember();
-  stream.Finish(*e.values, Summarize(id, e, options));
+  stream.Finish(e.values, Summarize(id, e, options));
   return absl::OkStatus();
 }
 
 absl::StatusOr<std::vector<v1::ComputeDifferentialsResponse>> Handlers::ComputeDifferentials(
     const v1::ComputeDifferentialsRequest& request, const CancellationToken& cancel) {
-  ChunkCollector<v1::ComputeDifferentialsResponse> out;
-  GF_RETURN_IF_ERROR(ComputeDifferentials(request, cancel, &out));
-  return std::move(out.chunks);
+  return Collected<v1::ComputeDifferentialsResponse>(
+      [&](ChunkSink<v1::ComputeDifferentialsResponse>* sink) { return ComputeDifferentials(request, cancel, sink); });
 }
 
 void Handlers::Prefetch(const std::string& id, int64_t revision, const CancellationToken& cancel) {

@@ -3,7 +3,9 @@
 // area (meshes.cc, differentials.cc, reconstruction.cc, integration.cc, info.cc). The
 // engine is the Workspace; no gRPC types here, so every handler is testable without a
 // network; rpc/service.cc adapts them to the callback API.
+#include <algorithm>
 #include <chrono>
+#include <functional>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -28,13 +30,18 @@ struct HandlerOptions {
 };
 
 /// Receives a server-streaming handler's chunks as soon as each is ready (from any
-/// thread; calls are serialized).
+/// thread; calls are serialized). A transport holds at most two encoded chunks per
+/// stream: Push may block until the reader has taken one (backpressure; it returns at
+/// once, dropping the chunk, once the call is over), PushLazy never blocks.
 template <typename Response>
 class ChunkSink {
  public:
   virtual ~ChunkSink() = default;
   /// `last`: no chunk follows; the handler then returns OK.
   virtual void Push(Response chunk, bool last) = 0;
+  /// A chunk encoded by `make` only when the transport is ready to write it, maybe on
+  /// another thread after the handler returned: `make` owns (shared_ptr) what it reads.
+  virtual void PushLazy(std::function<Response()> make, bool last) { Push(make(), last); }
 };
 
 template <typename Response>
@@ -43,8 +50,27 @@ struct ChunkCollector final : ChunkSink<Response> {
   void Push(Response chunk, bool) override { chunks.push_back(std::move(chunk)); }
 };
 
+/// The chunks `run(sink)` hands over, collected (in-process callers and tests).
+template <typename Response, typename Run>
+absl::StatusOr<std::vector<Response>> Collected(Run run) {
+  ChunkCollector<Response> out;
+  if (absl::Status s = run(&out); !s.ok()) return s;
+  return std::move(out.chunks);
+}
+
+/// Rows [0, n) of `data` as lazy chunks of `rows` rows (one empty chunk when n is 0):
+/// `encode(data, first_row, row_count)` makes each when the transport wants it, so a
+/// reader that stops reading holds `data` and at most two encoded chunks.
+template <typename Response, typename Data, typename Encode>
+void PushRows(ChunkSink<Response>* sink, std::shared_ptr<const Data> data, int64_t n, int64_t rows, Encode encode) {
+  for (int64_t b = 0; b == 0 || b < n; b += rows) {
+    const int64_t m = std::min(rows, n - b);
+    sink->PushLazy([data, b, m, encode] { return encode(*data, b, m); }, b + m >= n);
+  }
+}
+
 /// A server stream's chunks, made one at a time when the transport wants the next
-/// (WriteReactor's lazy mode): a reader that stops reading holds O(one chunk).
+/// (PullReactor): a reader that stops reading holds O(one chunk).
 template <typename Response>
 class ChunkSource {
  public:
@@ -97,8 +123,15 @@ class Handlers {
   void Prefetch(const std::string& id, int64_t revision, const CancellationToken& cancel);
 
   // Chapter 4 (reconstruction.cc, integration.cc).
+  /// Projects the points, then hands their chunks to `sink` (PushRows: encoded lazily).
+  absl::Status ProjectPoints(const v1::ProjectPointsRequest& request, const CancellationToken& cancel,
+                             ChunkSink<v1::ProjectPointsResponse>* sink);
+  /// The same, collected.
   absl::StatusOr<std::vector<v1::ProjectPointsResponse>> ProjectPoints(const v1::ProjectPointsRequest& request,
-                                                                       const CancellationToken& cancel);
+                                                                       const CancellationToken& cancel) {
+    return Collected<v1::ProjectPointsResponse>(
+        [&](ChunkSink<v1::ProjectPointsResponse>* sink) { return ProjectPoints(request, cancel, sink); });
+  }
   absl::StatusOr<v1::HighOrderNodesResponse> HighOrderNodes(const v1::HighOrderNodesRequest& request,
                                                             const CancellationToken& cancel);
   absl::StatusOr<v1::MeshInfo> RefineMesh(const v1::RefineMeshRequest& request, const CancellationToken& cancel);
@@ -114,9 +147,9 @@ class Handlers {
 
   // Membranes (membrane.cc).
   /// Stress, strain, stretches, von Mises stress, pressure and traction of a deformed
-  /// membrane against the reference's cached fits, in chunks of rows.
-  absl::StatusOr<std::vector<v1::ComputeMembraneResponse>> ComputeMembrane(const v1::ComputeMembraneRequest& request,
-                                                                           const CancellationToken& cancel);
+  /// membrane against the reference's cached fits, in chunks of rows (PushRows).
+  absl::Status ComputeMembrane(const v1::ComputeMembraneRequest& request, const CancellationToken& cancel,
+                               ChunkSink<v1::ComputeMembraneResponse>* sink);
 
   // Server (info.cc).
   v1::ServerInfo GetServerInfo() const;

@@ -2,6 +2,7 @@
 // against the cached reference fits.
 #include <algorithm>
 #include <cmath>
+#include <memory>
 #include <optional>
 
 #include "absl/strings/str_cat.h"
@@ -39,8 +40,8 @@ using wire::EncodeRows;
 
 }  // namespace
 
-absl::StatusOr<std::vector<v1::ComputeMembraneResponse>> Handlers::ComputeMembrane(
-    const v1::ComputeMembraneRequest& request, const CancellationToken& cancel) {
+absl::Status Handlers::ComputeMembrane(const v1::ComputeMembraneRequest& request, const CancellationToken& cancel,
+                                       ChunkSink<v1::ComputeMembraneResponse>* sink) {
   GF_RETURN_IF_ERROR(RequireId(request.mesh_id()));
   if (request.revision() < 0 || request.chunk_rows() < 0 || request.deformed().revision() < 0)
     return absl::InvalidArgumentError("revision, deformed.revision and chunk_rows must not be negative");
@@ -110,18 +111,17 @@ absl::StatusOr<std::vector<v1::ComputeMembraneResponse>> Handlers::ComputeMembra
   }
   const int64_t bytes_per_row = 8 * (1 + 2 + 9 + 9 + 1 + 1);
   const int64_t rows = ChunkRows(request.chunk_rows(), bytes_per_row);
-  std::vector<v1::ComputeMembraneResponse> out;
-  for (int64_t b = 0; b < n || (n == 0 && out.empty()); b += rows) {
-    const int64_t m = std::min(rows, n - b);
+  v1::ComputeMembraneResponse head;  // what the first chunk says of the whole response
+  head.set_mesh_id(ref.mesh_id);
+  head.set_revision(ref.revision);
+  head.set_deformed_revision(deformed_revision);
+  head.set_total_vertices(n);
+  head.set_fit_ms(fit_ms);
+  head.set_evaluate_ms(evaluate_ms);
+  auto fields = std::make_shared<const MembraneFields>(std::move(f));
+  PushRows(sink, std::move(fields), n, rows, [head, mask](const MembraneFields& f, int64_t b, int64_t m) {
     v1::ComputeMembraneResponse r;
-    if (out.empty()) {
-      r.set_mesh_id(ref.mesh_id);
-      r.set_revision(ref.revision);
-      r.set_deformed_revision(deformed_revision);
-      r.set_total_vertices(n);
-      r.set_fit_ms(fit_ms);
-      r.set_evaluate_ms(evaluate_ms);
-    }
+    if (b == 0) r = head;
     r.set_vertex_offset(b);
     r.set_num_vertices(m);
     if (mask & kPressure) EncodeRows(f.pressure, b, m, r.mutable_pressure());
@@ -130,10 +130,9 @@ absl::StatusOr<std::vector<v1::ComputeMembraneResponse>> Handlers::ComputeMembra
     if (mask & kStress) EncodeRows(f.stress, b, m, r.mutable_stress());
     if (mask & kVonMises) EncodeRows(f.von_mises, b, m, r.mutable_von_mises());
     if (mask & kTraction) EncodeRows(f.traction, b, m, r.mutable_traction());
-    out.push_back(std::move(r));
-    if (n == 0) break;
-  }
-  return out;
+    return r;
+  });
+  return absl::OkStatus();
 }
 
 }  // namespace geomfit::server

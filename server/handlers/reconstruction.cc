@@ -1,6 +1,7 @@
 // Chapter-4 RPCs: ProjectPoints, HighOrderNodes, RefineMesh. The surface is rebuilt per
 // request from cached vertex fits (WALF evaluation is cheap; CMF solves per point).
 #include <algorithm>
+#include <memory>
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
@@ -28,8 +29,8 @@ absl::StatusOr<std::unique_ptr<Reconstructed>> Handlers::Reconstruct(const std::
   return ws_->Reconstruct(snap, *ro, stencils, ws_->Context(&cancel));
 }
 
-absl::StatusOr<std::vector<v1::ProjectPointsResponse>> Handlers::ProjectPoints(const v1::ProjectPointsRequest& request,
-                                                                               const CancellationToken& cancel) {
+absl::Status Handlers::ProjectPoints(const v1::ProjectPointsRequest& request, const CancellationToken& cancel,
+                                     ChunkSink<v1::ProjectPointsResponse>* sink) {
   GF_RETURN_IF_ERROR(RequireId(request.mesh_id()));
   if (request.chunk_rows() < 0) return absl::InvalidArgumentError("chunk_rows must not be negative");
   const bool xyz = request.points().shape_size() > 0;
@@ -56,10 +57,9 @@ absl::StatusOr<std::vector<v1::ProjectPointsResponse>> Handlers::ProjectPoints(c
   GF_RETURN_IF_ERROR(cancel.Check());
   const int64_t n = static_cast<int64_t>(out.size());
   const int64_t rows = ChunkRows(request.chunk_rows(), 8 * 9 + 4);
-  std::vector<v1::ProjectPointsResponse> chunks;
-  for (int64_t b = 0; b == 0 || b < n; b += rows) {
-    const int64_t m = std::min(rows, n - b);
-    v1::ProjectPointsResponse& c = chunks.emplace_back();
+  auto points = std::make_shared<const std::vector<ProjectedPoint>>(std::move(out));
+  PushRows(sink, std::move(points), n, rows, [](const std::vector<ProjectedPoint>& out, int64_t b, int64_t m) {
+    v1::ProjectPointsResponse c;
     c.set_offset(b);
     wire::RowsXd pos(m, 3), nrm(m, 3), nat(m, 2), dist(m, 1);
     std::vector<int32_t> faces(m);
@@ -76,8 +76,9 @@ absl::StatusOr<std::vector<v1::ProjectPointsResponse>> Handlers::ProjectPoints(c
     wire::EncodeDoubles(nat.data(), m, 2, c.mutable_natural());
     wire::EncodeDoubles(dist.data(), m, 0, c.mutable_distances());
     wire::EncodeInts(faces.data(), m, 0, c.mutable_faces());
-  }
-  return chunks;
+    return c;
+  });
+  return absl::OkStatus();
 }
 
 absl::StatusOr<v1::HighOrderNodesResponse> Handlers::HighOrderNodes(const v1::HighOrderNodesRequest& request,

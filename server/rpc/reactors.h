@@ -1,7 +1,11 @@
 #pragma once
 // Generic callback reactors of the service: client-streaming (ReadReactor) and
-// server-streaming (WriteReactor) calls whose work runs on a pool, plus the call token.
-// Job event streams reuse WriteReactor.
+// server-streaming (WriteReactor: chunks pushed by work on a pool; PullReactor: chunks
+// pulled from a source) calls, plus the call token. Every server stream holds at most
+// two encoded chunks, counted in the in-flight bytes (StreamLimits).
+#include <atomic>
+#include <chrono>
+#include <condition_variable>
 #include <deque>
 #include <functional>
 #include <memory>
@@ -10,6 +14,7 @@
 #include <utility>
 #include <vector>
 
+#include <grpc/grpc.h>
 #include <grpcpp/grpcpp.h>
 
 #include "absl/status/status.h"
@@ -51,12 +56,32 @@ inline absl::StatusOr<std::string> AdmitStream(Service* service, grpc::CallbackS
   return who->tenant;
 }
 
+/// How a server stream whose reader took nothing for `idle` ends (the watchdog).
+inline absl::Status IdleStatus(std::chrono::milliseconds idle) {
+  return absl::DeadlineExceededError(absl::StrCat("the reader took no message for ",
+                                                  std::chrono::duration<double>(idle).count(),
+                                                  " s (--stream-idle-seconds); stream ended"));
+}
+
+/// Ends a server stream with `status` at once: the call is cancelled with it, so the
+/// status goes out with RST_STREAM ahead of the data the reader left unread (a Finish
+/// would wait behind it). The pending write then fails and the reactor ends as after a
+/// cancel, dropping what it holds.
+inline void EndIdle(grpc::CallbackServerContext* ctx, const absl::Status& status) {
+  const std::string message(status.message());
+  grpc_call_cancel_with_status(ctx->c_call(), static_cast<grpc_status_code>(status.code()), message.c_str(),
+                               nullptr);
+}
+
 /// Client-streaming call, read as raw bytes so that a message that does not parse ends
 /// the call with INVALID_ARGUMENT (the typed API reports it like the end of the stream).
 /// Messages are folded into an Assembler on the gRPC thread (cheap copies); once the
 /// header is in, the stream reserves the bytes it declares against the in-flight budget
 /// (StreamLimits) before buffering anything; a stream silent for the idle time ends with
-/// DEADLINE_EXCEEDED. The end of the stream runs `finish` on the compute pool. Every end
+/// DEADLINE_EXCEEDED. The header's lookup (`on_header`, which reads the store) runs on
+/// the io pool, never on a gRPC thread: the next read starts once it is done (the
+/// reservation itself is an O(1) atomic). The end of the stream runs `finish` on the
+/// compute pool. Every end
 /// releases the reservation before the status goes out, and nothing is committed unless
 /// the whole stream parsed and assembled.
 template <typename Request, typename Assembler>
@@ -78,10 +103,7 @@ class ReadReactor final : public grpc::ServerReadReactor<grpc::ByteBuffer> {
     call_.method = method;
     if (limits_ != nullptr) {
       limits_->Opened();
-      watch_ = limits_->Watch([this] {
-        Expire();
-        return true;
-      });
+      watch_ = limits_->Watch([this] { return Expire(); });
     }
     Lock lock = Locked();
     absl::StatusOr<CallContext> who = service_->Admit(ctx);
@@ -100,6 +122,7 @@ class ReadReactor final : public grpc::ServerReadReactor<grpc::ByteBuffer> {
     if (ok) {
       const absl::Status s = Take();
       if (!s.ok()) return Done(s);
+      if (header_in_) return Header();
       this->StartRead(&buffer_);
       return;
     }
@@ -136,7 +159,7 @@ class ReadReactor final : public grpc::ServerReadReactor<grpc::ByteBuffer> {
   /// The watch's mutex (shared with the watchdog), or the reactor's own.
   Lock Locked() { return Lock(watch_ != nullptr ? watch_->mu : mu_); }
 
-  /// Parses message `count_` and folds it in; reserves the declared size at the header.
+  /// Parses message `count_` and folds it in; header_in_ once it brought the header.
   absl::Status Take() {
     ++count_;
     call_.bytes_in += static_cast<int64_t>(buffer_.Length());
@@ -150,21 +173,53 @@ class ReadReactor final : public grpc::ServerReadReactor<grpc::ByteBuffer> {
     ScopeIds(who_.tenant, &request);
     const bool had_header = assembler_->has_header();
     GF_RETURN_IF_ERROR(assembler_->Add(request));
-    if (had_header || !assembler_->has_header()) return absl::OkStatus();
-    if (on_header_) GF_RETURN_IF_ERROR(on_header_(&*assembler_));
+    header_in_ = !had_header && assembler_->has_header();
+    return absl::OkStatus();
+  }
+
+  /// The header is in (lock held, no read pending): `on_header_` runs on the io pool,
+  /// unlocked (nothing else touches the assembler meanwhile: no read is pending, and
+  /// the watchdog waits while busy_), then the declared size is reserved and reading
+  /// resumes.
+  void Header() {
+    header_in_ = false;
+    if (!on_header_) return Resume(Reserve());
+    busy_ = true;
+    const absl::Status queued = service_->io()->Submit(who_.tenant, [this] {
+      const absl::Status looked_up = on_header_(&*assembler_);
+      Lock lock = Locked();
+      busy_ = false;
+      if (watch_ != nullptr) watch_->Touch();  // the client waited for us, not we for it
+      Resume(looked_up.ok() ? Reserve() : looked_up);
+    });
+    if (!queued.ok()) {
+      busy_ = false;
+      Done(queued);
+    }
+  }
+  /// Reserves the declared size against the budget.
+  absl::Status Reserve() {
     if (limits_ == nullptr) return absl::OkStatus();
     const int64_t bytes = assembler_->DeclaredBytes();
     GF_RETURN_IF_ERROR(limits_->Reserve(bytes));
     reserved_ = bytes;
     return absl::OkStatus();
   }
+  /// Reads on after the header, or ends the call (lock held).
+  void Resume(const absl::Status& s) {
+    if (!s.ok()) return Done(s);
+    this->StartRead(&buffer_);
+  }
 
-  /// The watchdog: no message for the idle time (the watch's mutex is held).
-  void Expire() {
-    if (ended_) return;
+  /// The watchdog: no message for the idle time (the watch's mutex is held); asks again
+  /// later while the header is looked up.
+  bool Expire() {
+    if (busy_) return false;
+    if (ended_) return true;
     const double seconds = std::chrono::duration<double>(limits_->idle()).count();
     Done(absl::DeadlineExceededError(absl::StrCat("no message for ", seconds,
                                                   " s (--stream-idle-seconds); stream ended, nothing stored")));
+    return true;
   }
 
   /// Ends the call once (lock held, or the stream is received in full): releases the
@@ -197,26 +252,37 @@ class ReadReactor final : public grpc::ServerReadReactor<grpc::ByteBuffer> {
   Service::Call call_{};
   int64_t count_ = 0;     ///< messages received
   int64_t reserved_ = 0;  ///< bytes held in the budget
+  bool header_in_ = false;  ///< the last message brought the header
+  bool busy_ = false;       ///< the header is being looked up on the io pool
   bool ended_ = false;
 };
 
 /// Server-streaming call: `work` runs on a pool thread (polling the call's token) and
 /// hands over chunks as they are ready; each is written as soon as the previous write
-/// is done, while the work goes on. The chunk pushed as `last` goes out together with
-/// OK at once, from the thread that pushed it, even while the work is still returning
-/// (a follower's last chunk is pushed by the thread that ends the computation, so the
-/// response does not wait for the follower to wake). The reactor is deleted once both
-/// gRPC is done with it (OnDone) and the work has returned.
+/// is done, while the work goes on. Bounded whatever the reader does: a lazy chunk
+/// (PushLazy) is encoded only when the previous write is done, on the thread that saw
+/// it complete, and an eager one (Push) waits while kMaxHeld encoded chunks are held
+/// (woken by a completed write, a cancel, the idle watchdog or the server's shutdown).
+/// So a reader that stops reading makes the stream hold at most two encoded chunks
+/// (counted in StreamLimits' in-flight bytes) plus what the lazy ones read; once a write
+/// has waited for the idle time the call ends with DEADLINE_EXCEEDED and the chunks
+/// not written are dropped. The chunk pushed as `last` goes out together with OK at
+/// once, from the thread that pushed it (or that saw the write before it complete),
+/// even while the work is still returning. The reactor is deleted once both gRPC is
+/// done with it (OnDone) and the work has returned.
 template <typename Response>
 class WriteReactor final : public grpc::ServerWriteReactor<Response>, private ChunkSink<Response> {
  public:
   using WorkFn = std::function<absl::Status(const CancellationToken&, ChunkSink<Response>*)>;
+  /// Encoded chunks held at most: the one being written and one eager chunk queued.
+  static constexpr int kMaxHeld = 2;
 
   /// `request`'s mesh ids are scoped to the caller's tenant before `work` runs (gRPC
   /// hands the request over for the call's lifetime); the chunks' are unscoped.
   WriteReactor(Service* service, grpc::CallbackServerContext* ctx, ThreadPool* pool, Service::Call call,
                const google::protobuf::Message* request, WorkFn work)
-      : service_(service), ctx_(ctx), token_(TokenFor(ctx)), work_(std::move(work)), call_(std::move(call)) {
+      : service_(service), ctx_(ctx), token_(TokenFor(ctx)), work_(std::move(work)), call_(std::move(call)),
+        share_(service->stream_limits()) {
     service_->Begin();
     absl::StatusOr<std::string> tenant = AdmitStream(service_, ctx, request);
     if (!tenant.ok()) {
@@ -243,14 +309,22 @@ class WriteReactor final : public grpc::ServerWriteReactor<Response>, private Ch
   void OnWriteDone(bool ok) override {
     std::unique_lock<std::mutex> lock(mu_);
     writing_ = false;
+    share_.Release(current_bytes_);
+    current_bytes_ = 0;
+    current_ = Response();  // its memory goes now, not at the next write
     if (!ok) {
       broken_ = true;
-      queue_.clear();
+      DropQueue();
       token_->Cancel();
     }
+    room_.notify_all();
     Pump(lock);
   }
-  void OnCancel() override { token_->Cancel(); }
+  void OnCancel() override {
+    token_->Cancel();
+    std::lock_guard<std::mutex> lock(mu_);
+    room_.notify_all();
+  }
   void OnDone() override {
     if (watch_ != nullptr) {
       std::lock_guard<std::recursive_mutex> watch(watch_->mu);  // the watchdog is not in Stalled
@@ -258,12 +332,20 @@ class WriteReactor final : public grpc::ServerWriteReactor<Response>, private Ch
     }
     std::unique_lock<std::mutex> lock(mu_);
     done_ = true;
+    room_.notify_all();
     if (working_) return;  // the work deletes it when it returns
     lock.unlock();
     delete this;
   }
 
  private:
+  /// A chunk pushed and not written yet: encoded (eager, `bytes` held) or to be made.
+  struct Pending {
+    std::optional<Response> chunk;
+    std::function<Response()> make;
+    int64_t bytes = 0;
+  };
+
   void Run() {
     const absl::Status status = work_(*token_, this);
     std::unique_lock<std::mutex> lock(mu_);
@@ -277,48 +359,92 @@ class WriteReactor final : public grpc::ServerWriteReactor<Response>, private Ch
     if (gone) delete this;
   }
   /// `last`: this chunk ends the call with OK; the work's own status is then ignored.
+  /// Waits while kMaxHeld encoded chunks are held (the bounded wait also sees the
+  /// call's deadline); drops the chunk once the call is over.
   void Push(Response chunk, bool last) override {
     std::unique_lock<std::mutex> lock(mu_);
-    if (broken_ || finished_) return;
-    queue_.push_back(std::move(chunk));
+    while (!Over() && eager_ + (writing_ ? 1 : 0) >= kMaxHeld) room_.wait_for(lock, std::chrono::milliseconds(50));
+    if (Over()) return;
+    const auto bytes = static_cast<int64_t>(chunk.ByteSizeLong());
+    share_.Hold(bytes);
+    ++eager_;
+    queue_.push_back(Pending{std::move(chunk), nullptr, bytes});
     last_queued_ = last_queued_ || last;
     Pump(lock);
   }
-  /// Starts the next write, or finishes the call, if the state allows; unlocks first.
+  void PushLazy(std::function<Response()> make, bool last) override {
+    std::unique_lock<std::mutex> lock(mu_);
+    if (broken_ || finished_) return;
+    queue_.push_back(Pending{std::nullopt, std::move(make), 0});
+    last_queued_ = last_queued_ || last;
+    Pump(lock);
+  }
+  /// The call is over for the work's chunks (lock held).
+  bool Over() const { return broken_ || finished_ || done_ || token_->IsCancelled(); }
+  /// Drops the chunks not written (lock held): the lazy ones let go of what they read.
+  void DropQueue() {
+    for (const Pending& p : queue_) share_.Release(p.bytes);
+    queue_.clear();
+    eager_ = 0;
+  }
+  /// Starts the next write (encoding a lazy chunk now), or finishes the call, if the
+  /// state allows; unlocks first. Everything held is released before the status goes.
   void Pump(std::unique_lock<std::mutex>& lock) {
     if (writing_ || finished_) return;
     absl::Status end;
     if (broken_) {
       if (!returned_) return;
-      end = absl::CancelledError("client went away during the response stream");
+      end = idle_ended_ ? idle_status_ : absl::CancelledError("client went away during the response stream");
     } else if (returned_ && !last_queued_ && (!end_.ok() || queue_.empty())) {
       end = end_;  // an error drops the chunks not written yet
     } else {
       if (queue_.empty()) return;
       const bool final = last_queued_ && queue_.size() == 1;
-      current_ = std::move(queue_.front());
+      Pending next = std::move(queue_.front());
       queue_.pop_front();
+      if (next.make) {
+        current_ = next.make();
+      } else {
+        current_ = *std::move(next.chunk);
+        share_.Release(next.bytes);
+        --eager_;
+      }
+      next = Pending();  // a lazy chunk lets go of what it read
       UnscopeIds(tenant_, &current_);
+      current_bytes_ = static_cast<int64_t>(current_.ByteSizeLong());
+      share_.Hold(current_bytes_);
       writing_ = true;
       write_started_ = std::chrono::steady_clock::now();
       finished_ = final;
-      call_.bytes_out += static_cast<int64_t>(current_.ByteSizeLong());
+      call_.bytes_out += current_bytes_;
+      if (final) share_.Close();
       lock.unlock();
       if (!final) return this->StartWrite(&current_);
       return this->StartWriteAndFinish(&current_, grpc::WriteOptions(), service_->Finish(call_, absl::OkStatus()));
     }
     finished_ = true;
+    DropQueue();
+    share_.Close();
+    room_.notify_all();
     lock.unlock();
     Done(end);
   }
-  void Done(const absl::Status& s) { this->Finish(service_->Finish(call_, s)); }
+  void Done(const absl::Status& s) {
+    share_.Close();  // no-op after Pump's
+    this->Finish(service_->Finish(call_, s));
+  }
   /// The watchdog (watch mutex held): a write the reader has not taken for `idle` means
-  /// a reader that stopped reading; the call is cancelled, releasing the queued chunks.
+  /// a reader that stopped reading; the call ends (EndIdle), dropping the chunks.
   bool Stalled(std::chrono::milliseconds idle) {
-    std::lock_guard<std::mutex> lock(mu_);
-    if (!writing_ || std::chrono::steady_clock::now() - write_started_ < idle) return false;
-    token_->Cancel();
-    ctx_->TryCancel();
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      if (!writing_ || std::chrono::steady_clock::now() - write_started_ < idle) return false;
+      token_->Cancel();
+      idle_ended_ = true;
+      idle_status_ = IdleStatus(idle);
+      room_.notify_all();
+    }
+    EndIdle(ctx_, idle_status_);
     return true;
   }
 
@@ -331,20 +457,27 @@ class WriteReactor final : public grpc::ServerWriteReactor<Response>, private Ch
   Service::Call call_;
   std::string tenant_;
   std::mutex mu_;
-  std::deque<Response> queue_;
+  std::condition_variable room_;  ///< a held chunk was written, or the call is over
+  StreamShare share_;
+  std::deque<Pending> queue_;
+  int eager_ = 0;  ///< encoded chunks in queue_
   Response current_;
+  int64_t current_bytes_ = 0;
   bool writing_ = false, last_queued_ = false, broken_ = false, finished_ = false;
   bool returned_ = false;  ///< the work returned (its status is end_)
   bool working_ = false;   ///< the work was submitted and Run has not let go of the reactor
   bool done_ = false;      ///< OnDone was called
+  bool idle_ended_ = false;  ///< ended by the idle watchdog (with idle_status_)
+  absl::Status idle_status_;
   absl::Status end_;
 };
 
 /// Server-streaming call whose chunks come from a ChunkSource one at a time, the next
 /// made when the previous write is done (flow control): `open` runs on `pool`, each
 /// further chunk on the gRPC thread that saw the write complete. A reader that stops
-/// reading holds the source and two chunks; with an idle timeout (StreamLimits), a
-/// reader that takes no chunk for that long is cancelled.
+/// reading holds the source and two chunks (counted in StreamLimits' in-flight bytes);
+/// with an idle timeout, a reader that takes no chunk for that long is ended with
+/// DEADLINE_EXCEEDED.
 template <typename Response>
 class PullReactor final : public grpc::ServerWriteReactor<Response> {
  public:
@@ -353,7 +486,8 @@ class PullReactor final : public grpc::ServerWriteReactor<Response> {
   /// `request`'s mesh ids are scoped to the caller's tenant before `open` runs.
   PullReactor(Service* service, grpc::CallbackServerContext* ctx, ThreadPool* pool, Service::Call call,
               const google::protobuf::Message* request, OpenFn open)
-      : service_(service), ctx_(ctx), open_(std::move(open)), call_(std::move(call)) {
+      : service_(service), ctx_(ctx), open_(std::move(open)), call_(std::move(call)),
+        share_(service->stream_limits()) {
     service_->Begin();
     absl::StatusOr<std::string> tenant = AdmitStream(service_, ctx, request);
     if (!tenant.ok()) {
@@ -362,8 +496,10 @@ class PullReactor final : public grpc::ServerWriteReactor<Response> {
     }
     tenant_ = *std::move(tenant);
     if (StreamLimits* limits = service_->stream_limits(); limits != nullptr) {
-      watch_ = limits->Watch([this] {
-        ctx_->TryCancel();
+      watch_ = limits->Watch([this, idle = limits->idle()] {
+        idle_status_ = IdleStatus(idle);
+        idle_ended_.store(true);
+        EndIdle(ctx_, idle_status_);
         return true;
       });
     }
@@ -375,7 +511,10 @@ class PullReactor final : public grpc::ServerWriteReactor<Response> {
       std::lock_guard<std::recursive_mutex> lock(watch_->mu);
       watch_->Touch();
     }
-    if (!ok) return Done(absl::CancelledError("client went away during the response stream"));
+    if (!ok) {
+      if (idle_ended_.load()) return Done(idle_status_);
+      return Done(absl::CancelledError("client went away during the response stream"));
+    }
     WriteNext();
   }
   void OnDone() override {
@@ -400,16 +539,21 @@ class PullReactor final : public grpc::ServerWriteReactor<Response> {
     std::swap(current_, next_);
     has_next_ = source_->Next(&next_);
     UnscopeIds(tenant_, &current_);
-    call_.bytes_out += static_cast<int64_t>(current_.ByteSizeLong());
+    const auto bytes = static_cast<int64_t>(current_.ByteSizeLong());
+    call_.bytes_out += bytes;
+    share_.Release(share_.held());
+    share_.Hold(bytes + (has_next_ ? static_cast<int64_t>(next_.ByteSizeLong()) : 0));
     if (has_next_) return this->StartWrite(&current_);
     source_.reset();
     finished_ = true;
+    share_.Close();
     this->StartWriteAndFinish(&current_, grpc::WriteOptions(), service_->Finish(call_, absl::OkStatus()));
   }
   void Done(const absl::Status& s) {
     if (finished_) return;
     finished_ = true;
     source_.reset();
+    share_.Close();
     this->Finish(service_->Finish(call_, s));
   }
 
@@ -418,23 +562,14 @@ class PullReactor final : public grpc::ServerWriteReactor<Response> {
   OpenFn open_;
   Service::Call call_;
   std::string tenant_;
+  StreamShare share_;
   std::shared_ptr<StreamWatch> watch_;
+  std::atomic<bool> idle_ended_{false};  ///< ended by the watchdog, with idle_status_
+  absl::Status idle_status_;
   std::unique_ptr<ChunkSource<Response>> source_;
   Response current_, next_;
   bool has_next_ = false;
   bool finished_ = false;
 };
-
-/// A WriteReactor work function from a handler that returns all its chunks at once.
-template <typename Response>
-typename WriteReactor<Response>::WorkFn AllAtOnce(
-    std::function<absl::StatusOr<std::vector<Response>>(const CancellationToken&)> fn) {
-  return [fn = std::move(fn)](const CancellationToken& cancel, ChunkSink<Response>* sink) -> absl::Status {
-    absl::StatusOr<std::vector<Response>> chunks = fn(cancel);
-    if (!chunks.ok()) return chunks.status();
-    for (size_t i = 0; i < chunks->size(); ++i) sink->Push(std::move((*chunks)[i]), i + 1 == chunks->size());
-    return absl::OkStatus();
-  };
-}
 
 }  // namespace geomfit::server

@@ -218,8 +218,9 @@ grpc::ServerWriteReactor<v1::ProjectPointsResponse>* Service::ProjectPoints(grpc
                                                                             const v1::ProjectPointsRequest* request) {
   return new WriteReactor<v1::ProjectPointsResponse>(
       this, ctx, compute_, {"ProjectPoints", request->mesh_id()}, request,
-      AllAtOnce<v1::ProjectPointsResponse>(
-          [this, request](const CancellationToken& cancel) { return handlers_->ProjectPoints(*request, cancel); }));
+      [this, request](const CancellationToken& cancel, ChunkSink<v1::ProjectPointsResponse>* sink) {
+        return handlers_->ProjectPoints(*request, cancel, sink);
+      });
 }
 
 grpc::ServerUnaryReactor* Service::HighOrderNodes(grpc::CallbackServerContext* ctx,
@@ -344,8 +345,9 @@ grpc::ServerWriteReactor<v1::ComputeMembraneResponse>* Service::ComputeMembrane(
     grpc::CallbackServerContext* ctx, const v1::ComputeMembraneRequest* request) {
   return new WriteReactor<v1::ComputeMembraneResponse>(
       this, ctx, compute_, {"ComputeMembrane", request->mesh_id()}, request,
-      AllAtOnce<v1::ComputeMembraneResponse>(
-          [this, request](const CancellationToken& cancel) { return handlers_->ComputeMembrane(*request, cancel); }));
+      [this, request](const CancellationToken& cancel, ChunkSink<v1::ComputeMembraneResponse>* sink) {
+        return handlers_->ComputeMembrane(*request, cancel, sink);
+      });
 }
 
 grpc::ServerUnaryReactor* Service::StartMembraneSolve(grpc::CallbackServerContext* ctx,

@@ -1,7 +1,8 @@
 #pragma once
 // Bounded memory for streamed calls: the in-flight byte budget that client streams
-// reserve their declared size against (--max-inflight-bytes), the count of open
-// streams, and the idle watchdog that ends streams silent for --stream-idle-seconds.
+// reserve their declared size against (--max-inflight-bytes) and that server streams'
+// encoded chunks are counted in, the count of open streams, and the idle watchdog that
+// ends streams silent (or unread) for --stream-idle-seconds.
 #include <atomic>
 #include <chrono>
 #include <condition_variable>
@@ -41,6 +42,9 @@ class StreamLimits {
   /// (nothing reserved) if they do not fit next to the other streams' reservations.
   absl::Status Reserve(int64_t bytes);
   void Release(int64_t bytes);
+  /// Counts `bytes` a server stream holds (encoded messages not yet written) in the
+  /// reserved bytes; never refused: such a stream holds at most two chunks.
+  void Hold(int64_t bytes) { reserved_.fetch_add(bytes); }
   void Opened() { open_.fetch_add(1); }
   void Closed() { open_.fetch_sub(1); }
 
@@ -65,6 +69,40 @@ class StreamLimits {
   bool stop_ = false;
   std::vector<std::shared_ptr<StreamWatch>> watched_;
   std::thread thread_;
+};
+
+/// One server stream's share of StreamLimits: open while it lives, and the bytes of its
+/// encoded messages not yet written (Hold). Not thread-safe: guarded by the reactor's
+/// lock. Null limits: counts nothing.
+class StreamShare {
+ public:
+  explicit StreamShare(StreamLimits* limits) : limits_(limits) {
+    if (limits_ != nullptr) limits_->Opened();
+  }
+  ~StreamShare() { Close(); }
+  StreamShare(const StreamShare&) = delete;
+  StreamShare& operator=(const StreamShare&) = delete;
+
+  void Hold(int64_t bytes) {
+    if (limits_ != nullptr) limits_->Hold(bytes);
+    held_ += bytes;
+  }
+  void Release(int64_t bytes) {
+    if (limits_ != nullptr) limits_->Release(bytes);
+    held_ -= bytes;
+  }
+  /// Releases everything and stops counting the stream as open (once; before its
+  /// status goes out, so a client that sees the end sees the accounting back).
+  void Close() {
+    Release(held_);
+    if (limits_ != nullptr) limits_->Closed();
+    limits_ = nullptr;
+  }
+  int64_t held() const { return held_; }
+
+ private:
+  StreamLimits* limits_;
+  int64_t held_ = 0;
 };
 
 }  // namespace geomfit::server

@@ -3,6 +3,11 @@
 // without holding a thread while it waits. When it has written everything logged so
 // far it leaves a one-shot subscription with the JobManager; the job thread that logs
 // the next event calls it back. Ends after the final event, or when the client goes.
+// Bounded like every server stream: it holds at most one batch of events (counted in
+// StreamLimits' in-flight bytes), and a watcher that takes no event for
+// --stream-idle-seconds while one is being written is ended with DEADLINE_EXCEEDED (a
+// watcher waiting for a quiet job is not idle: nothing is being written to it).
+#include <chrono>
 #include <deque>
 #include <memory>
 #include <mutex>
@@ -13,7 +18,9 @@
 #include "absl/status/status.h"
 #include "geomfit/v1/geomfit.pb.h"
 #include "server/handlers/jobs.h"
+#include "server/rpc/reactors.h"
 #include "server/rpc/service.h"
+#include "server/rpc/stream_limits.h"
 #include "server/rpc/tenancy.h"
 
 namespace geomfit::server {
@@ -25,7 +32,8 @@ class WatchJobReactor final : public grpc::ServerWriteReactor<v1::JobEvent> {
 
   WatchJobReactor(Service* service, grpc::CallbackServerContext* ctx, JobHandlers* jobs,
                   const v1::WatchJobRequest& request)
-      : service_(service), jobs_(jobs), job_id_(request.job_id()), next_(request.from_event()) {
+      : service_(service), ctx_(ctx), jobs_(jobs), job_id_(request.job_id()), next_(request.from_event()),
+        share_(service->stream_limits()) {
     call_.method = "WatchJob";
     call_.mesh_id = job_id_;
     service_->Begin();
@@ -36,11 +44,14 @@ class WatchJobReactor final : public grpc::ServerWriteReactor<v1::JobEvent> {
       tenant_ = who->tenant;
       s = service_->OwnJob(*who, job_id_);
     }
+    if (s.ok() && service_->stream_limits() != nullptr) {
+      watch_ = service_->stream_limits()->Watch([this, idle = service_->stream_limits()->idle()] {
+        return Stalled(idle);
+      });
+    }
     std::unique_lock<std::mutex> lock(mu_);
     if (!s.ok()) {
-      finished_ = true;
-      lock.unlock();
-      Finish(service_->Finish(call_, s));
+      End(lock, s);
       return;
     }
     Pump(lock);
@@ -49,6 +60,8 @@ class WatchJobReactor final : public grpc::ServerWriteReactor<v1::JobEvent> {
   void OnWriteDone(bool ok) override {
     std::unique_lock<std::mutex> lock(mu_);
     writing_ = false;
+    share_.Release(current_bytes_);
+    current_bytes_ = 0;
     if (!ok) broken_ = true;
     Pump(lock);
   }
@@ -58,6 +71,10 @@ class WatchJobReactor final : public grpc::ServerWriteReactor<v1::JobEvent> {
     Pump(lock);
   }
   void OnDone() override {
+    if (watch_ != nullptr) {
+      std::lock_guard<std::recursive_mutex> watch(watch_->mu);  // the watchdog is not in Stalled
+      watch_->closed = true;
+    }
     std::unique_lock<std::mutex> lock(mu_);
     done_ = true;
     Withdraw();
@@ -86,10 +103,8 @@ class WatchJobReactor final : public grpc::ServerWriteReactor<v1::JobEvent> {
   void Pump(std::unique_lock<std::mutex>& lock) {
     if (writing_ || finished_) return;
     if (broken_) {
-      finished_ = true;
       Withdraw();
-      lock.unlock();
-      Finish(service_->Finish(call_, absl::CancelledError("the client went away during the watch")));
+      End(lock, idle_ended_ ? idle_status_ : absl::CancelledError("the client went away during the watch"));
       return;
     }
     if (queue_.empty()) {
@@ -98,9 +113,7 @@ class WatchJobReactor final : public grpc::ServerWriteReactor<v1::JobEvent> {
       absl::StatusOr<std::vector<v1::JobEvent>> events =
           jobs_->ReadEvents(job_id_, next_, kBatch, &end, [this] { OnMore(); }, &subscription_);
       if (!events.ok()) {
-        finished_ = true;
-        lock.unlock();
-        Finish(service_->Finish(call_, events.status()));
+        End(lock, events.status());
         return;
       }
       if (events->empty()) {  // subscribed: OnMore comes with the next event
@@ -108,15 +121,22 @@ class WatchJobReactor final : public grpc::ServerWriteReactor<v1::JobEvent> {
         return;
       }
       next_ = events->back().seq() + 1;
-      for (v1::JobEvent& e : *events) queue_.push_back(std::move(e));
+      for (v1::JobEvent& e : *events) {
+        share_.Hold(static_cast<int64_t>(e.ByteSizeLong()));
+        queue_.push_back(std::move(e));
+      }
     }
     current_ = std::move(queue_.front());
     queue_.pop_front();
+    current_bytes_ = static_cast<int64_t>(current_.ByteSizeLong());  // held since it was read
     UnscopeIds(tenant_, &current_);
     writing_ = true;
+    write_started_ = std::chrono::steady_clock::now();
     call_.bytes_out += static_cast<int64_t>(current_.ByteSizeLong());
     if (current_.final()) {
       finished_ = true;
+      queue_.clear();
+      share_.Close();
       lock.unlock();
       StartWriteAndFinish(&current_, grpc::WriteOptions(), service_->Finish(call_, absl::OkStatus()));
       return;
@@ -125,15 +145,42 @@ class WatchJobReactor final : public grpc::ServerWriteReactor<v1::JobEvent> {
     StartWrite(&current_);
   }
 
+  /// Finishes the call with `s` (lock held; unlocks): what it holds is released first.
+  void End(std::unique_lock<std::mutex>& lock, const absl::Status& s) {
+    finished_ = true;
+    queue_.clear();
+    share_.Close();
+    lock.unlock();
+    Finish(service_->Finish(call_, s));
+  }
+  /// The watchdog (watch mutex held): an event the watcher has not taken for `idle`.
+  bool Stalled(std::chrono::milliseconds idle) {
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      if (!writing_ || std::chrono::steady_clock::now() - write_started_ < idle) return false;
+      idle_ended_ = true;
+      idle_status_ = IdleStatus(idle);
+    }
+    EndIdle(ctx_, idle_status_);
+    return true;
+  }
+
   Service* service_;
+  grpc::CallbackServerContext* ctx_;
   JobHandlers* jobs_;
   const std::string job_id_;
   std::string tenant_;
   int64_t next_;
   Service::Call call_{};
   std::mutex mu_;
+  StreamShare share_;
+  std::shared_ptr<StreamWatch> watch_;
+  std::chrono::steady_clock::time_point write_started_;
+  bool idle_ended_ = false;  ///< ended by the watchdog, with idle_status_
+  absl::Status idle_status_;
   std::deque<v1::JobEvent> queue_;
   v1::JobEvent current_;
+  int64_t current_bytes_ = 0;
   uint64_t subscription_ = 0;
   bool writing_ = false, finished_ = false, broken_ = false, done_ = false, subscribed_ = false;
 };
