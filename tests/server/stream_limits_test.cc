@@ -3,7 +3,10 @@
 // committed; streams reserve their declared size against --max-inflight-bytes when the
 // header arrives; silent streams end after --stream-idle-seconds; the server's own
 // accounting (GetStatistics) shows the memory returned.
+#include <algorithm>
+#include <functional>
 #include <future>
+#include <map>
 #include <string>
 #include <thread>
 #include <vector>
@@ -332,6 +335,15 @@ TEST(StreamLimitsTest, StalledStreamsEndAtTheIdleTimeoutAndReturnTheirMemory) {
   EXPECT_EQ(s.stored_meshes(), 0);
 }
 
+/// A channel whose streams take at most 16 KiB ahead of the reader (no window growth):
+/// a stream it does not read soon stops the server's writes.
+std::shared_ptr<grpc::Channel> SmallWindowChannel(int port) {
+  grpc::ChannelArguments args;
+  args.SetInt(GRPC_ARG_HTTP2_BDP_PROBE, 0);
+  args.SetInt(GRPC_ARG_HTTP2_STREAM_LOOKAHEAD_BYTES, 16 << 10);
+  return grpc::CreateCustomChannel("127.0.0.1:" + std::to_string(port), grpc::InsecureChannelCredentials(), args);
+}
+
 // A reader that takes the first chunk and stops: the download is made lazily (one chunk
 // ahead), and once no write completes for the idle time the server ends the call with
 // DEADLINE_EXCEEDED (sent ahead of the unread data).
@@ -340,12 +352,7 @@ TEST(StreamLimitsTest, DownloadReaderThatStopsReadingIsEnded) {
   InProcessServer server(Budgeted(0, 0.3));
   auto stored = testing::UploadMesh(server.stub(), testing::TestTorus(160), "big");
   ASSERT_TRUE(stored.ok()) << stored.status();
-  grpc::ChannelArguments args;
-  args.SetInt(GRPC_ARG_HTTP2_BDP_PROBE, 0);
-  args.SetInt(GRPC_ARG_HTTP2_STREAM_LOOKAHEAD_BYTES, 16 << 10);
-  auto channel = grpc::CreateCustomChannel("127.0.0.1:" + std::to_string(server.port()),
-                                           grpc::InsecureChannelCredentials(), args);
-  v1::GeomFit::Stub stub(channel);
+  v1::GeomFit::Stub stub(SmallWindowChannel(server.port()));
   grpc::ClientContext ctx;
   ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(60));
   v1::DownloadMeshRequest request;
@@ -363,6 +370,236 @@ TEST(StreamLimitsTest, DownloadReaderThatStopsReadingIsEnded) {
   EXPECT_EQ(s.error_code(), Code::DEADLINE_EXCEEDED) << s.error_message() << " after " << read << " chunks";
   EXPECT_NE(s.error_message().find("--stream-idle-seconds"), std::string::npos) << s.error_message();
   EXPECT_EQ(testing::HealthCheck(server.channel()), "SERVING");
+}
+
+ServerOptions OneWorker(double idle_seconds) {
+  ServerOptions o = Budgeted(0, idle_seconds);
+  o.workers = 1;  // FIFO: a request sent after another runs once that one's work returned
+  return o;
+}
+
+/// The bytes of every array a stream's chunks carry, concatenated per field (summaries
+/// aside): equal for equal results, whatever the chunk boundaries.
+template <typename Response>
+std::map<std::string, std::string> Columns(const std::vector<Response>& chunks) {
+  std::map<std::string, std::string> out;
+  std::function<void(const google::protobuf::Message&, const std::string&)> add =
+      [&](const google::protobuf::Message& m, const std::string& path) {
+        const google::protobuf::Reflection* r = m.GetReflection();
+        std::vector<const google::protobuf::FieldDescriptor*> fields;
+        r->ListFields(m, &fields);
+        for (const google::protobuf::FieldDescriptor* f : fields) {
+          if (f->name() == "summary") continue;
+          if (f->name() == "data" && f->type() == google::protobuf::FieldDescriptor::TYPE_BYTES) {
+            out[path] += r->GetString(m, f);
+          } else if (f->type() == google::protobuf::FieldDescriptor::TYPE_MESSAGE && !f->is_repeated()) {
+            add(r->GetMessage(m, f), path + "." + f->name());
+          }
+        }
+      };
+  for (const Response& c : chunks) add(c, "");
+  return out;
+}
+
+template <typename Response>
+int64_t Largest(const std::vector<Response>& chunks) {
+  int64_t largest = 0;
+  for (const Response& c : chunks) largest = std::max<int64_t>(largest, c.ByteSizeLong());
+  return largest;
+}
+template <typename Response>
+int64_t Total(const std::vector<Response>& chunks) {
+  int64_t total = 0;
+  for (const Response& c : chunks) total += static_cast<int64_t>(c.ByteSizeLong());
+  return total;
+}
+
+v1::ComputeDifferentialsRequest EveryQuantity(const std::string& mesh_id) {
+  v1::ComputeDifferentialsRequest r;
+  r.set_mesh_id(mesh_id);
+  for (int q = v1::QUANTITY_NORMALS; q <= v1::QUANTITY_CURVATURE_TENSOR; ++q) r.add_quantities(v1::Quantity(q));
+  r.set_diagnostics(true);
+  r.set_chunk_rows(256);
+  return r;
+}
+
+/// Reads a whole server stream.
+template <typename Response, typename Request, typename Call>
+grpc::Status ReadAll(Call call, const Request& request, std::vector<Response>* chunks) {
+  grpc::ClientContext ctx;
+  ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(60));
+  auto reader = call(&ctx, request);
+  Response chunk;
+  while (reader->Read(&chunk)) chunks->push_back(chunk);
+  return reader->Finish();
+}
+
+// A ComputeDifferentials reader that opens a response of many chunks and reads none:
+// the work hands every chunk over without waiting (they are encoded only when the
+// transport can take one), so the stream holds at most two encoded chunks, visible in
+// the server's in-flight bytes, until the client goes; the results are the same as a
+// fresh computation streamed while it fits.
+TEST(ServerStreamLimitsTest, ComputeReaderThatReadsNothingHoldsAtMostTwoChunks) {
+  InProcessServer server(OneWorker(0));  // no watchdog: the stalled stream waits for its client
+  const Mesh mesh = testing::TestTorus(100);
+  auto stored = testing::UploadMesh(server.stub(), mesh, "big", 20000);
+  ASSERT_TRUE(stored.ok()) << stored.status();
+  const v1::ComputeDifferentialsRequest request = EveryQuantity(stored->mesh_id());
+  v1::GeomFit::Stub slow(SmallWindowChannel(server.port()));
+  grpc::ClientContext stalled_ctx;
+  auto stalled = slow.ComputeDifferentials(&stalled_ctx, request);  // never read
+  StatsWhen(server.stub(), [](const v1::Statistics& s) { return s.open_streams() == 1; });  // queued first
+  std::vector<v1::ComputeDifferentialsResponse> chunks;
+  const grpc::Status read = testing::Compute(server.stub(), request, &chunks);
+  ASSERT_TRUE(read.ok()) << read.error_message();
+  const int64_t largest = Largest(chunks), total = Total(chunks);
+  ASSERT_GT(total, 2 << 20) << "the response must outgrow the transport's windows";
+  ASSERT_GE(total, 40 * largest);
+  const v1::Statistics s = Stats(server.stub());
+  EXPECT_EQ(s.open_streams(), 1);
+  EXPECT_GT(s.inflight_bytes(), 0) << "the chunk waiting for the reader is counted";
+  EXPECT_LE(s.inflight_bytes(), 2 * largest) << "of a " << total << "-byte response";
+  stalled_ctx.TryCancel();
+  const v1::Statistics after =
+      StatsWhen(server.stub(), [](const v1::Statistics& s) { return s.open_streams() == 0; });
+  EXPECT_EQ(after.inflight_bytes(), 0);
+  EXPECT_EQ(stalled->Finish().error_code(), Code::CANCELLED);
+
+  // Identical results: this server's (from the cached arrays) and a fresh one's (chunks
+  // made while the fit fills the arrays).
+  InProcessServer fresh(OneWorker(0));
+  auto again = testing::UploadMesh(fresh.stub(), mesh, "big", 20000);
+  ASSERT_TRUE(again.ok()) << again.status();
+  std::vector<v1::ComputeDifferentialsResponse> streamed;
+  ASSERT_TRUE(testing::Compute(fresh.stub(), EveryQuantity(again->mesh_id()), &streamed).ok());
+  const auto columns = Columns(chunks);
+  EXPECT_EQ(columns.size(), 12u);  // 8 quantities, 4 diagnostics
+  EXPECT_EQ(columns.at(".normals").size(), 24u * mesh.NumVertices());
+  EXPECT_TRUE(columns == Columns(streamed));
+}
+
+// The same reader with --stream-idle-seconds: once its write has waited that long the
+// server ends the call with DEADLINE_EXCEEDED and the accounting is back to zero.
+TEST(ServerStreamLimitsTest, ComputeReaderThatReadsNothingIsEndedAtTheIdleTimeout) {
+  InProcessServer server(OneWorker(0.3));
+  auto stored = testing::UploadMesh(server.stub(), testing::TestTorus(100), "big", 20000);
+  ASSERT_TRUE(stored.ok()) << stored.status();
+  v1::GeomFit::Stub slow(SmallWindowChannel(server.port()));
+  grpc::ClientContext ctx;
+  ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(60));
+  auto stalled = slow.ComputeDifferentials(&ctx, EveryQuantity(stored->mesh_id()));
+  StatsWhen(server.stub(), [](const v1::Statistics& s) { return s.open_streams() == 1; });
+  const v1::Statistics s =
+      StatsWhen(server.stub(), [](const v1::Statistics& s) { return s.open_streams() == 0; });
+  EXPECT_EQ(s.inflight_bytes(), 0);
+  v1::ComputeDifferentialsResponse chunk;
+  while (stalled->Read(&chunk)) {
+  }
+  const grpc::Status status = stalled->Finish();
+  EXPECT_EQ(status.error_code(), Code::DEADLINE_EXCEEDED) << status.error_message();
+  EXPECT_NE(status.error_message().find("--stream-idle-seconds"), std::string::npos) << status.error_message();
+  EXPECT_EQ(testing::HealthCheck(server.channel()), "SERVING");
+}
+
+v1::ProjectPointsRequest FacePoints(const std::string& mesh_id, const Mesh& mesh, int per_face) {
+  v1::ProjectPointsRequest r;
+  r.set_mesh_id(mesh_id);
+  r.set_chunk_rows(1000);
+  const int64_t n = mesh.NumFaces() * per_face;
+  std::vector<int32_t> faces(n);
+  std::vector<double> natural(2 * n);
+  for (int64_t i = 0; i < n; ++i) {
+    faces[i] = static_cast<int32_t>(i / per_face);
+    natural[2 * i] = 0.1 + 0.6 * (i % per_face) / per_face;
+    natural[2 * i + 1] = 0.2;
+  }
+  wire::EncodeInts(faces.data(), n, 0, r.mutable_faces());
+  wire::EncodeDoubles(natural.data(), n, 2, r.mutable_natural());
+  return r;
+}
+
+// ProjectPoints computes every point first, then hands its chunks over lazily: a reader
+// that reads nothing holds the points and at most two encoded chunks.
+TEST(ServerStreamLimitsTest, ProjectPointsReaderThatReadsNothingHoldsAtMostTwoChunks) {
+  InProcessServer server(OneWorker(0));
+  const Mesh mesh = testing::TestTorus(40);
+  auto stored = testing::UploadMesh(server.stub(), mesh, "surface", 20000);
+  ASSERT_TRUE(stored.ok()) << stored.status();
+  const v1::ProjectPointsRequest request = FacePoints(stored->mesh_id(), mesh, 12);
+  v1::GeomFit::Stub slow(SmallWindowChannel(server.port()));
+  grpc::ClientContext stalled_ctx;
+  auto stalled = slow.ProjectPoints(&stalled_ctx, request);
+  StatsWhen(server.stub(), [](const v1::Statistics& s) { return s.open_streams() == 1; });
+  std::vector<v1::ProjectPointsResponse> chunks;
+  const grpc::Status read = ReadAll<v1::ProjectPointsResponse>(
+      [&](grpc::ClientContext* ctx, const v1::ProjectPointsRequest& r) { return server.stub().ProjectPoints(ctx, r); },
+      request, &chunks);
+  ASSERT_TRUE(read.ok()) << read.error_message();
+  const int64_t largest = Largest(chunks), total = Total(chunks);
+  ASSERT_GT(total, 2 << 20) << "the response must outgrow the transport's windows";
+  const v1::Statistics s = Stats(server.stub());
+  EXPECT_EQ(s.open_streams(), 1);
+  EXPECT_GT(s.inflight_bytes(), 0);
+  EXPECT_LE(s.inflight_bytes(), 2 * largest) << "of a " << total << "-byte response";
+  stalled_ctx.TryCancel();
+  const v1::Statistics after =
+      StatsWhen(server.stub(), [](const v1::Statistics& s) { return s.open_streams() == 0; });
+  EXPECT_EQ(after.inflight_bytes(), 0);
+  // Every point, in order, once.
+  const auto columns = Columns(chunks);
+  EXPECT_EQ(columns.at(".positions").size(), 24u * 12 * mesh.NumFaces());
+  int64_t next = 0;
+  for (const v1::ProjectPointsResponse& c : chunks) {
+    EXPECT_EQ(c.offset(), next);
+    next += c.faces().shape_size() > 0 ? c.faces().shape(0) : 0;
+  }
+  EXPECT_EQ(next, 12 * mesh.NumFaces());
+}
+
+// A watcher that stops reading a job's events (a finished flow's, replayed from the
+// first, with positions in every event) is ended with DEADLINE_EXCEEDED once an event
+// has waited for --stream-idle-seconds; what it held is released.
+TEST(ServerStreamLimitsTest, WatcherThatStopsReadingIsEndedAtTheIdleTimeout) {
+  InProcessServer server(Budgeted(0, 0.3));
+  auto stored = testing::UploadMesh(server.stub(), testing::TestSphere(12), "sphere");
+  ASSERT_TRUE(stored.ok()) << stored.status();
+  v1::FlowJob spec;
+  spec.set_mesh_id(stored->mesh_id());
+  spec.set_kind("mcf");
+  spec.set_scheme("semi_implicit");
+  spec.set_dt(1e-4);
+  spec.set_steps(60);
+  spec.set_snapshot_every(1);
+  spec.set_send_positions(true);
+  v1::Job job;
+  {
+    grpc::ClientContext ctx;
+    const grpc::Status started = server.stub().StartFlow(&ctx, spec, &job);
+    ASSERT_TRUE(started.ok()) << started.error_message();
+  }
+  std::vector<v1::JobEvent> events;  // a reader that reads: the whole log
+  ASSERT_TRUE(testing::WatchJob(server.stub(), job.job_id(), 0, &events).ok());
+  ASSERT_TRUE(!events.empty() && events.back().final());
+  ASSERT_GT(Total(events), 1 << 20) << "the events must outgrow the transport's windows";
+  EXPECT_EQ(Stats(server.stub()).open_streams(), 0);
+
+  v1::GeomFit::Stub slow(SmallWindowChannel(server.port()));
+  grpc::ClientContext ctx;
+  ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(60));
+  v1::WatchJobRequest watch;
+  watch.set_job_id(job.job_id());
+  auto stalled = slow.WatchJob(&ctx, watch);  // never read until the server ended it
+  StatsWhen(server.stub(), [](const v1::Statistics& s) { return s.open_streams() == 1 && s.inflight_bytes() > 0; });
+  const v1::Statistics s =
+      StatsWhen(server.stub(), [](const v1::Statistics& s) { return s.open_streams() == 0; });
+  EXPECT_EQ(s.inflight_bytes(), 0);
+  v1::JobEvent event;
+  int64_t read = 0;
+  while (stalled->Read(&event)) ++read;
+  const grpc::Status status = stalled->Finish();
+  EXPECT_EQ(status.error_code(), Code::DEADLINE_EXCEEDED) << status.error_message() << " after " << read;
+  EXPECT_NE(status.error_message().find("--stream-idle-seconds"), std::string::npos) << status.error_message();
+  EXPECT_LT(read, static_cast<int64_t>(events.size()));
 }
 
 }  // namespace
