@@ -150,12 +150,13 @@ const std::vector<Flag>& Flags() {
          return absl::OkStatus();
        }},
       {"max-inflight-bytes", "bytes that upload/update streams may hold at once: each reserves its declared size "
-                             "(rows and the mesh built from them) when its header arrives, else RESOURCE_EXHAUSTED; "
+                             "(rows and the mesh built from them) when its header arrives, else RESOURCE_EXHAUSTED "
+                             "(server streams' encoded chunks, at most two per stream, are counted too); "
                              "0 = half of --cache-bytes",
        IntSetter(&ServerOptions::max_inflight_bytes, "max-inflight-bytes", 0, int64_t{1} << 50)},
-      {"stream-idle-seconds", "an upload/update stream with no message for this long ends with DEADLINE_EXCEEDED "
-                              "and releases its memory (a download reader taking no chunk that long is cancelled); "
-                              "0 = never",
+      {"stream-idle-seconds", "an upload/update stream with no message for this long, or a server stream "
+                              "(download, compute, watch) whose reader takes no message that long, ends with "
+                              "DEADLINE_EXCEEDED and releases its memory; 0 = never",
        [](const std::string& v, ServerOptions* o) {
          double s = 0;
          if (!absl::SimpleAtod(v, &s) || s < 0 || s > 86400) return Bad("stream-idle-seconds", v, "0..86400");
