@@ -81,9 +81,8 @@ inline void EndIdle(grpc::CallbackServerContext* ctx, const absl::Status& status
 /// DEADLINE_EXCEEDED. The header's lookup (`on_header`, which reads the store) runs on
 /// the io pool, never on a gRPC thread: the next read starts once it is done (the
 /// reservation itself is an O(1) atomic). The end of the stream runs `finish` on the
-/// compute pool. Every end
-/// releases the reservation before the status goes out, and nothing is committed unless
-/// the whole stream parsed and assembled.
+/// compute pool. Every end releases the reservation before the status goes out, and
+/// nothing is committed unless the whole stream parsed and assembled.
 template <typename Request, typename Assembler>
 class ReadReactor final : public grpc::ServerReadReactor<grpc::ByteBuffer> {
  public:
