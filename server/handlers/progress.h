@@ -18,7 +18,7 @@
 
 namespace geomfit::server {
 
-/// Passes on, per phase, the first report, the last (done = total) and between them at
+/// Passes on, per named phase, the first report, the last (done = total) and between them at
 /// most one every `interval`, with `done` never decreasing; reports behind the latest
 /// (threads finishing out of order) are dropped. `emit` runs under a lock, so its calls
 /// are serialized and in order. Thread-safe.
@@ -29,6 +29,7 @@ class ProgressThrottle {
       : emit_(std::move(emit)), interval_(interval) {}
 
   void Report(const Progress& p) {
+    if (p.phase.empty()) return;  // a loop that names no phase
     std::lock_guard<std::mutex> lock(mu_);
     const auto now = std::chrono::steady_clock::now();
     const bool first = !started_ || p.phase != phase_;
