@@ -122,8 +122,10 @@ class Handlers {
   /// PlanPrefetch, run at once.
   void Prefetch(const std::string& id, int64_t revision, const CancellationToken& cancel);
 
-  // Chapter 4 (reconstruction.cc, integration.cc).
-  /// Projects the points, then hands their chunks to `sink` (PushRows: encoded lazily).
+  // Chapter 4 (reconstruction.cc, integration.cc). `progress` (optional) gets the
+  // work's progress reports (fit, project / evaluate points, integrate), from any thread.
+  /// Chunks to `sink`: with request.progress, progress messages (progress.h's
+  /// ProgressThrottle) while the work runs, then the result chunks.
   absl::Status ProjectPoints(const v1::ProjectPointsRequest& request, const CancellationToken& cancel,
                              ChunkSink<v1::ProjectPointsResponse>* sink);
   /// The same, collected.
@@ -133,10 +135,13 @@ class Handlers {
         [&](ChunkSink<v1::ProjectPointsResponse>* sink) { return ProjectPoints(request, cancel, sink); });
   }
   absl::StatusOr<v1::HighOrderNodesResponse> HighOrderNodes(const v1::HighOrderNodesRequest& request,
-                                                            const CancellationToken& cancel);
-  absl::StatusOr<v1::MeshInfo> RefineMesh(const v1::RefineMeshRequest& request, const CancellationToken& cancel);
+                                                            const CancellationToken& cancel,
+                                                            const RunContext::ProgressFn& progress = nullptr);
+  absl::StatusOr<v1::MeshInfo> RefineMesh(const v1::RefineMeshRequest& request, const CancellationToken& cancel,
+                                          const RunContext::ProgressFn& progress = nullptr);
   absl::StatusOr<v1::IntegrateResponse> Integrate(const v1::IntegrateRequest& request,
-                                                  const CancellationToken& cancel);
+                                                  const CancellationToken& cancel,
+                                                  const RunContext::ProgressFn& progress = nullptr);
 
   // GFD operators (operators.cc).
   absl::StatusOr<v1::GetOperatorResponse> GetOperator(const v1::GetOperatorRequest& request,
@@ -171,7 +176,11 @@ class Handlers {
   /// A reconstruction request's snapshot and surface.
   absl::StatusOr<std::unique_ptr<Reconstructed>> Reconstruct(const std::string& id, int64_t revision,
                                                              const v1::ReconstructionOptions& options,
-                                                             bool stencils, const CancellationToken& cancel);
+                                                             bool stencils, const RunContext& ctx);
+  /// The request's RunContext: the workspace's threads, `cancel`, `progress` (may be null).
+  RunContext Context(const CancellationToken& cancel, const RunContext::ProgressFn& progress) const {
+    return ws_->Context(&cancel).WithProgress(progress);
+  }
   /// Rows per streamed chunk: the request's, else the server's, else as many as fill
   /// chunk_bytes; never more than half the message limit.
   int64_t ChunkRows(int64_t requested, int64_t bytes_per_row) const;

@@ -22,7 +22,8 @@ v1::ServerInfo Handlers::GetServerInfo() const {
   info.set_default_chunk_bytes(options_.chunk_bytes);
   for (const char* c : {"UploadMesh", "UpdatePositions", "SetPositions", "GetMesh", "DownloadMesh", "ListMeshes", "DeleteMesh",
                         "ComputeDifferentials", "GetServerInfo", "GetStatistics", "ProjectPoints",
-                        "HighOrderNodes", "RefineMesh", "Integrate", "reconstruction:WALF",
+                        "HighOrderNodes", "RefineMesh", "Integrate", "HighOrderNodesStream", "IntegrateStream",
+                        "RefineMeshStream", "progress", "reconstruction:WALF",
                         "reconstruction:CMF", "fit_method:LHF",
                         "fit_method:LOP", "faces:triangle", "faces:quad", "faces:mixed"}) {
     info.add_capabilities(c);

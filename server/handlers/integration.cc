@@ -11,7 +11,8 @@
 namespace geomfit::server {
 
 absl::StatusOr<v1::IntegrateResponse> Handlers::Integrate(const v1::IntegrateRequest& request,
-                                                          const CancellationToken& cancel) {
+                                                          const CancellationToken& cancel,
+                                                          const RunContext::ProgressFn& progress) {
   GF_RETURN_IF_ERROR(RequireId(request.mesh_id()));
   if (request.options().method() == v1::RECONSTRUCTION_CMF)
     return absl::InvalidArgumentError("options.method: integration supports WALF and LINEAR, not CMF");
@@ -30,8 +31,9 @@ absl::StatusOr<v1::IntegrateResponse> Handlers::Integrate(const v1::IntegrateReq
     GF_ASSIGN_OR_RETURN(const wire::RowsXd v, wire::DecodeDoubles(request.vectors(), "vectors", {3}));
     in.vectors = v;
   }
-  GF_ASSIGN_OR_RETURN(auto r, Reconstruct(request.mesh_id(), request.revision(), request.options(), fields, cancel));
-  GF_ASSIGN_OR_RETURN(const Integrals result, geomfit::Integrate(*r->surface, in, ws_->Context(&cancel)));
+  const RunContext ctx = Context(cancel, progress);
+  GF_ASSIGN_OR_RETURN(auto r, Reconstruct(request.mesh_id(), request.revision(), request.options(), fields, ctx));
+  GF_ASSIGN_OR_RETURN(const Integrals result, geomfit::Integrate(*r->surface, in, ctx));
   GF_RETURN_IF_ERROR(cancel.Check());
   v1::IntegrateResponse out;
   out.set_area(result.area);

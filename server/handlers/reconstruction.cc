@@ -10,6 +10,7 @@
 #include "core/util/status_macros.h"
 #include "proto/wire.h"
 #include "server/handlers/handlers.h"
+#include "server/handlers/progress.h"
 #include "server/mesh_record.h"
 
 namespace geomfit::server {
@@ -22,11 +23,11 @@ absl::StatusOr<Snapshot> Handlers::Acquire(const std::string& id, int64_t revisi
 
 absl::StatusOr<std::unique_ptr<Reconstructed>> Handlers::Reconstruct(const std::string& id, int64_t revision,
                                                                      const v1::ReconstructionOptions& options,
-                                                                     bool stencils, const CancellationToken& cancel) {
+                                                                     bool stencils, const RunContext& ctx) {
   absl::StatusOr<ReconstructionOptions> ro = wire::FromProto(options);
   if (!ro.ok()) return absl::InvalidArgumentError(absl::StrCat("options.", ro.status().message()));
   GF_ASSIGN_OR_RETURN(const Snapshot snap, Acquire(id, revision));  // held to the end
-  return ws_->Reconstruct(snap, *ro, stencils, ws_->Context(&cancel));
+  return ws_->Reconstruct(snap, *ro, stencils, ctx);
 }
 
 absl::Status Handlers::ProjectPoints(const v1::ProjectPointsRequest& request, const CancellationToken& cancel,
@@ -38,10 +39,17 @@ absl::Status Handlers::ProjectPoints(const v1::ProjectPointsRequest& request, co
   if (xyz == face_points)
     return absl::InvalidArgumentError("give either points (#P x 3) or faces (#P) with natural (#P x 2)");
   std::vector<ProjectedPoint> out;
-  GF_ASSIGN_OR_RETURN(auto r, Reconstruct(request.mesh_id(), request.revision(), request.options(), false, cancel));
+  // Progress messages go out while the work runs, before any result chunk.
+  ProgressThrottle throttle([sink](const Progress& p) {
+    v1::ProjectPointsResponse message;
+    ToProto(p, message.mutable_progress());
+    sink->Push(std::move(message), false);
+  });
+  const RunContext ctx = Context(cancel, request.progress() ? throttle.Callback() : nullptr);
+  GF_ASSIGN_OR_RETURN(auto r, Reconstruct(request.mesh_id(), request.revision(), request.options(), false, ctx));
   if (xyz) {
     GF_ASSIGN_OR_RETURN(const wire::RowsXd p, wire::DecodeDoubles(request.points(), "points", {3}));
-    GF_RETURN_IF_ERROR(geomfit::ProjectPoints(*r->surface, *r->snapshot.topology, Positions(p), &out, ws_->Context(&cancel)));
+    GF_RETURN_IF_ERROR(geomfit::ProjectPoints(*r->surface, *r->snapshot.topology, Positions(p), &out, ctx));
   } else {
     GF_ASSIGN_OR_RETURN(const wire::RowsXi f, wire::DecodeInts(request.faces(), "faces", {0}));
     GF_ASSIGN_OR_RETURN(const wire::RowsXd n, wire::DecodeDoubles(request.natural(), "natural", {2}));
@@ -50,7 +58,7 @@ absl::Status Handlers::ProjectPoints(const v1::ProjectPointsRequest& request, co
     std::vector<FacePoint> fp(n.rows());
     for (Eigen::Index i = 0; i < n.rows(); ++i) fp[i] = {f.data()[i], n(i, 0), n(i, 1)};
     std::vector<SurfacePoint> sp;
-    GF_RETURN_IF_ERROR(EvaluatePoints(*r->surface, fp, &sp, ws_->Context(&cancel)));
+    GF_RETURN_IF_ERROR(EvaluatePoints(*r->surface, fp, &sp, ctx));
     out.resize(sp.size());
     for (size_t i = 0; i < sp.size(); ++i) out[i] = {fp[i], sp[i], 0.0};
   }
@@ -82,12 +90,14 @@ absl::Status Handlers::ProjectPoints(const v1::ProjectPointsRequest& request, co
 }
 
 absl::StatusOr<v1::HighOrderNodesResponse> Handlers::HighOrderNodes(const v1::HighOrderNodesRequest& request,
-                                                                    const CancellationToken& cancel) {
+                                                                    const CancellationToken& cancel,
+                                                                    const RunContext::ProgressFn& progress) {
   GF_RETURN_IF_ERROR(RequireId(request.mesh_id()));
   const int order = request.order() == 0 ? kMinNodeOrder : request.order();
   GF_RETURN_IF_ERROR(CheckRange("order", order, kMinNodeOrder, kMaxNodeOrder));
-  GF_ASSIGN_OR_RETURN(auto r, Reconstruct(request.mesh_id(), request.revision(), request.options(), false, cancel));
-  GF_ASSIGN_OR_RETURN(const HighOrderMesh ho, MakeHighOrderMesh(*r->surface, *r->snapshot.topology, order, ws_->Context(&cancel)));
+  const RunContext ctx = Context(cancel, progress);
+  GF_ASSIGN_OR_RETURN(auto r, Reconstruct(request.mesh_id(), request.revision(), request.options(), false, ctx));
+  GF_ASSIGN_OR_RETURN(const HighOrderMesh ho, MakeHighOrderMesh(*r->surface, *r->snapshot.topology, order, ctx));
   GF_RETURN_IF_ERROR(cancel.Check());
   v1::HighOrderNodesResponse out;
   out.set_order(order);
@@ -101,15 +111,17 @@ absl::StatusOr<v1::HighOrderNodesResponse> Handlers::HighOrderNodes(const v1::Hi
 }
 
 absl::StatusOr<v1::MeshInfo> Handlers::RefineMesh(const v1::RefineMeshRequest& request,
-                                                  const CancellationToken& cancel) {
+                                                  const CancellationToken& cancel,
+                                                  const RunContext::ProgressFn& progress) {
   GF_RETURN_IF_ERROR(RequireId(request.mesh_id()));
   const int factor = request.factor() == 0 ? kMinRefineFactor : request.factor();
   GF_RETURN_IF_ERROR(CheckRange("factor", factor, kMinRefineFactor, kMaxRefineFactor));
-  GF_ASSIGN_OR_RETURN(auto r, Reconstruct(request.mesh_id(), request.revision(), request.options(), false, cancel));
+  const RunContext ctx = Context(cancel, progress);
+  GF_ASSIGN_OR_RETURN(auto r, Reconstruct(request.mesh_id(), request.revision(), request.options(), false, ctx));
   if (static_cast<int64_t>(r->snapshot.mesh->NumFaces()) * factor * factor > options_.max_vertices)
     return absl::ResourceExhaustedError(absl::StrFormat("refining %d faces by %d would exceed --max-vertices (%d)",
                                                         r->snapshot.mesh->NumFaces(), factor, options_.max_vertices));
-  GF_ASSIGN_OR_RETURN(Mesh refined, geomfit::RefineMesh(*r->surface, *r->snapshot.topology, factor, ws_->Context(&cancel)));
+  GF_ASSIGN_OR_RETURN(Mesh refined, geomfit::RefineMesh(*r->surface, *r->snapshot.topology, factor, ctx));
   GF_RETURN_IF_ERROR(cancel.Check());
   MeshMeta meta;
   GF_ASSIGN_OR_RETURN(const MeshRecord source, ws_->Info(request.mesh_id()));

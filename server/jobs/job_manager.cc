@@ -65,6 +65,8 @@ class JobManager::Events final : public JobEvents {
     {
       std::lock_guard<std::mutex> lock(progress_mu_);
       step_ = event.step;
+      phase_.clear();  // a phase reported again after this event (the next level's fit) starts over
+      done_ = -1;
     }
     // Meshes stored so far join the record, durably before the event is seen: a job
     // interrupted by a crash still names what it left in the store.
@@ -93,9 +95,11 @@ class JobManager::Events final : public JobEvents {
     {
       std::lock_guard<std::mutex> lock(progress_mu_);
       const int64_t percent = p.total > 0 ? p.done * 100 / p.total : p.done;
-      if (p.phase == phase_ && percent == percent_ && p.done != p.total) return;
+      // Same phase: a report behind the latest (threads finish out of order) is dropped.
+      if (p.phase == phase_ && (p.done <= done_ || (percent == percent_ && p.done != p.total))) return;
       phase_ = std::string(p.phase);
       percent_ = percent;
+      done_ = p.done;
       e.step = step_;
     }
     e.phase = std::string(p.phase);
@@ -115,6 +119,7 @@ class JobManager::Events final : public JobEvents {
   std::mutex progress_mu_;
   std::string phase_;
   int64_t percent_ = -1;
+  int64_t done_ = -1;
   int64_t step_ = 0;
 };
 

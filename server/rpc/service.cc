@@ -12,6 +12,7 @@
 #include "absl/strings/str_cat.h"
 #include "core/util/status_macros.h"
 #include "server/mesh_store.h"
+#include "server/handlers/progress.h"
 #include "server/rpc/grpc_status.h"
 #include "server/rpc/reactors.h"
 #include "server/rpc/watch_job_reactor.h"
@@ -357,6 +358,41 @@ grpc::ServerUnaryReactor* Service::StartMembraneSolve(grpc::CallbackServerContex
                           if (jobs_ == nullptr) return NoJobs();
                           return jobs_->StartMembraneSolve(*request);
                         });
+}
+
+// ---- Streaming variants of the unary chapter-4 calls: progress, then the response ----
+
+grpc::ServerWriteReactor<v1::HighOrderNodesResponse>* Service::HighOrderNodesStream(
+    grpc::CallbackServerContext* ctx, const v1::HighOrderNodesRequest* request) {
+  return new WriteReactor<v1::HighOrderNodesResponse>(
+      this, ctx, compute_, {"HighOrderNodesStream", request->mesh_id()}, request,
+      StreamWithProgress<v1::HighOrderNodesResponse>(
+          [this, request](const CancellationToken& cancel, const RunContext::ProgressFn& progress) {
+            return handlers_->HighOrderNodes(*request, cancel, progress);
+          }));
+}
+
+grpc::ServerWriteReactor<v1::IntegrateResponse>* Service::IntegrateStream(grpc::CallbackServerContext* ctx,
+                                                                          const v1::IntegrateRequest* request) {
+  return new WriteReactor<v1::IntegrateResponse>(
+      this, ctx, compute_, {"IntegrateStream", request->mesh_id()}, request,
+      StreamWithProgress<v1::IntegrateResponse>(
+          [this, request](const CancellationToken& cancel, const RunContext::ProgressFn& progress) {
+            return handlers_->Integrate(*request, cancel, progress);
+          }));
+}
+
+grpc::ServerWriteReactor<v1::RefineMeshResponse>* Service::RefineMeshStream(grpc::CallbackServerContext* ctx,
+                                                                            const v1::RefineMeshRequest* request) {
+  return new WriteReactor<v1::RefineMeshResponse>(
+      this, ctx, compute_, {"RefineMeshStream", request->mesh_id()}, request,
+      StreamWithProgress<v1::RefineMeshResponse>(
+          [this, request](const CancellationToken& cancel,
+                          const RunContext::ProgressFn& progress) -> absl::StatusOr<v1::RefineMeshResponse> {
+            v1::RefineMeshResponse out;
+            GF_ASSIGN_OR_RETURN(*out.mutable_mesh(), handlers_->RefineMesh(*request, cancel, progress));
+            return out;
+          }));
 }
 
 }  // namespace geomfit::server

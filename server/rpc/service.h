@@ -103,6 +103,15 @@ class Service final : public ServiceBase {
   grpc::ServerUnaryReactor* StartMembraneSolve(grpc::CallbackServerContext* ctx, const v1::MembraneSolveJob* request,
                                                v1::Job* response) override;
 
+  // Streaming variants of HighOrderNodes, Integrate, RefineMesh: progress messages,
+  // then the unary call's response.
+  grpc::ServerWriteReactor<v1::HighOrderNodesResponse>* HighOrderNodesStream(
+      grpc::CallbackServerContext* ctx, const v1::HighOrderNodesRequest* request) override;
+  grpc::ServerWriteReactor<v1::IntegrateResponse>* IntegrateStream(grpc::CallbackServerContext* ctx,
+                                                                   const v1::IntegrateRequest* request) override;
+  grpc::ServerWriteReactor<v1::RefineMeshResponse>* RefineMeshStream(grpc::CallbackServerContext* ctx,
+                                                                     const v1::RefineMeshRequest* request) override;
+
   /// What one call did, for the request log line.
   struct Call {
     const char* method;

@@ -136,3 +136,31 @@ def test_health_reports_serving_and_fails_when_nothing_listens(server):
     r = run("health", "--server", closed, "--timeout", "2", check=False)
     assert r.returncode == 1, r.stderr
     assert r.stderr.startswith("geomfit: error: ") and "UNAVAILABLE" not in r.stdout
+
+
+def test_remote_progress_comes_from_the_server(server, tmp_path):
+    """--progress draws the server's phases (fit, project, evaluate points, integrate) for
+    the remote chapter-4 commands and curvature; --no-progress (and a non-terminal
+    stderr) draws nothing; outputs are the same either way."""
+    address = server.address
+    torus = str(tmp_path / "t.obj")
+    run("generate", "torus", "--level", "12", "--output", torus)
+    points = tmp_path / "xyz.txt"
+    points.write_text("".join("%g 0 %g\n" % (1.0 + 0.1 * k / 50, 0.31) for k in range(50)))
+    commands = {
+        ("project", torus, "--points", str(points), "--degree", "4"): ["fit", "project"],
+        ("nodes", torus, "--order", "2", "--output", str(tmp_path / "n"), "--degree", "4"): ["evaluate points"],
+        ("integrate", torus, "--degree", "4"): ["integrate"],
+        ("refine", torus, "--output", str(tmp_path / "r.obj"), "--degree", "4"): ["evaluate points"],
+        ("curvature", torus, "--degree", "3"): ["compute"],
+    }
+    for args, phases in commands.items():
+        shown = run(*args, "--server", address, "--progress")
+        lines = shown.stderr.replace("\r", "\n").split("\n")
+        for phase in phases:
+            finished = [line for line in lines if line.startswith(phase + " ") and "100%" in line]
+            assert finished, (args, phase, shown.stderr)
+        quiet = run(*args, "--server", address, "--no-progress")
+        assert "%" not in quiet.stderr and not any(p in quiet.stderr for p in phases if p != "compute"), quiet.stderr
+        assert quiet.stdout == shown.stdout, args
+        assert run(*args, "--server", address).stderr == quiet.stderr  # stderr is not a terminal here

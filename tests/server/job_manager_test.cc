@@ -344,6 +344,25 @@ TEST(JobManagerTest, ProgressReportsBecomeThrottledEvents) {
   EXPECT_TRUE(complete);
 }
 
+TEST(JobManagerTest, ProgressBehindTheLatestIsDropped) {
+  auto store = NewMemoryStore();
+  auto m = NewManager(store.get());
+  const std::string id = m->Start("test", "", [](const RunContext& ctx, JobEvents* events) -> absl::StatusOr<JobResult> {
+                           // Threads of a parallel loop report out of order.
+                           for (int64_t done : {10, 30, 20, 100, 90}) ctx.Report("fit", done, 100);
+                           JobEvent level;  // the next step fits again: its reports start over
+                           level.step = 2;
+                           level.phase = "refine";
+                           events->Emit(level);
+                           for (int64_t done : {50, 40, 100}) ctx.Report("fit", done, 100);
+                           return JobResult{};
+                         })->record.job_id;
+  std::vector<int64_t> done;
+  for (const JobEvent& e : AllEvents(*m, id))
+    if (e.phase == "fit") done.push_back(e.done);
+  EXPECT_EQ(done, (std::vector<int64_t>{10, 30, 100, 50, 100}));
+}
+
 TEST(JobManagerTest, WaitHonoursItsToken) {
   auto store = NewMemoryStore();
   auto m = NewManager(store.get());

@@ -26,6 +26,9 @@ std::unique_ptr<Client> ConnectTo(const std::string& server) {
   } else if (const char* token = std::getenv("GEOMFIT_TOKEN"); token != nullptr) {
     o.token = token;
   }
+  // The server's progress of long calls feeds the bar (its phases: fit, project, ...).
+  if (ProgressBar::Get().enabled())
+    o.progress = [](const Progress& p) { ProgressBar::Get().Update(p.phase, p.done, p.total); };
   return Client::Connect(o);
 }
 

@@ -115,6 +115,7 @@ struct Client::Impl {
   std::shared_ptr<grpc::Channel> channel;
   std::unique_ptr<v1::GeomFit::Stub> stub;
   std::atomic<bool> stream_updates{false};  ///< the server lacks SetPositions
+  std::atomic<bool> unary_only{false};      ///< the server lacks the *Stream variants
   mutable std::mutex mu;
   std::map<std::string, Kept> kept;
 
@@ -141,6 +142,42 @@ struct Client::Impl {
       backoff = std::min(options.max_backoff, backoff * 2);
     }
     return ToAbsl(s);
+  }
+
+  void Report(const v1::Progress& p) const {
+    if (options.progress) options.progress(Progress{p.phase(), p.done(), p.total()});
+  }
+
+  /// A long unary call (`unary` fills the response), or with options.progress its
+  /// streaming variant `streamed`: progress messages reported, then the response (the
+  /// last message). A server without the variant gets the unary call from then on.
+  template <typename Request, typename Response>
+  absl::StatusOr<Response> Long(std::unique_ptr<grpc::ClientReader<Response>> (v1::GeomFit::Stub::*streamed)(
+                                    grpc::ClientContext*, const Request&),
+                                const Request& request, const std::string& id,
+                                const std::function<grpc::Status(grpc::ClientContext&, Response*)>& unary) {
+    Response response;
+    if (options.progress && !unary_only.load()) {
+      const absl::Status s = Call([&](grpc::ClientContext& ctx) {
+        auto reader = (stub.get()->*streamed)(&ctx, request);
+        Response message;
+        while (reader->Read(&message)) {
+          if (message.has_progress()) {
+            Report(message.progress());
+          } else {
+            response = std::move(message);
+          }
+        }
+        return reader->Finish();
+      }, id);
+      if (!absl::IsUnimplemented(s)) {
+        GF_RETURN_IF_ERROR(s);
+        return response;
+      }
+      unary_only = true;
+    }
+    GF_RETURN_IF_ERROR(Call([&](grpc::ClientContext& ctx) { return unary(ctx, &response); }, id));
+    return response;
   }
 
   absl::StatusOr<v1::MeshInfo> SendUpload(const Mesh& mesh, const std::string& name,
@@ -354,8 +391,13 @@ absl::StatusOr<RemoteDifferentials> Client::ComputeDifferentials(v1::ComputeDiff
       decode = absl::OkStatus();
       auto stream = impl_->stub->ComputeDifferentials(&ctx, request);
       v1::ComputeDifferentialsResponse chunk;
-      while (stream->Read(&chunk))
+      int64_t total = 0;
+      while (stream->Read(&chunk)) {
         if (decode.ok()) decode = reader->Add(chunk);
+        if (chunk.has_summary() && total == 0) total = chunk.summary().num_vertices();
+        if (impl_->options.progress)  // the rows come as they are fitted
+          impl_->options.progress(Progress{"compute", chunk.vertex_offset() + chunk.num_vertices(), total});
+      }
       return stream->Finish();
     }, id));
     GF_RETURN_IF_ERROR(decode);
@@ -413,6 +455,7 @@ absl::StatusOr<std::vector<ProjectedPoint>> Client::SendProject(const std::strin
   return WithMesh<std::vector<ProjectedPoint>>(
       mesh_id, [&](const std::string& id) -> absl::StatusOr<std::vector<ProjectedPoint>> {
         request.set_mesh_id(id);
+        request.set_progress(impl_->options.progress != nullptr);
         std::vector<ProjectedPoint> out;
         absl::Status decode;
         GF_RETURN_IF_ERROR(impl_->Call([&](grpc::ClientContext& ctx) {
@@ -421,6 +464,10 @@ absl::StatusOr<std::vector<ProjectedPoint>> Client::SendProject(const std::strin
           auto stream = impl_->stub->ProjectPoints(&ctx, request);
           v1::ProjectPointsResponse c;
           while (stream->Read(&c)) {
+            if (c.has_progress()) {
+              impl_->Report(c.progress());
+              continue;
+            }
             if (!decode.ok()) continue;
             auto pos = wire::DecodeDoubles(c.positions(), "positions", {3});
             auto nrm = wire::DecodeDoubles(c.normals(), "normals", {3});
@@ -459,9 +506,12 @@ absl::StatusOr<HighOrderMesh> Client::HighOrderNodes(const std::string& mesh_id,
     request.set_mesh_id(id);
     request.set_order(order);
     *request.mutable_options() = options;
-    v1::HighOrderNodesResponse response;
-    GF_RETURN_IF_ERROR(impl_->Call(
-        [&](grpc::ClientContext& ctx) { return impl_->stub->HighOrderNodes(&ctx, request, &response); }, id));
+    GF_ASSIGN_OR_RETURN(const v1::HighOrderNodesResponse response,
+                        (impl_->Long<v1::HighOrderNodesRequest, v1::HighOrderNodesResponse>(
+                            &v1::GeomFit::Stub::HighOrderNodesStream, request, id,
+                            [&](grpc::ClientContext& ctx, v1::HighOrderNodesResponse* r) {
+                              return impl_->stub->HighOrderNodes(&ctx, request, r);
+                            })));
     HighOrderMesh out;
     out.order = response.order();
     GF_ASSIGN_OR_RETURN(out.nodes, wire::DecodeDoubles(response.nodes(), "nodes", {3}));
@@ -481,10 +531,13 @@ absl::StatusOr<RemoteMesh> Client::RefineMesh(const std::string& mesh_id, int fa
     request.set_factor(factor);
     request.set_name(name);
     *request.mutable_options() = options;
-    v1::MeshInfo info;
-    GF_RETURN_IF_ERROR(
-        impl_->Call([&](grpc::ClientContext& ctx) { return impl_->stub->RefineMesh(&ctx, request, &info); }, id));
-    return FromProto(info);
+    GF_ASSIGN_OR_RETURN(const v1::RefineMeshResponse response,
+                        (impl_->Long<v1::RefineMeshRequest, v1::RefineMeshResponse>(
+                            &v1::GeomFit::Stub::RefineMeshStream, request, id,
+                            [&](grpc::ClientContext& ctx, v1::RefineMeshResponse* r) {
+                              return impl_->stub->RefineMesh(&ctx, request, r->mutable_mesh());
+                            })));
+    return FromProto(response.mesh());
   });
 }
 
@@ -503,9 +556,12 @@ absl::StatusOr<Integrals> Client::Integrate(const std::string& mesh_id, const In
       const wire::RowsXd v = input.vectors;
       wire::EncodeDoubles(v.data(), v.rows(), v.cols(), request.mutable_vectors());
     }
-    v1::IntegrateResponse response;
-    GF_RETURN_IF_ERROR(
-        impl_->Call([&](grpc::ClientContext& ctx) { return impl_->stub->Integrate(&ctx, request, &response); }, id));
+    GF_ASSIGN_OR_RETURN(const v1::IntegrateResponse response,
+                        (impl_->Long<v1::IntegrateRequest, v1::IntegrateResponse>(
+                            &v1::GeomFit::Stub::IntegrateStream, request, id,
+                            [&](grpc::ClientContext& ctx, v1::IntegrateResponse* r) {
+                              return impl_->stub->Integrate(&ctx, request, r);
+                            })));
     Integrals out;
     out.area = response.area();
     out.volume = response.volume();

@@ -24,6 +24,7 @@
 #include "core/quantities/differentials.h"
 #include "core/reconstruction/meshing.h"
 #include "core/reconstruction/projection.h"
+#include "core/util/run_context.h"
 #include "geomfit/v1/geomfit.pb.h"
 
 namespace geomfit {
@@ -45,6 +46,12 @@ struct ClientOptions {
   std::string tls_ca, tls_cert, tls_key;
   /// Bearer token (server --auth-tokens): sent as `authorization: Bearer TOKEN`.
   std::string token;
+  /// Progress of long calls, called on the calling thread as the server reports it:
+  /// ProjectPoints and EvaluateFacePoints ask for progress messages; HighOrderNodes,
+  /// Integrate and RefineMesh use their streaming variants (the unary calls on a server
+  /// without them); ComputeDifferentials reports the rows received (phase "compute").
+  /// Null: no progress (and the plain calls).
+  std::function<void(const Progress&)> progress;
 };
 
 /// What the server knows about a stored mesh.

@@ -8,6 +8,7 @@ import grpc
 import grpc.experimental
 import numpy as np
 
+from geomfit.progress import ProgressArg, reporting, tqdm_callback
 from geomfit.readers import read_mesh_file
 from geomfit.v1 import geomfit_pb2 as pb
 from geomfit.v1 import geomfit_pb2_grpc as pb_grpc
@@ -278,12 +279,14 @@ def _set_positions_request(header: "pb.UpdateHeader", positions: np.ndarray) -> 
 
 
 def _parse_chunk(raw: bytes) -> dict:
-    out = {"summary": None, "vertex_offset": 0, "arrays": {}, "diagnostics": {}}
+    out = {"summary": None, "vertex_offset": 0, "num_vertices": 0, "arrays": {}, "diagnostics": {}}
     for number, value in _fields(raw, 0, len(raw)):
         if number == 1:
             out["summary"] = raw[value[0]:value[1]]
         elif number == 2:
             out["vertex_offset"] = value
+        elif number == 3:
+            out["num_vertices"] = value
         elif number in _RESPONSE_ARRAYS:
             out["arrays"][_RESPONSE_ARRAYS[number]] = _array(raw, value, _F8)
         elif number == 12:
@@ -380,6 +383,7 @@ class Client:
             self._channel = grpc.intercept_channel(self._channel, _BearerToken(token))
         self._stub = pb_grpc.GeomFitStub(self._channel)
         self._stream_updates = False
+        self._unary_only = False  # the server lacks HighOrderNodesStream & co. (see _long)
         # ComputeDifferentials requests come serialized (_compute_request); responses are
         # read as raw bytes and their arrays viewed in place (_parse_chunk): the
         # generated parser would copy every array twice.
@@ -557,38 +561,46 @@ class Client:
     # ------------------------------------------------------------------ geometry
     def curvature(self, mesh_id: str, degree: int = 0, method: str = "lhf",
                   quantities: Iterable[str] = ("normals", "mean", "gaussian", "principal"),
-                  revision: int = 0, diagnostics: bool = False, **options) -> Differentials:
+                  revision: int = 0, diagnostics: bool = False, progress: ProgressArg = None,
+                  **options) -> Differentials:
         """Differential quantities per vertex. `options` are further FitOptions fields
         (rings, adaptive, safeguard_angle_deg, interpolate, two_pass, noise="off"|"on"|"auto",
         smoothing_passes, solver="qr"|"svd", ...); unset ones take the server defaults
-        (degree 0 = 2). method: "lhf", "lop", or the comparison methods "xu", "lscm"."""
+        (degree 0 = 2). method: "lhf", "lop", or the comparison methods "xu", "lscm".
+        `progress`: callable(phase, done, total) or True (geomfit.progress), called with
+        ("compute", rows received, #V) as the rows stream in while they are fitted (over
+        grpcio, also with the native transport)."""
         request = self._compute_request(mesh_id, revision, degree, method, tuple(quantities), diagnostics, options)
-        if self._native is not None:
+        if self._native is not None and not progress:
             summary, arrays, diag = self._call_native(lambda: self._native.compute(request))
             return Differentials(summary=pb.FitSummary.FromString(summary), diagnostics=diag, **arrays)
+        with reporting(progress) as report:
+            return self._call(lambda: self._compute_stream(mesh_id, request, report))
 
-        def run():
-            out = None
-            for raw in self._compute(request, timeout=self.timeout, metadata=_route(mesh_id)):
-                chunk = _parse_chunk(raw)
-                if out is None:
-                    out = Differentials(summary=pb.FitSummary.FromString(chunk["summary"]))
-                    total = out.summary.num_vertices
-                elif chunk["summary"] is not None:  # the last chunk completes the summary
-                    out.summary = pb.FitSummary.FromString(chunk["summary"])
-                lo = chunk.get("vertex_offset", 0)
-                for name, a in chunk["arrays"].items():
-                    if getattr(out, name) is None:
-                        setattr(out, name, np.empty((total,) + a.shape[1:], dtype=np.float64))
-                    getattr(out, name)[lo:lo + len(a)] = a
-                if chunk["diagnostics"]:
-                    if out.diagnostics is None:
-                        out.diagnostics = {k: np.empty(total, dtype=a.dtype)
-                                           for k, a in chunk["diagnostics"].items()}
-                    for k, a in chunk["diagnostics"].items():
-                        out.diagnostics[k][lo:lo + len(a)] = a
-            return out
-        return self._call(run)
+    def _compute_stream(self, mesh_id: str, request: bytes, report) -> Differentials:
+        """ComputeDifferentials over grpcio, the arrays viewed in place."""
+        out = None
+        for raw in self._compute(request, timeout=self.timeout, metadata=_route(mesh_id)):
+            chunk = _parse_chunk(raw)
+            if out is None:
+                out = Differentials(summary=pb.FitSummary.FromString(chunk["summary"]))
+                total = out.summary.num_vertices
+            elif chunk["summary"] is not None:  # the last chunk completes the summary
+                out.summary = pb.FitSummary.FromString(chunk["summary"])
+            lo = chunk.get("vertex_offset", 0)
+            for name, a in chunk["arrays"].items():
+                if getattr(out, name) is None:
+                    setattr(out, name, np.empty((total,) + a.shape[1:], dtype=np.float64))
+                getattr(out, name)[lo:lo + len(a)] = a
+            if chunk["diagnostics"]:
+                if out.diagnostics is None:
+                    out.diagnostics = {k: np.empty(total, dtype=a.dtype)
+                                       for k, a in chunk["diagnostics"].items()}
+                for k, a in chunk["diagnostics"].items():
+                    out.diagnostics[k][lo:lo + len(a)] = a
+            if report is not None:
+                report("compute", lo + chunk["num_vertices"], total)
+        return out
 
     def _compute_request(self, mesh_id: str, revision: int, degree: int, method: str, quantities: Tuple[str, ...],
                          diagnostics: bool, options: dict) -> bytes:
@@ -632,10 +644,12 @@ class Client:
 
     def project(self, mesh_id: str, points: Optional[np.ndarray] = None, faces: Optional[np.ndarray] = None,
                 natural: Optional[np.ndarray] = None, surface: str = "walf", degree: int = 0,
-                safeguard: Optional[bool] = None, feature_angle: float = 0.0) -> dict:
+                safeguard: Optional[bool] = None, feature_angle: float = 0.0, progress: ProgressArg = None) -> dict:
         """Points on the high-order surface: projections of xyz `points` (P x 3), or face
         points given by `faces` (P) and natural coordinates `natural` (P x 2). Returns a
-        dict of arrays: positions, normals (P x 3), faces (P), natural (P x 2), distances (P)."""
+        dict of arrays: positions, normals (P x 3), faces (P), natural (P x 2), distances (P).
+        `progress`: callable(phase, done, total) or True (geomfit.progress): the server's
+        progress messages (phases "fit", then "project" or "evaluate points")."""
         request = pb.ProjectPointsRequest(mesh_id=mesh_id, options=self._surface(surface, degree, safeguard, feature_angle))
         if points is not None:
             _encode(np.asarray(points).reshape(-1, 3), "<f8", request.points)
@@ -643,45 +657,83 @@ class Client:
             _encode(np.asarray(faces).reshape(-1), "<i4", request.faces)
             _encode(np.asarray(natural).reshape(-1, 2), "<f8", request.natural)
 
-        def run():
-            parts = list(self._stub.ProjectPoints(request, timeout=self.timeout, metadata=_route(mesh_id)))
+        def run(report):
+            parts = []
+            for c in self._stub.ProjectPoints(request, timeout=self.timeout, metadata=_route(mesh_id)):
+                if c.HasField("progress"):
+                    report(c.progress.phase, c.progress.done, c.progress.total)
+                else:
+                    parts.append(c)
             out = {}
             for key, dtype in (("positions", "<f8"), ("normals", "<f8"), ("faces", "<i4"), ("natural", "<f8"),
                                ("distances", "<f8")):
                 out[key] = np.concatenate([_decode(getattr(c, key), dtype) for c in parts])
             return out
-        return self._call(run)
+        with reporting(progress) as report:
+            request.progress = report is not None
+            return self._call(lambda: run(report))
+
+    def _long(self, name: str, request, mesh_id: str, progress: ProgressArg):
+        """The unary call `name`, or with `progress` its streaming variant name + "Stream":
+        the server's progress messages reported, then its last message (the unary call
+        on a server without the variant)."""
+        with reporting(progress) as report:
+            if report is not None and not self._unary_only:
+                def run():
+                    last = None
+                    for m in getattr(self._stub, name + "Stream")(request, timeout=self.timeout,
+                                                                  metadata=_route(mesh_id)):
+                        if m.HasField("progress"):
+                            report(m.progress.phase, m.progress.done, m.progress.total)
+                        else:
+                            last = m
+                    return last
+                try:
+                    return self._call(run)
+                except GeomfitError as e:
+                    if e.code != grpc.StatusCode.UNIMPLEMENTED:
+                        raise
+                    self._unary_only = True
+        return self._call(lambda: getattr(self._stub, name)(request, timeout=self.timeout, metadata=_route(mesh_id)))
 
     def high_order_nodes(self, mesh_id: str, order: int = 2, surface: str = "walf", degree: int = 0,
-                         safeguard: Optional[bool] = None, feature_angle: float = 0.0) -> Tuple[np.ndarray, List[np.ndarray]]:
+                         safeguard: Optional[bool] = None, feature_angle: float = 0.0,
+                         progress: ProgressArg = None) -> Tuple[np.ndarray, List[np.ndarray]]:
         """Quadratic or cubic element nodes on the surface: (nodes N x 3, a list with each
-        face's node ids in VTK / gmsh Lagrange order)."""
-        r = self._call(lambda: self._stub.HighOrderNodes(pb.HighOrderNodesRequest(
+        face's node ids in VTK / gmsh Lagrange order). `progress`: callable(phase, done,
+        total) or True (geomfit.progress): phases "fit" and "evaluate points"
+        (HighOrderNodesStream)."""
+        r = self._long("HighOrderNodes", pb.HighOrderNodesRequest(
             mesh_id=mesh_id, order=order, options=self._surface(surface, degree, safeguard, feature_angle)),
-            timeout=self.timeout, metadata=_route(mesh_id)))
+            mesh_id, progress)
         offsets, elements = _decode(r.offsets, "<i4"), _decode(r.elements, "<i4")
         return _decode(r.nodes, "<f8"), [elements[a:b] for a, b in zip(offsets[:-1], offsets[1:])]
 
     def refine(self, mesh_id: str, factor: int = 2, surface: str = "walf", degree: int = 0,
-               safeguard: Optional[bool] = None, feature_angle: float = 0.0, name: str = "") -> "pb.MeshInfo":
-        """Uniform refinement onto the surface, stored by the server as a new mesh."""
-        return self._call(lambda: self._stub.RefineMesh(pb.RefineMeshRequest(
-            mesh_id=mesh_id, factor=factor, name=name,
-            options=self._surface(surface, degree, safeguard, feature_angle)), timeout=self.timeout,
-            metadata=_route(mesh_id)))
+               safeguard: Optional[bool] = None, feature_angle: float = 0.0, name: str = "",
+               progress: ProgressArg = None) -> "pb.MeshInfo":
+        """Uniform refinement onto the surface, stored by the server as a new mesh.
+        `progress`: callable(phase, done, total) or True (geomfit.progress): phases "fit"
+        and "evaluate points" (RefineMeshStream)."""
+        r = self._long("RefineMesh", pb.RefineMeshRequest(
+            mesh_id=mesh_id, factor=factor, name=name, options=self._surface(surface, degree, safeguard, feature_angle)),
+            mesh_id, progress)
+        return r.mesh if isinstance(r, pb.RefineMeshResponse) else r
 
     def integrate(self, mesh_id: str, scalars: Optional[np.ndarray] = None, vectors: Optional[np.ndarray] = None,
                   surface: str = "walf", degree: int = 0, quadrature_degree: int = 0,
-                  safeguard: Optional[bool] = None) -> "pb.IntegrateResponse":
+                  safeguard: Optional[bool] = None, progress: ProgressArg = None) -> "pb.IntegrateResponse":
         """Area, enclosed volume, integrals of nodal scalar fields (V or V x s) and the flux
-        of a nodal vector field (V x 3) over the reconstructed surface."""
+        of a nodal vector field (V x 3) over the reconstructed surface. `progress`:
+        callable(phase, done, total) or True (geomfit.progress): phases "fit",
+        "integrate: fields" (with fields) and "integrate" (IntegrateStream)."""
         request = pb.IntegrateRequest(mesh_id=mesh_id, quadrature_degree=quadrature_degree,
                                       options=self._surface(surface, degree, safeguard, 0.0))
         if scalars is not None:
             _encode(np.asarray(scalars), "<f8", request.scalars)
         if vectors is not None:
             _encode(np.asarray(vectors).reshape(-1, 3), "<f8", request.vectors)
-        return self._call(lambda: self._stub.Integrate(request, timeout=self.timeout, metadata=_route(mesh_id)))
+        return self._long("Integrate", request, mesh_id, progress)
 
     # ------------------------------------------------------------------ server
     def server_info(self) -> "pb.ServerInfo":
@@ -710,7 +762,9 @@ class Client:
         pass from_event = last seq + 1. Closing the iterator (break) cancels the call.
         `timeout`: for the whole watch (None: none; jobs may run for hours).
         `progress`: called with each event before it is yielded (event.phase, event.step,
-        event.done of event.total); geomfit.progress.tqdm_callback() draws a tqdm bar."""
+        event.done of event.total); geomfit.progress.tqdm_callback() (or True) draws a tqdm bar."""
+        if progress is True:
+            progress = tqdm_callback()
         next_seq, failures, delay = from_event, 0, self.backoff
         while True:
             call = self._stub.WatchJob(pb.WatchJobRequest(job_id=job_id, from_event=next_seq), timeout=timeout)
@@ -782,22 +836,31 @@ class Client:
             spec.fit.degree = degree
         return self._call(lambda: self._stub.StartFlow(spec, timeout=self.timeout))
 
-    def flow(self, mesh_id: str, dt: float, steps: int = 0, **options) -> Iterator["pb.JobEvent"]:
+    def flow(self, mesh_id: str, dt: float, steps: int = 0, progress: ProgressArg = None,
+             **options) -> Iterator["pb.JobEvent"]:
         """Runs a flow (start_flow's options) and iterates over its job events as they
         come: phase "step" (event.step, event.time, values area, volume, max_speed,
         fit_ms, assemble_ms, solve_ms, step_ms; counts solver_iterations) and "snapshot"
         (results: the stored revision; arrays "positions" with send_positions=True), then
         the final event. A failed or cancelled job raises GeomfitError after its final
-        event; closing the iterator early (break) cancels the job."""
-        yield from self._job_events(self.start_flow(mesh_id, dt, steps, **options))
+        event; closing the iterator early (break) cancels the job. `progress`:
+        callable(phase, done, total) or True (geomfit.progress): every event's phase and
+        done of total (phase "step": steps done of steps)."""
+        yield from self._job_events(self.start_flow(mesh_id, dt, steps, **options), progress)
 
-    def _job_events(self, job: "pb.Job") -> Iterator["pb.JobEvent"]:
-        """The events of `job` as they come, its final one included; a failed or
-        cancelled job raises GeomfitError after its final event; closing the iterator
-        early (break) cancels the job."""
+    def _job_events(self, job: "pb.Job", progress: ProgressArg = None) -> Iterator["pb.JobEvent"]:
+        """The events of `job` as they come, its final one included (each reported to
+        `progress` first); a failed or cancelled job raises GeomfitError after its final
+        event; closing the iterator early (break) cancels the job."""
+        with reporting(progress) as report:
+            yield from self._job_events_reported(job, report)
+
+    def _job_events_reported(self, job: "pb.Job", report) -> Iterator["pb.JobEvent"]:
         finished = False
         try:
             for event in self.watch_job(job.job_id):
+                if report is not None and event.phase:
+                    report(event.phase, event.done, event.total)
                 if event.final:
                     finished = True
                     yield event
@@ -938,13 +1001,15 @@ class Client:
         return self._call(lambda: self._stub.StartMembraneSolve(spec, timeout=self.timeout))
 
     def membrane_solve(self, mesh_id: str, pressure, young_modulus: float, poisson_ratio: float,
-                       **options) -> Iterator["pb.JobEvent"]:
+                       progress: ProgressArg = None, **options) -> Iterator["pb.JobEvent"]:
         """Runs the pressure-load solve (start_membrane_solve's options) and iterates over
         its job events as they come: phase "newton" per Newton iteration (values residual,
         step, load; counts load_step, iteration), "stored" (results: the deformed surface;
         arrays "displacement" with send_displacement=True), then the final event (values
         residual, max_displacement, timings; counts iterations, factorizations). A solve
         that does not converge raises GeomfitError (FAILED_PRECONDITION, its residual
-        history) after its final event; closing the iterator early cancels the job."""
+        history) after its final event; closing the iterator early cancels the job.
+        `progress`: callable(phase, done, total) or True (geomfit.progress): every event's
+        phase and done of total."""
         yield from self._job_events(self.start_membrane_solve(mesh_id, pressure, young_modulus, poisson_ratio,
-                                                              **options))
+                                                              **options), progress)

@@ -1,0 +1,117 @@
+// geomfit::Client with ClientOptions::progress: the server's progress reported on the
+// calling thread, results identical to the calls without progress.
+#include <map>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "clients/cpp/client/client.h"
+#include "tests/server/test_util.h"
+
+namespace geomfit {
+namespace {
+
+using server::testing::InProcessServer;
+
+struct Report {
+  std::string phase;
+  int64_t done, total;
+};
+
+class ProgressClientTest : public ::testing::Test {
+ protected:
+  ProgressClientTest() : mesh_(server::testing::TestTorus(30)) {
+    ClientOptions o;
+    o.target = "127.0.0.1:" + std::to_string(server_.port());
+    plain_ = Client::Connect(o);
+    o.progress = [this](const Progress& p) {
+      EXPECT_EQ(std::this_thread::get_id(), caller_);
+      reports_.push_back({std::string(p.phase), p.done, p.total});
+    };
+    reporting_ = Client::Connect(o);
+    auto info = plain_->Upload(mesh_, "torus");
+    EXPECT_TRUE(info.ok()) << info.status();
+    id_ = info->mesh_id;
+    options_.mutable_fit()->set_degree(4);
+  }
+
+  /// The phases reported since the last call, in order; each ends at done = total with
+  /// done increasing.
+  std::vector<std::string> Phases() {
+    std::vector<std::string> phases;
+    for (size_t i = 0; i < reports_.size(); ++i) {
+      const Report& r = reports_[i];
+      const bool first = phases.empty() || phases.back() != r.phase;
+      if (first) phases.push_back(r.phase);
+      if (!first) EXPECT_GT(r.done, reports_[i - 1].done) << r.phase;
+      const bool last = i + 1 == reports_.size() || reports_[i + 1].phase != r.phase;
+      if (last) EXPECT_EQ(r.done, r.total) << r.phase;
+    }
+    reports_.clear();
+    return phases;
+  }
+
+  InProcessServer server_;
+  Mesh mesh_;
+  std::unique_ptr<Client> plain_, reporting_;
+  std::string id_;
+  v1::ReconstructionOptions options_;
+  std::vector<Report> reports_;
+  const std::thread::id caller_ = std::this_thread::get_id();
+};
+
+TEST_F(ProgressClientTest, ChapterFourCallsReportTheServersPhases) {
+  const Positions points = mesh_.positions * 0.99;
+  auto projected = reporting_->ProjectPoints(id_, points, options_);
+  ASSERT_TRUE(projected.ok()) << projected.status();
+  EXPECT_EQ(Phases(), (std::vector<std::string>{"fit", "project"}));
+  auto plain = plain_->ProjectPoints(id_, points, options_);
+  ASSERT_TRUE(plain.ok());
+  ASSERT_EQ(plain->size(), projected->size());
+  for (size_t i = 0; i < plain->size(); ++i) {
+    EXPECT_EQ((*plain)[i].point.position, (*projected)[i].point.position) << i;
+    EXPECT_EQ((*plain)[i].where.face, (*projected)[i].where.face) << i;
+  }
+  EXPECT_TRUE(reports_.empty());  // the plain client asks for none
+
+  auto nodes = reporting_->HighOrderNodes(id_, 2, options_);
+  ASSERT_TRUE(nodes.ok()) << nodes.status();
+  EXPECT_EQ(Phases(), (std::vector<std::string>{"evaluate points"}));  // the fits are cached now
+  auto plain_nodes = plain_->HighOrderNodes(id_, 2, options_);
+  ASSERT_TRUE(plain_nodes.ok());
+  EXPECT_EQ(nodes->nodes, plain_nodes->nodes);
+  EXPECT_EQ(nodes->elements, plain_nodes->elements);
+
+  auto integrals = reporting_->Integrate(id_, IntegrationInput{}, options_);
+  ASSERT_TRUE(integrals.ok()) << integrals.status();
+  EXPECT_EQ(Phases(), (std::vector<std::string>{"integrate"}));
+  auto plain_integrals = plain_->Integrate(id_, IntegrationInput{}, options_);
+  ASSERT_TRUE(plain_integrals.ok());
+  EXPECT_EQ(integrals->area, plain_integrals->area);
+  EXPECT_EQ(integrals->volume, plain_integrals->volume);
+
+  auto refined = reporting_->RefineMesh(id_, 3, options_);
+  ASSERT_TRUE(refined.ok()) << refined.status();
+  EXPECT_EQ(Phases(), (std::vector<std::string>{"evaluate points"}));
+  EXPECT_EQ(refined->num_faces, 9 * mesh_.NumFaces());
+
+  auto d = reporting_->ComputeDifferentials(id_, FitOptions{});
+  ASSERT_TRUE(d.ok()) << d.status();
+  EXPECT_EQ(Phases(), (std::vector<std::string>{"compute"}));
+}
+
+TEST_F(ProgressClientTest, StatisticsCountTheStreamingVariants) {
+  ASSERT_TRUE(reporting_->Integrate(id_, IntegrationInput{}, options_).ok());
+  ASSERT_TRUE(plain_->Integrate(id_, IntegrationInput{}, options_).ok());
+  auto stats = plain_->GetStatistics();
+  ASSERT_TRUE(stats.ok());
+  std::map<std::string, int64_t> calls;
+  for (const auto& m : stats->methods()) calls[m.method()] = m.count();
+  EXPECT_EQ(calls["IntegrateStream"], 1);
+  EXPECT_EQ(calls["Integrate"], 1);
+}
+
+}  // namespace
+}  // namespace geomfit
