@@ -119,6 +119,7 @@ absl::Status SparseSolver::Factorize(const Matrix& A) {
 #ifdef GEOMFIT_HAVE_SUITESPARSE
     case SolverKind::kUmfpack:
       m.umfpack.umfpackControl()(UMFPACK_IRSTEP) = options_.umfpack_refinement;
+      if (options_.umfpack_metis) m.umfpack.umfpackControl()(UMFPACK_ORDERING) = UMFPACK_ORDERING_METIS;
       if (analyze) m.umfpack.analyzePattern(m.A);
       m.umfpack.factorize(m.A);
       info = m.umfpack.info();

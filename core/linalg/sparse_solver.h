@@ -52,6 +52,9 @@ struct SolverOptions {
   /// UMFPACK's iterative refinement steps per solve (its default 2); 0 for a
   /// preconditioner, where each solve need not be exact.
   int umfpack_refinement = 2;
+  /// UMFPACK's fill-reducing ordering: METIS nested dissection instead of its default
+  /// (AMD / COLAMD); less fill on large surface meshes (bench/README.md, "Membranes").
+  bool umfpack_metis = false;
 };
 absl::Status ValidateSolverOptions(const SolverOptions& o);
 

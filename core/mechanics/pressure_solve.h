@@ -65,6 +65,16 @@ enum class BoundaryCondition {
 };
 const char* BoundaryConditionName(BoundaryCondition bc);
 
+/// GMRES's preconditioner (PressureSolveOptions::krylov).
+enum class KrylovPreconditioner {
+  kOneRing,  ///< the Jacobian's 1-ring part (its entries between edge neighbours)
+  /// The Jacobian of the same problem discretized on 1-ring stencils (degree-2 fits over
+  /// each vertex's edge neighbours): a consistent approximation of the same operator, so
+  /// GMRES's iterations stay nearly flat as the mesh is refined (the 1-ring part's double
+  /// per 4x vertices); rows whose 1-ring fit drops below degree 2 take the 1-ring part.
+  kCompact,
+};
+
 struct PressureSolveOptions {
   MembraneOptions material;  ///< E, nu (required)
   FitOptions fit = [] {      ///< reference fits (LHF); degree 4 by default
@@ -90,8 +100,17 @@ struct PressureSolveOptions {
   /// Jacobian is re-evaluated every iteration (assembly is cheap); the preconditioner's
   /// factorization is kept by the chord rule above.
   bool krylov = false;
+  KrylovPreconditioner krylov_preconditioner = KrylovPreconditioner::kCompact;
+  /// Eisenstat-Walker forcing terms: each GMRES solve to eta_k = 0.9 (|F_k| / |F_k-1|)^2
+  /// (krylov_forcing_max for the first), capped by krylov_forcing_max and never tighter
+  /// than the Newton tolerance needs; false: every solve to krylov_tolerance.
+  bool krylov_forcing = true;
+  double krylov_forcing_max = 1e-2;
   double krylov_tolerance = 1e-6;
   int krylov_max_iterations = 300;
+  int krylov_restart = 50;  ///< GMRES's Krylov dimension per cycle
+  /// Symmetric block Gauss-Seidel sweeps on the Jacobian after each preconditioner solve.
+  int krylov_smoothing = 0;
 };
 absl::Status ValidatePressureSolveOptions(const PressureSolveOptions& o);
 /// Sets the linear solver by name: "auto", "sparselu", "umfpack", "klu", "bicgstab"
@@ -106,6 +125,7 @@ struct NewtonIteration {
   int iteration = 0;       ///< 1-based within the load step
   double residual = 0;     ///< |F| / |[p] n| after the iteration
   double step = 0;         ///< max_i |dy_i| of the iteration
+  int krylov_iterations = 0;  ///< GMRES iterations of the iteration's solve (krylov)
 };
 using NewtonCallback = std::function<void(const NewtonIteration&)>;
 
