@@ -4,9 +4,11 @@
 //   membrane_study throughput [threads] interface-pressure throughput at ~10k and ~100k
 //                                      vertices (reference fit and membrane evaluation apart)
 //   membrane_study newton [n] [degree] [solver]  the pressure-load solve of the unit sphere
-//                                      (solver: umfpack, sparselu, klu, bicgstab-ilut, gmres[-TOL])
+//                                      (solver: umfpack[,amd], sparselu, klu, bicgstab-ilut,
+//                                      gmres[,onering][,fixed][,gs=S][,restart=R][,amd])
 //                                      under [p] = 2 (cubed sphere of level n), one thread,
-//                                      time split (fit, assembly, factorization, solve)
+//                                      time split (fit, assembly, factorization, solve), CPU
+//                                      seconds (getrusage) and peak resident memory
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -118,8 +120,10 @@ void Newton(int n, int degree, const std::string& solver) {
   o.material = Material();
   o.fit.degree = degree;
   const bool ilut = solver == "bicgstab-ilut";
-  // "gmres[,onering][,fixed][,tol=T][,max=M][,restart=R]": GMRES (compact preconditioner and
-  // Eisenstat-Walker forcing unless told otherwise), UMFPACK for the preconditioner.
+  // "gmres[,onering][,fixed][,tol=T][,max=M][,restart=R][,gs=S]": GMRES (compact
+  // preconditioner, Eisenstat-Walker forcing and the options' Gauss-Seidel sweeps unless
+  // told otherwise), UMFPACK for the preconditioner; ",amd" anywhere: UMFPACK's own
+  // ordering instead of METIS.
   o.krylov = solver.rfind("gmres", 0) == 0;
   if (o.krylov) {
     for (const std::string& t : std::vector<std::string>(absl::StrSplit(solver, ','))) {
@@ -127,12 +131,13 @@ void Newton(int n, int degree, const std::string& solver) {
       if (t == "fixed") o.krylov_forcing = false;
       if (t.rfind("tol=", 0) == 0) o.krylov_tolerance = std::atof(t.c_str() + 4);
       if (t.rfind("max=", 0) == 0) o.krylov_forcing_max = std::atof(t.c_str() + 4);
-      if (t == "metis") o.solver.umfpack_metis = true;
       if (t.rfind("gs=", 0) == 0) o.krylov_smoothing = std::atoi(t.c_str() + 3);
       if (t.rfind("restart=", 0) == 0) o.krylov_restart = std::atoi(t.c_str() + 8);
     }
   }
-  o.solver.kind = o.krylov ? SolverKind::kUmfpack : ParseSolverKind(ilut ? "bicgstab" : solver).value();
+  const std::string direct = solver.substr(0, solver.find(','));
+  if (solver.find(",amd") != std::string::npos) o.solver.umfpack_metis = false;  // UMFPACK's own ordering
+  o.solver.kind = o.krylov ? SolverKind::kUmfpack : ParseSolverKind(ilut ? "bicgstab" : direct).value();
   if (ilut) o.solver.preconditioner = Preconditioner::kIlut;
   Eigen::setNbThreads(1);  // one core: no OpenMP in Eigen's products either
   const double cpu0 = CpuSeconds();
