@@ -161,6 +161,7 @@ void Newton(int n, int degree, const std::string& solver) {
               "%d factorizations, %d GMRES iterations, residual %.2e, max |r - r1| %.2e\n",
               m.NumVertices(), degree, solver.c_str(), w.Seconds(), r->fit_ms / 1e3, r->assemble_ms / 1e3,
               r->factorize_ms / 1e3, r->solve_ms / 1e3, r->factorizations, r->krylov_iterations, r->residual, e);
+  if (r->fell_back_to_krylov) std::printf("  (the direct factorization ran out of memory: GMRES took over)\n");
 }
 
 }  // namespace

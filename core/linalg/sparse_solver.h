@@ -70,7 +70,8 @@ class SparseSolver {
   SparseSolver& operator=(SparseSolver&&) noexcept;
 
   /// Factorizes A (square). The symbolic analysis is redone only when A's pattern
-  /// differs from the previous call's. FAILED_PRECONDITION if A is numerically singular.
+  /// differs from the previous call's. FAILED_PRECONDITION if A is numerically singular;
+  /// RESOURCE_EXHAUSTED when UMFPACK runs out of memory (too much fill).
   absl::Status Factorize(const Matrix& A);
   /// Solves with the last factorization; iterative solvers start from `*x` if it has the
   /// right size (warm start), else from zero.

@@ -507,14 +507,6 @@ absl::StatusOr<PressureSolution> SolvePressureLoad(const Mesh& reference, const 
   GF_ASSIGN_OR_RETURN(auto fits, FitForOperators(reference, topo, options.fit, nullptr, ctx));
   out.fit_ms = fit_watch.Millis();
   PressureProblem problem(reference, topo, fits, pressure, options);
-  // The compact preconditioner's problem: the same membrane on 1-ring degree-2 stencils.
-  std::unique_ptr<PressureProblem> compact;
-  if (options.krylov && options.krylov_preconditioner == KrylovPreconditioner::kCompact) {
-    const Stopwatch w;
-    GF_ASSIGN_OR_RETURN(auto compact_fits, FitForOperators(reference, topo, CompactFitOptions(options.fit), nullptr, ctx));
-    compact = std::make_unique<PressureProblem>(reference, topo, compact_fits, pressure, options);
-    out.fit_ms += w.Millis();
-  }
   Eigen::VectorXd z = problem.Start();
   auto finish = [&](const Eigen::VectorXd& zz) {
     out.deformed.resize(nv, 3);
@@ -528,8 +520,25 @@ absl::StatusOr<PressureSolution> SolvePressureLoad(const Mesh& reference, const 
   SolverOptions so = options.solver;
   if (so.kind == SolverKind::kAuto)
     so.kind = SolverAvailable(SolverKind::kUmfpack) ? SolverKind::kUmfpack : SolverKind::kSparseLU;
-  if (options.krylov) so.umfpack_refinement = 0;  // a preconditioner
   SparseSolver solver(so);
+  // GMRES's set-up: the compact preconditioner's problem (the same membrane on 1-ring
+  // degree-2 stencils) and a factorization without iterative refinement.
+  bool krylov = false;
+  std::unique_ptr<PressureProblem> compact;
+  auto use_krylov = [&]() -> absl::Status {
+    krylov = true;
+    if (options.krylov_preconditioner == KrylovPreconditioner::kCompact) {
+      const Stopwatch w;
+      GF_ASSIGN_OR_RETURN(auto compact_fits,
+                          FitForOperators(reference, topo, CompactFitOptions(options.fit), nullptr, ctx));
+      compact = std::make_unique<PressureProblem>(reference, topo, compact_fits, pressure, options);
+      out.fit_ms += w.Millis();
+    }
+    so.umfpack_refinement = 0;  // a preconditioner
+    solver = SparseSolver(so);
+    return absl::OkStatus();
+  };
+  if (options.krylov) GF_RETURN_IF_ERROR(use_krylov());
 
   double t = 0, dt = 1;
   int cuts = 0;
@@ -559,7 +568,7 @@ absl::StatusOr<PressureSolution> SolvePressureLoad(const Mesh& reference, const 
       Stopwatch w;
       // GMRES keeps its preconditioner while it converges (a stale one costs iterations
       // only); the direct solve keeps its factorization by the chord rule.
-      const bool stale = options.krylov ? !krylov_converged : ratio > options.chord_ratio;
+      const bool stale = krylov ? !krylov_converged : ratio > options.chord_ratio;
       if (!factorized || stale) {
         GF_RETURN_IF_ERROR(problem.Evaluate(zt, target, &F, true, ctx));
         problem.AddDiagonal(damping);
@@ -569,14 +578,21 @@ absl::StatusOr<PressureSolution> SolvePressureLoad(const Mesh& reference, const 
         }
         out.assemble_ms += w.Millis();
         w = Stopwatch();
-        absl::Status fs = solver.Factorize(!options.krylov ? problem.jacobian()
+        absl::Status fs = solver.Factorize(!krylov ? problem.jacobian()
                                            : compact     ? problem.CompactPart(topo, *compact)
                                                          : problem.OneRingPart(topo));
         out.factorize_ms += w.Millis();
         ++out.factorizations;
+        if (fs.code() == absl::StatusCode::kResourceExhausted && !krylov) {
+          // The Jacobian's factorization does not fit: GMRES on a sparser one from here.
+          GF_RETURN_IF_ERROR(use_krylov());
+          out.fell_back_to_krylov = true;
+          --it;
+          continue;
+        }
         if (!fs.ok()) break;  // singular Jacobian: cut the load
         factorized = true;
-      } else if (options.krylov) {  // GMRES takes the fresh Jacobian; the preconditioner stays
+      } else if (krylov) {  // GMRES takes the fresh Jacobian; the preconditioner stays
         GF_RETURN_IF_ERROR(problem.Evaluate(zt, target, &F, true, ctx));
         problem.AddDiagonal(damping);
         out.assemble_ms += w.Millis();
@@ -584,7 +600,7 @@ absl::StatusOr<PressureSolution> SolvePressureLoad(const Mesh& reference, const 
       w = Stopwatch();
       dz.resize(0);
       int step_krylov = 0;
-      if (options.krylov) {
+      if (krylov) {
         const SparseMatrix& J = problem.jacobian();
         if (options.krylov_smoothing > 0) problem.InvertDiagonal();
         // Eisenstat-Walker (choice 2, gamma 0.9): loose first solves, then

@@ -147,6 +147,8 @@ struct PressureSolution {
   int factorizations = 0;
   int load_steps = 0;
   int krylov_iterations = 0;  ///< GMRES iterations in all (krylov)
+  /// The direct factorization ran out of memory and GMRES took over (see `krylov`).
+  bool fell_back_to_krylov = false;
   double precondition_ms = 0;  ///< of solve_ms: the preconditioner's solves (krylov)
   double fit_ms = 0, assemble_ms = 0, factorize_ms = 0, solve_ms = 0;
 };
