@@ -254,8 +254,6 @@ class PressureProblem {
       x->segment<3>(3 * i) += dinv_[i] * r;
     }
   }
-  /// Rows of the compact preconditioner taken from the compact Jacobian.
-  int CompactRows() const { return static_cast<int>(std::count(compact_rows_.begin(), compact_rows_.end(), 1)); }
   double load_norm() const { return load_norm_; }
   bool bordered() const { return bordered_; }
   SparseMatrix& jacobian() { return J_; }
@@ -590,6 +588,7 @@ absl::StatusOr<PressureSolution> SolvePressureLoad(const Mesh& reference, const 
           --it;
           continue;
         }
+        if (fs.code() == absl::StatusCode::kResourceExhausted) return fs;  // a smaller load does not help
         if (!fs.ok()) break;  // singular Jacobian: cut the load
         factorized = true;
       } else if (krylov) {  // GMRES takes the fresh Jacobian; the preconditioner stays

@@ -157,7 +157,9 @@ struct PressureSolution {
 /// Errors: INVALID_ARGUMENT for bad options, a pressure of the wrong length or not
 /// finite, an open mesh without `boundary`;
 /// FAILED_PRECONDITION when Newton does not converge (the message holds the residual
-/// history); CANCELLED / DEADLINE_EXCEEDED from `ctx` (polled every iteration).
+/// history); RESOURCE_EXHAUSTED when GMRES's preconditioner does not fit in memory
+/// either (a direct factorization that does not hands over to GMRES); CANCELLED /
+/// DEADLINE_EXCEEDED from `ctx` (polled every iteration).
 absl::StatusOr<PressureSolution> SolvePressureLoad(const Mesh& reference, const Topology& topo,
                                                    const Eigen::VectorXd& pressure,
                                                    const PressureSolveOptions& options,
