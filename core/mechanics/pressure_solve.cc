@@ -560,13 +560,14 @@ absl::StatusOr<PressureSolution> SolvePressureLoad(const Mesh& reference, const 
     bool factorized = false;
     double ratio = 1;
     double eta = 0, previous_res = 0;  // Eisenstat-Walker forcing term and the residual it follows
-    bool krylov_converged = true;
     for (int it = 1; it <= options.max_iterations && !converged; ++it) {
       GF_RETURN_IF_ERROR(ctx.Check());
       Stopwatch w;
-      // GMRES keeps its preconditioner while it converges (a stale one costs iterations
-      // only); the direct solve keeps its factorization by the chord rule.
-      const bool stale = krylov ? !krylov_converged : ratio > options.chord_ratio;
+      // GMRES keeps its preconditioner through the load step (refactorized only with
+      // more damping after a step that does not descend): a stale one costs iterations
+      // only, and the Jacobian barely moves. The direct solve keeps its factorization
+      // by the chord rule.
+      const bool stale = !krylov && ratio > options.chord_ratio;
       if (!factorized || stale) {
         GF_RETURN_IF_ERROR(problem.Evaluate(zt, target, &F, true, ctx));
         problem.AddDiagonal(damping);
@@ -634,7 +635,6 @@ absl::StatusOr<PressureSolution> SolvePressureLoad(const Mesh& reference, const 
             },
             -F, go, &dz, &gr, ctx);
         out.krylov_iterations += gr.iterations;
-        krylov_converged = gs.ok();
         step_krylov = gr.iterations;
         // Not reaching the tolerance leaves the best iterate: the line search judges it.
         if (!gs.ok() && gs.code() != absl::StatusCode::kFailedPrecondition) return gs;

@@ -105,7 +105,7 @@ struct PressureSolveOptions {
   /// matrix (`krylov_preconditioner`) followed by `krylov_smoothing` block Gauss-Seidel
   /// sweeps on the Jacobian (inexact Newton, Eisenstat-Walker forcing). The Jacobian is
   /// re-evaluated every iteration (assembly is cheap); the preconditioner's factorization
-  /// is kept while GMRES converges with it. Slower than the direct solve at every size
+  /// is kept through the load step. Slower than the direct solve at every size
   /// measured (its iterations grow ~2.5-4x per 4x vertices), kept for comparison.
   bool krylov = false;
   KrylovPreconditioner krylov_preconditioner = KrylovPreconditioner::kCompact;
@@ -116,7 +116,7 @@ struct PressureSolveOptions {
   double krylov_forcing_max = 1e-2;
   double krylov_tolerance = 1e-6;
   int krylov_max_iterations = 300;
-  int krylov_restart = 50;  ///< GMRES's Krylov dimension per cycle
+  int krylov_restart = 100;  ///< GMRES's Krylov dimension per cycle (85k: ~200 per solve)
   /// Symmetric block (3 x 3) Gauss-Seidel sweeps on the Jacobian after each preconditioner
   /// solve (multiplicative: they correct what the sparser matrix misses); 1 sweep cuts the
   /// iterations 2.5x at 5k-20k vertices.

@@ -221,6 +221,7 @@ TEST(MembraneRpcTest, SolveStoresTheInflatedSphereAndItsPressureReadsBack) {
       residuals.push_back(e.values().at("residual"));
       EXPECT_EQ(e.values().count("step"), 1u);
       EXPECT_EQ(e.counts().count("iteration"), 1u);
+      EXPECT_EQ(e.counts().at("krylov_iterations"), 0);  // the direct solve
     }
     if (e.phase() == "stored") {
       stored = true;
@@ -329,6 +330,7 @@ TEST(MembraneRpcTest, CancelStopsTheSolveAndStoresNothing) {
   bool cancelled = false;
   ASSERT_TRUE(WatchJob(server.stub(), job->job_id(), 0, &events, [&](const v1::JobEvent& e) {
                 if (!cancelled && e.phase() == "newton") {
+                  EXPECT_GE(e.counts().at("krylov_iterations"), 1);  // GMRES's, streamed per iteration
                   EXPECT_TRUE(testing::CancelJob(server.stub(), e.job_id()).ok());
                   cancelled = true;
                 }
