@@ -4,15 +4,20 @@
 //   membrane_study throughput [threads] interface-pressure throughput at ~10k and ~100k
 //                                      vertices (reference fit and membrane evaluation apart)
 //   membrane_study newton [n] [degree] [solver]  the pressure-load solve of the unit sphere
-//                                      (solver: umfpack, sparselu, klu, bicgstab-ilut, gmres[-TOL])
+//                                      (solver: umfpack[,amd], sparselu, klu, bicgstab-ilut,
+//                                      gmres[,onering][,fixed][,gs=S][,restart=R][,amd])
 //                                      under [p] = 2 (cubed sphere of level n), one thread,
-//                                      time split (fit, assembly, factorization, solve)
+//                                      time split (fit, assembly, factorization, solve), CPU
+//                                      seconds (getrusage) and peak resident memory
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <string>
 #include <vector>
 
+#include <sys/resource.h>
+
+#include "absl/strings/str_split.h"
 #include "core/mechanics/membrane.h"
 #include "core/mechanics/pressure_solve.h"
 #include "core/operators/operators.h"
@@ -22,6 +27,17 @@
 using namespace geomfit;
 
 namespace {
+
+double CpuSeconds() {
+  rusage u;
+  getrusage(RUSAGE_SELF, &u);
+  return u.ru_utime.tv_sec + u.ru_utime.tv_usec * 1e-6 + u.ru_stime.tv_sec + u.ru_stime.tv_usec * 1e-6;
+}
+double PeakResidentMb() {
+  rusage u;
+  getrusage(RUSAGE_SELF, &u);
+  return u.ru_maxrss / 1024.0;
+}
 
 MembraneOptions Material() {
   MembraneOptions m;
@@ -104,15 +120,32 @@ void Newton(int n, int degree, const std::string& solver) {
   o.material = Material();
   o.fit.degree = degree;
   const bool ilut = solver == "bicgstab-ilut";
-  o.krylov = solver.rfind("gmres", 0) == 0;  // "gmres" or "gmres-TOL": GMRES, 1-ring UMFPACK preconditioner
-  if (o.krylov && solver.size() > 6) o.krylov_tolerance = std::atof(solver.c_str() + 6);
-  o.solver.kind = o.krylov ? SolverKind::kUmfpack : ParseSolverKind(ilut ? "bicgstab" : solver).value();
+  // "gmres[,onering][,fixed][,tol=T][,max=M][,restart=R][,gs=S]": GMRES (compact
+  // preconditioner, Eisenstat-Walker forcing and the options' Gauss-Seidel sweeps unless
+  // told otherwise), UMFPACK for the preconditioner; ",amd" anywhere: UMFPACK's own
+  // ordering instead of METIS.
+  o.krylov = solver.rfind("gmres", 0) == 0;
+  if (o.krylov) {
+    for (const std::string& t : std::vector<std::string>(absl::StrSplit(solver, ','))) {
+      if (t == "onering") o.krylov_preconditioner = KrylovPreconditioner::kOneRing;
+      if (t == "fixed") o.krylov_forcing = false;
+      if (t.rfind("tol=", 0) == 0) o.krylov_tolerance = std::atof(t.c_str() + 4);
+      if (t.rfind("max=", 0) == 0) o.krylov_forcing_max = std::atof(t.c_str() + 4);
+      if (t.rfind("gs=", 0) == 0) o.krylov_smoothing = std::atoi(t.c_str() + 3);
+      if (t.rfind("restart=", 0) == 0) o.krylov_restart = std::atoi(t.c_str() + 8);
+    }
+  }
+  const std::string direct = solver.substr(0, solver.find(','));
+  if (solver.find(",amd") != std::string::npos) o.solver.umfpack_metis = false;  // UMFPACK's own ordering
+  o.solver.kind = o.krylov ? SolverKind::kUmfpack : ParseSolverKind(ilut ? "bicgstab" : direct).value();
   if (ilut) o.solver.preconditioner = Preconditioner::kIlut;
+  Eigen::setNbThreads(1);  // one core: no OpenMP in Eigen's products either
+  const double cpu0 = CpuSeconds();
   const Stopwatch w;
   auto r = SolvePressureLoad(m, topo, Eigen::VectorXd::Constant(1, 2.0), o, RunContext().WithThreads(1),
                              [&](const NewtonIteration& it) {
-                               std::printf("  iteration %d: residual %.3e step %.3e (%.1f s)\n", it.iteration,
-                                           it.residual, it.step, w.Seconds());
+                               std::printf("  iteration %d: residual %.3e step %.3e, %d GMRES iterations (%.1f s)\n",
+                                           it.iteration, it.residual, it.step, it.krylov_iterations, w.Seconds());
                              });
   if (!r.ok()) {
     std::printf("sphere %d vertices, degree %d: %s\n", m.NumVertices(), degree, r.status().ToString().c_str());
@@ -121,11 +154,14 @@ void Newton(int n, int degree, const std::string& solver) {
   double e = 0;
   const double r1 = 1.0080320;
   for (int i = 0; i < m.NumVertices(); ++i) e = std::max(e, std::abs(r->deformed.row(i).norm() - r1));
+  const double cpu = CpuSeconds() - cpu0;
   if (o.krylov) std::printf("  preconditioner solves %.2f s\n", r->precondition_ms / 1e3);
+  std::printf("  CPU %.2f s, peak resident %.0f MB\n", cpu, PeakResidentMb());
   std::printf("sphere %d vertices, degree %d, %s: %.2f s total (fit %.2f, assemble %.2f, factorize %.2f, solve %.2f); "
               "%d factorizations, %d GMRES iterations, residual %.2e, max |r - r1| %.2e\n",
               m.NumVertices(), degree, solver.c_str(), w.Seconds(), r->fit_ms / 1e3, r->assemble_ms / 1e3,
               r->factorize_ms / 1e3, r->solve_ms / 1e3, r->factorizations, r->krylov_iterations, r->residual, e);
+  if (r->fell_back_to_krylov) std::printf("  (the direct factorization ran out of memory: GMRES took over)\n");
 }
 
 }  // namespace

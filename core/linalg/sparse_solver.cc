@@ -119,9 +119,16 @@ absl::Status SparseSolver::Factorize(const Matrix& A) {
 #ifdef GEOMFIT_HAVE_SUITESPARSE
     case SolverKind::kUmfpack:
       m.umfpack.umfpackControl()(UMFPACK_IRSTEP) = options_.umfpack_refinement;
+      if (options_.umfpack_metis) m.umfpack.umfpackControl()(UMFPACK_ORDERING) = UMFPACK_ORDERING_METIS;
       if (analyze) m.umfpack.analyzePattern(m.A);
-      m.umfpack.factorize(m.A);
+      if (m.umfpack.info() == Eigen::Success) m.umfpack.factorize(m.A);
       info = m.umfpack.info();
+      // Out of memory (UMFPACK's int workspace: its estimate of the fill past 2^31 words)
+      // is not a singular system: the caller may choose a sparser method.
+      if (info != Eigen::Success && m.umfpack.umfpackFactorizeReturncode() == UMFPACK_ERROR_out_of_memory) {
+        m.outer.clear();  // analyze again next time
+        return absl::ResourceExhaustedError("umfpack: out of memory (the factorization's fill is too large)");
+      }
       break;
     case SolverKind::kKlu:
       if (analyze) m.klu.analyzePattern(m.A);

@@ -52,6 +52,9 @@ struct SolverOptions {
   /// UMFPACK's iterative refinement steps per solve (its default 2); 0 for a
   /// preconditioner, where each solve need not be exact.
   int umfpack_refinement = 2;
+  /// UMFPACK's fill-reducing ordering: METIS nested dissection instead of its default
+  /// (AMD / COLAMD); less fill on large surface meshes (bench/README.md, "Membranes").
+  bool umfpack_metis = false;
 };
 absl::Status ValidateSolverOptions(const SolverOptions& o);
 
@@ -67,7 +70,8 @@ class SparseSolver {
   SparseSolver& operator=(SparseSolver&&) noexcept;
 
   /// Factorizes A (square). The symbolic analysis is redone only when A's pattern
-  /// differs from the previous call's. FAILED_PRECONDITION if A is numerically singular.
+  /// differs from the previous call's. FAILED_PRECONDITION if A is numerically singular;
+  /// RESOURCE_EXHAUSTED when UMFPACK runs out of memory (too much fill).
   absl::Status Factorize(const Matrix& A);
   /// Solves with the last factorization; iterative solvers start from `*x` if it has the
   /// right size (warm start), else from zero.

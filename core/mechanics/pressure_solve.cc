@@ -45,6 +45,10 @@ absl::Status ValidatePressureSolveOptions(const PressureSolveOptions& o) {
     return absl::InvalidArgumentError(absl::StrFormat("chord_ratio %g must lie in [0, 1)", o.chord_ratio));
   if (!(o.krylov_tolerance > 0 && o.krylov_tolerance < 1))
     return absl::InvalidArgumentError(absl::StrFormat("krylov_tolerance %g must lie in (0, 1)", o.krylov_tolerance));
+  if (!(o.krylov_forcing_max > 0 && o.krylov_forcing_max < 1))
+    return absl::InvalidArgumentError(
+        absl::StrFormat("krylov_forcing_max %g must lie in (0, 1)", o.krylov_forcing_max));
+  if (o.krylov_restart < 1) return absl::InvalidArgumentError("krylov_restart must be >= 1");
   if (o.krylov_max_iterations < 1) return absl::InvalidArgumentError("krylov_max_iterations must be >= 1");
   if (o.solver.kind == SolverKind::kBiCGSTAB && o.solver.preconditioner != Preconditioner::kIlut)
     return absl::InvalidArgumentError("solver: BiCGSTAB needs the ILUT preconditioner here (or a direct solver)");
@@ -108,6 +112,15 @@ void LocalResidual(const ReferenceGeometry& ref, const Jet5<double>& y, double l
     (*R)(c) = r(c).value();
     D->row(c) = r(c).derivatives().transpose();
   }
+}
+
+/// Fits of the compact preconditioner: degree 2 on the 1-ring alone (no growth).
+FitOptions CompactFitOptions(const FitOptions& fit) {
+  FitOptions f = fit;
+  f.degree = 2;
+  f.rings = 1;
+  f.adaptive = false;
+  return f;
 }
 
 class PressureProblem {
@@ -186,6 +199,60 @@ class PressureProblem {
     }
     for (size_t m = 0; m < keep_.size(); ++m) P_.valuePtr()[m] = J_.valuePtr()[keep_[m]];
     return P_;
+  }
+  /// The compact preconditioner: the Jacobian `compact` (the same problem on 1-ring
+  /// stencils, its values current) row by row in place of the 1-ring part, where its fit
+  /// reached degree 2 and both patterns agree (the 1-ring part elsewhere).
+  const SparseMatrix& CompactPart(const Topology& topo, const PressureProblem& compact) {
+    OneRingPart(topo);
+    const SparseMatrix& C = compact.J_;
+    if (compact_rows_.empty()) {
+      compact_rows_.assign(size(), 0);
+      for (int r = 0; r < 3 * nv_; ++r) {
+        const int i = r / 3;
+        if (fixed_[i] || compact.fixed_[i] || free_[i]) continue;
+        const int n = P_.outerIndexPtr()[r + 1] - P_.outerIndexPtr()[r];
+        compact_rows_[r] = n == C.outerIndexPtr()[r + 1] - C.outerIndexPtr()[r] &&
+                           std::equal(P_.innerIndexPtr() + P_.outerIndexPtr()[r],
+                                      P_.innerIndexPtr() + P_.outerIndexPtr()[r + 1],
+                                      C.innerIndexPtr() + C.outerIndexPtr()[r]);
+      }
+    }
+    for (int r = 0; r < 3 * nv_; ++r)
+      if (compact_rows_[r])
+        std::copy(C.valuePtr() + C.outerIndexPtr()[r], C.valuePtr() + C.outerIndexPtr()[r + 1],
+                  P_.valuePtr() + P_.outerIndexPtr()[r]);
+    return P_;
+  }
+  /// Inverts the Jacobian's 3 x 3 diagonal blocks (for GaussSeidel).
+  void InvertDiagonal() {
+    dinv_.resize(nv_);
+    const int* outer = J_.outerIndexPtr();
+    const double* values = J_.valuePtr();
+    for (int i = 0; i < nv_; ++i) {
+      Eigen::Matrix3d D;
+      const int slot = assembler_->Slot(i, 0);
+      for (int r = 0; r < 3; ++r)
+        for (int c = 0; c < 3; ++c) D(r, c) = values[outer[3 * i + r] + 3 * slot + c];
+      dinv_[i] = D.inverse();
+    }
+  }
+  /// One block Gauss-Seidel sweep on J x = b over the vertex rows (forward or backward);
+  /// the border unknowns stay.
+  void GaussSeidel(const Eigen::VectorXd& b, Eigen::VectorXd* x, bool forward) const {
+    const int* outer = J_.outerIndexPtr();
+    const int* inner = J_.innerIndexPtr();
+    const double* values = J_.valuePtr();
+    for (int s = 0; s < nv_; ++s) {
+      const int i = forward ? s : nv_ - 1 - s;
+      Eigen::Vector3d r = b.segment<3>(3 * i);
+      for (int q = 0; q < 3; ++q) {
+        double acc = 0;
+        for (int k = outer[3 * i + q]; k < outer[3 * i + q + 1]; ++k) acc += values[k] * (*x)(inner[k]);
+        r(q) -= acc;
+      }
+      x->segment<3>(3 * i) += dinv_[i] * r;
+    }
   }
   double load_norm() const { return load_norm_; }
   bool bordered() const { return bordered_; }
@@ -400,6 +467,8 @@ class PressureProblem {
   SparseMatrix J_;
   SparseMatrix P_;          // OneRingPart
   std::vector<int> keep_;   // its entries' positions in J_
+  std::vector<uint8_t> compact_rows_;  // CompactPart: rows from the compact Jacobian
+  std::vector<Eigen::Matrix3d> dinv_;  // InvertDiagonal
 };
 
 std::string History(const std::vector<NewtonIteration>& h) {
@@ -449,12 +518,29 @@ absl::StatusOr<PressureSolution> SolvePressureLoad(const Mesh& reference, const 
   SolverOptions so = options.solver;
   if (so.kind == SolverKind::kAuto)
     so.kind = SolverAvailable(SolverKind::kUmfpack) ? SolverKind::kUmfpack : SolverKind::kSparseLU;
-  if (options.krylov) so.umfpack_refinement = 0;  // a preconditioner
   SparseSolver solver(so);
+  // GMRES's set-up: the compact preconditioner's problem (the same membrane on 1-ring
+  // degree-2 stencils) and a factorization without iterative refinement.
+  bool krylov = false;
+  std::unique_ptr<PressureProblem> compact;
+  auto use_krylov = [&]() -> absl::Status {
+    krylov = true;
+    if (options.krylov_preconditioner == KrylovPreconditioner::kCompact) {
+      const Stopwatch w;
+      GF_ASSIGN_OR_RETURN(auto compact_fits,
+                          FitForOperators(reference, topo, CompactFitOptions(options.fit), nullptr, ctx));
+      compact = std::make_unique<PressureProblem>(reference, topo, compact_fits, pressure, options);
+      out.fit_ms += w.Millis();
+    }
+    so.umfpack_refinement = 0;  // a preconditioner
+    solver = SparseSolver(so);
+    return absl::OkStatus();
+  };
+  if (options.krylov) GF_RETURN_IF_ERROR(use_krylov());
 
   double t = 0, dt = 1;
   int cuts = 0;
-  Eigen::VectorXd F, dz;
+  Eigen::VectorXd F, Fc, dz;
   while (t < 1) {
     const double target = std::min(1.0, t + dt);
     const double tol = target < 1 ? std::max(options.tolerance, 1e-6) : options.tolerance;
@@ -473,31 +559,63 @@ absl::StatusOr<PressureSolution> SolvePressureLoad(const Mesh& reference, const 
     // iteration (factorizations dominate the cost); refactorized otherwise.
     bool factorized = false;
     double ratio = 1;
+    double eta = 0, previous_res = 0;  // Eisenstat-Walker forcing term and the residual it follows
     for (int it = 1; it <= options.max_iterations && !converged; ++it) {
       GF_RETURN_IF_ERROR(ctx.Check());
       Stopwatch w;
-      if (!factorized || ratio > options.chord_ratio) {
+      // GMRES keeps its preconditioner through the load step (refactorized only with
+      // more damping after a step that does not descend): a stale one costs iterations
+      // only, and the Jacobian barely moves. The direct solve keeps its factorization
+      // by the chord rule.
+      const bool stale = !krylov && ratio > options.chord_ratio;
+      if (!factorized || stale) {
         GF_RETURN_IF_ERROR(problem.Evaluate(zt, target, &F, true, ctx));
         problem.AddDiagonal(damping);
+        if (compact) {
+          GF_RETURN_IF_ERROR(compact->Evaluate(zt, target, &Fc, true, ctx));
+          compact->AddDiagonal(damping);
+        }
         out.assemble_ms += w.Millis();
         w = Stopwatch();
-        absl::Status fs = solver.Factorize(options.krylov ? problem.OneRingPart(topo) : problem.jacobian());
+        absl::Status fs = solver.Factorize(!krylov ? problem.jacobian()
+                                           : compact     ? problem.CompactPart(topo, *compact)
+                                                         : problem.OneRingPart(topo));
         out.factorize_ms += w.Millis();
         ++out.factorizations;
+        if (fs.code() == absl::StatusCode::kResourceExhausted && !krylov) {
+          // The Jacobian's factorization does not fit: GMRES on a sparser one from here.
+          GF_RETURN_IF_ERROR(use_krylov());
+          out.fell_back_to_krylov = true;
+          --it;
+          continue;
+        }
+        if (fs.code() == absl::StatusCode::kResourceExhausted) return fs;  // a smaller load does not help
         if (!fs.ok()) break;  // singular Jacobian: cut the load
         factorized = true;
-      } else if (options.krylov) {  // GMRES takes the fresh Jacobian; the preconditioner stays
+      } else if (krylov) {  // GMRES takes the fresh Jacobian; the preconditioner stays
         GF_RETURN_IF_ERROR(problem.Evaluate(zt, target, &F, true, ctx));
         problem.AddDiagonal(damping);
         out.assemble_ms += w.Millis();
       }
       w = Stopwatch();
       dz.resize(0);
-      if (options.krylov) {
+      int step_krylov = 0;
+      if (krylov) {
         const SparseMatrix& J = problem.jacobian();
+        if (options.krylov_smoothing > 0) problem.InvertDiagonal();
+        // Eisenstat-Walker (choice 2, gamma 0.9): loose first solves, then
+        // eta_k = 0.9 (|F_k| / |F_k-1|)^2, never below what the tolerance needs.
+        if (!options.krylov_forcing) {
+          eta = options.krylov_tolerance;
+        } else {
+          eta = previous_res > 0 ? std::max(0.9 * std::pow(res / previous_res, 2), 0.9 * eta * eta)
+                                 : options.krylov_forcing_max;
+          eta = std::min(options.krylov_forcing_max, std::max(eta, 0.5 * tol / res));
+        }
         GmresOptions go;
-        go.tolerance = options.krylov_tolerance;
+        go.tolerance = eta;
         go.max_iterations = options.krylov_max_iterations;
+        go.restart = options.krylov_restart;
         GmresResult gr;
         const absl::Status gs = Gmres(
             [&](const Eigen::VectorXd& v, Eigen::VectorXd* y) {
@@ -508,11 +626,16 @@ absl::StatusOr<PressureSolution> SolvePressureLoad(const Mesh& reference, const 
               const Stopwatch pw;
               y->resize(0);
               const absl::Status s = solver.Solve(v, y);
+              for (int sweep = 0; s.ok() && sweep < options.krylov_smoothing; ++sweep) {
+                problem.GaussSeidel(v, y, true);
+                problem.GaussSeidel(v, y, false);
+              }
               out.precondition_ms += pw.Millis();
               return s;
             },
             -F, go, &dz, &gr, ctx);
         out.krylov_iterations += gr.iterations;
+        step_krylov = gr.iterations;
         // Not reaching the tolerance leaves the best iterate: the line search judges it.
         if (!gs.ok() && gs.code() != absl::StatusCode::kFailedPrecondition) return gs;
       } else {
@@ -540,6 +663,7 @@ absl::StatusOr<PressureSolution> SolvePressureLoad(const Mesh& reference, const 
         factorized = false;
         NewtonIteration ni;
         ni.load_step = out.load_steps, ni.load = target, ni.iteration = it, ni.residual = res, ni.step = 0;
+        ni.krylov_iterations = step_krylov;
         out.history.push_back(ni);
         if (on_iteration) on_iteration(ni);
         continue;
@@ -552,10 +676,12 @@ absl::StatusOr<PressureSolution> SolvePressureLoad(const Mesh& reference, const 
       ni.iteration = it;
       ni.residual = new_res;
       ni.step = step;
+      ni.krylov_iterations = step_krylov;
       out.history.push_back(ni);
       if (on_iteration) on_iteration(ni);
       if (!std::isfinite(new_res) || new_res > 1e6) break;
       zt = trial;
+      previous_res = res;
       res = new_res;
       converged = res <= tol;
     }

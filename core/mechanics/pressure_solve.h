@@ -37,8 +37,9 @@
 // border as on a closed surface. Check: an open cylinder with free ends under [p]
 // expands uniaxially, hoop stretch l with p = E (l^2 - 1)/(2 l) and axial stretch
 // sqrt(1 - nu (l^2 - 1)) (zero axial stress). Linear systems: a sparse direct
-// solver (core/linalg: UMFPACK when linked, else SparseLU), one factorization per Newton
-// iteration, the symbolic analysis reused. Load stepping: when Newton does not converge
+// solver (core/linalg: UMFPACK with METIS ordering when linked, else SparseLU), the
+// factorization kept across Newton iterations by the chord rule, the symbolic analysis
+// reused; or GMRES (PressureSolveOptions::krylov). Load stepping: when Newton does not converge
 // at the full load, the load is approached in steps halved on failure and doubled after
 // success.
 #include <functional>
@@ -65,6 +66,16 @@ enum class BoundaryCondition {
 };
 const char* BoundaryConditionName(BoundaryCondition bc);
 
+/// GMRES's preconditioner (PressureSolveOptions::krylov).
+enum class KrylovPreconditioner {
+  kOneRing,  ///< the Jacobian's 1-ring part (its entries between edge neighbours)
+  /// The Jacobian of the same problem discretized on 1-ring stencils (degree-2 fits over
+  /// each vertex's edge neighbours): a consistent approximation of the same operator, so
+  /// GMRES's iterations stay nearly flat as the mesh is refined (the 1-ring part's double
+  /// per 4x vertices); rows whose 1-ring fit drops below degree 2 take the 1-ring part.
+  kCompact,
+};
+
 struct PressureSolveOptions {
   MembraneOptions material;  ///< E, nu (required)
   FitOptions fit = [] {      ///< reference fits (LHF); degree 4 by default
@@ -79,19 +90,37 @@ struct PressureSolveOptions {
   /// Chord (frozen-Jacobian) steps reuse the last factorization while each cuts the
   /// residual by this factor or more; 0 refactorizes every iteration (plain Newton).
   double chord_ratio = 0.1;
-  /// kAuto: UMFPACK if linked, else SparseLU. BiCGSTAB + ILUT also converges (2x slower
-  /// than UMFPACK at 5k vertices, bench/README.md "Membranes").
-  SolverOptions solver;
-  /// Newton's linear solves. false: `solver` factorizes the Jacobian, whose stencils
-  /// (20-40 points) fill any direct factorization badly. true: restarted GMRES on the
-  /// Jacobian (core/linalg/gmres.h), right-preconditioned by `solver`'s factorization of
-  /// its 1-ring part (the 3 x 3 blocks between vertices sharing an edge, the diagonal
-  /// blocks and the border), each solve to `krylov_tolerance` (inexact Newton). The
-  /// Jacobian is re-evaluated every iteration (assembly is cheap); the preconditioner's
-  /// factorization is kept by the chord rule above.
+  /// kAuto: UMFPACK if linked, else SparseLU; UMFPACK with METIS's nested dissection
+  /// (84,968 vertices at degree 2 in 20 s of one core, 2.6 GB, on OpenBLAS: the fastest
+  /// option at every size measured, bench/README.md "Membranes"). BiCGSTAB + ILUT also
+  /// converges (2x slower than UMFPACK at 5k vertices).
+  SolverOptions solver = [] {
+    SolverOptions s;
+    s.umfpack_metis = true;  // 1.2x faster and 0.75x the memory of AMD at 20k vertices
+    return s;
+  }();
+  /// Newton's linear solves. false: `solver` factorizes the Jacobian (one factorization
+  /// per load step here, kept by the chord rule). true: restarted GMRES on the Jacobian
+  /// (core/linalg/gmres.h), right-preconditioned by `solver`'s factorization of a sparser
+  /// matrix (`krylov_preconditioner`) followed by `krylov_smoothing` block Gauss-Seidel
+  /// sweeps on the Jacobian (inexact Newton, Eisenstat-Walker forcing). The Jacobian is
+  /// re-evaluated every iteration (assembly is cheap); the preconditioner's factorization
+  /// is kept through the load step. Slower than the direct solve at every size
+  /// measured (its iterations grow ~2.5-4x per 4x vertices), kept for comparison.
   bool krylov = false;
+  KrylovPreconditioner krylov_preconditioner = KrylovPreconditioner::kCompact;
+  /// Eisenstat-Walker forcing terms: each GMRES solve to eta_k = 0.9 (|F_k| / |F_k-1|)^2
+  /// (krylov_forcing_max for the first), capped by krylov_forcing_max and never tighter
+  /// than the Newton tolerance needs; false: every solve to krylov_tolerance.
+  bool krylov_forcing = true;
+  double krylov_forcing_max = 1e-2;
   double krylov_tolerance = 1e-6;
   int krylov_max_iterations = 300;
+  int krylov_restart = 100;  ///< GMRES's Krylov dimension per cycle (85k: ~200 per solve)
+  /// Symmetric block (3 x 3) Gauss-Seidel sweeps on the Jacobian after each preconditioner
+  /// solve (multiplicative: they correct what the sparser matrix misses); 1 sweep cuts the
+  /// iterations 2.5x at 5k-20k vertices.
+  int krylov_smoothing = 1;
 };
 absl::Status ValidatePressureSolveOptions(const PressureSolveOptions& o);
 /// Sets the linear solver by name: "auto", "sparselu", "umfpack", "klu", "bicgstab"
@@ -106,6 +135,7 @@ struct NewtonIteration {
   int iteration = 0;       ///< 1-based within the load step
   double residual = 0;     ///< |F| / |[p] n| after the iteration
   double step = 0;         ///< max_i |dy_i| of the iteration
+  int krylov_iterations = 0;  ///< GMRES iterations of the iteration's solve (krylov)
 };
 using NewtonCallback = std::function<void(const NewtonIteration&)>;
 
@@ -117,6 +147,8 @@ struct PressureSolution {
   int factorizations = 0;
   int load_steps = 0;
   int krylov_iterations = 0;  ///< GMRES iterations in all (krylov)
+  /// The direct factorization ran out of memory and GMRES took over (see `krylov`).
+  bool fell_back_to_krylov = false;
   double precondition_ms = 0;  ///< of solve_ms: the preconditioner's solves (krylov)
   double fit_ms = 0, assemble_ms = 0, factorize_ms = 0, solve_ms = 0;
 };
@@ -125,7 +157,9 @@ struct PressureSolution {
 /// Errors: INVALID_ARGUMENT for bad options, a pressure of the wrong length or not
 /// finite, an open mesh without `boundary`;
 /// FAILED_PRECONDITION when Newton does not converge (the message holds the residual
-/// history); CANCELLED / DEADLINE_EXCEEDED from `ctx` (polled every iteration).
+/// history); RESOURCE_EXHAUSTED when GMRES's preconditioner does not fit in memory
+/// either (a direct factorization that does not hands over to GMRES); CANCELLED /
+/// DEADLINE_EXCEEDED from `ctx` (polled every iteration).
 absl::StatusOr<PressureSolution> SolvePressureLoad(const Mesh& reference, const Topology& topo,
                                                    const Eigen::VectorXd& pressure,
                                                    const PressureSolveOptions& options,

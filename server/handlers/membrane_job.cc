@@ -135,7 +135,7 @@ absl::StatusOr<JobRunFn> MakeMembraneJob(Workspace* ws, v1::MembraneSolveJob spe
       e.step = ++seq;
       e.phase = "newton";
       e.values = {{"residual", it.residual}, {"step", it.step}, {"load", it.load}};
-      e.counts = {{"load_step", it.load_step}, {"iteration", it.iteration}};
+      e.counts = {{"load_step", it.load_step}, {"iteration", it.iteration}, {"krylov_iterations", it.krylov_iterations}};
       e.message = absl::StrFormat("load %.4g, iteration %d: residual %.3e, step %.3e", it.load, it.iteration,
                                   it.residual, it.step);
       events->Emit(std::move(e));
@@ -186,6 +186,7 @@ absl::StatusOr<JobRunFn> MakeMembraneJob(Workspace* ws, v1::MembraneSolveJob spe
                      {"seconds", watch.Seconds()}};
     result.counts = {{"iterations", static_cast<int64_t>(solved->history.size())},
                      {"factorizations", solved->factorizations},
+                     {"krylov_iterations", solved->krylov_iterations},
                      {"load_steps", solved->load_steps},
                      {"revision", stored->revision}};
     result.message = absl::StrFormat("converged in %d Newton iterations (residual %.2e); stored revision %d of %s",

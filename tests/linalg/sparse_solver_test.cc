@@ -1,5 +1,6 @@
 // Sparse solvers: every kind solves a nonsymmetric system of the flows' shape, direct
-// solvers analyse a fixed pattern once, and options are validated.
+// solvers analyse a fixed pattern once (UMFPACK with METIS ordering too), and options
+// are validated.
 #include <gtest/gtest.h>
 
 #include "core/linalg/sparse_solver.h"
@@ -52,6 +53,24 @@ TEST(SparseSolver, EveryKindSolvesAndDirectOnesAnalyseOnce) {
       EXPECT_EQ(s.analyses(), 1) << SolverKindName(k);
     }
   }
+}
+
+// UMFPACK with METIS's nested dissection: same solutions, one analysis for a fixed pattern.
+TEST(SparseSolver, UmfpackWithMetisOrderingSolves) {
+  ASSERT_TRUE(SolverAvailable(SolverKind::kUmfpack));  // libsuitesparse-dev: scripts/install-deps.sh
+  SolverOptions o;
+  o.kind = SolverKind::kUmfpack;
+  o.umfpack_metis = true;
+  SparseSolver s(o);
+  const Eigen::VectorXd x_true = Eigen::VectorXd::LinSpaced(900, -1, 1);
+  Eigen::VectorXd x;
+  for (int step = 0; step < 2; ++step) {
+    const Matrix A = System(30, 0.5 + step);
+    ASSERT_TRUE(s.Factorize(A).ok());
+    ASSERT_TRUE(s.Solve(A * x_true, &x).ok());
+    EXPECT_LT((x - x_true).lpNorm<Eigen::Infinity>(), 1e-10);
+  }
+  EXPECT_EQ(s.analyses(), 1);
 }
 
 TEST(SparseSolver, ParsesNamesAndRejectsBadOptions) {

@@ -129,22 +129,48 @@ TEST(PressureSolve, FreeEndedCylinderExpandsWithoutAxialStress) {
   EXPECT_GE(order, 3);
 }
 
-// GMRES preconditioned by the Jacobian's 1-ring part reaches the direct solve's answer.
+// GMRES reaches the direct solve's answer with either preconditioner (the compact 1-ring
+// discretization with Gauss-Seidel sweeps, the default; the Jacobian's 1-ring part), with
+// Eisenstat-Walker forcing or fixed tolerances; the direct solve with METIS's ordering
+// (the default) and UMFPACK's own agree.
 TEST(PressureSolve, KrylovMatchesTheDirectSolve) {
   GeneratorOptions g;
   g.n = 8;
   const Mesh m = GenerateSphereMesh(g);
   const Topology topo = BuildTopology(m).value();
   PressureSolveOptions o = Options(3);
+  EXPECT_TRUE(o.solver.umfpack_metis);
   const PressureSolution direct = SolvePressureLoad(m, topo, Eigen::VectorXd::Constant(1, 2.0), o).value();
+  EXPECT_LE(direct.residual, 1e-10);
+  PressureSolveOptions amd = o;
+  amd.solver.umfpack_metis = false;
+  const PressureSolution plain = SolvePressureLoad(m, topo, Eigen::VectorXd::Constant(1, 2.0), amd).value();
+  EXPECT_LT((plain.deformed - direct.deformed).cwiseAbs().maxCoeff(), 1e-9);
   ASSERT_TRUE(SetPressureSolver("gmres", &o).ok());
   EXPECT_TRUE(o.krylov);
-  const PressureSolution krylov = SolvePressureLoad(m, topo, Eigen::VectorXd::Constant(1, 2.0), o).value();
-  std::printf("krylov: %zu Newton iterations, %d GMRES iterations, residual %.2e\n", krylov.history.size(),
-              krylov.krylov_iterations, krylov.residual);
-  EXPECT_LE(krylov.residual, 1e-10);
-  EXPECT_GT(krylov.krylov_iterations, 0);
-  EXPECT_LT((krylov.deformed - direct.deformed).cwiseAbs().maxCoeff(), 1e-9);
+  EXPECT_EQ(o.krylov_preconditioner, KrylovPreconditioner::kCompact);
+  std::vector<int> its;  // (compact, 1-ring) x (forcing, fixed)
+  for (const KrylovPreconditioner pre : {KrylovPreconditioner::kCompact, KrylovPreconditioner::kOneRing}) {
+    for (const bool forcing : {true, false}) {
+      o.krylov_preconditioner = pre;
+      o.krylov_forcing = forcing;
+      const PressureSolution krylov = SolvePressureLoad(m, topo, Eigen::VectorXd::Constant(1, 2.0), o).value();
+      std::printf("krylov (%s, %s): %zu Newton iterations, %d GMRES iterations, residual %.2e\n",
+                  pre == KrylovPreconditioner::kCompact ? "compact" : "1-ring", forcing ? "forcing" : "fixed",
+                  krylov.history.size(), krylov.krylov_iterations, krylov.residual);
+      EXPECT_LE(krylov.residual, 1e-10);
+      EXPECT_GT(krylov.krylov_iterations, 0);
+      int sum = 0;
+      for (const NewtonIteration& it : krylov.history) sum += it.krylov_iterations;
+      EXPECT_EQ(sum, krylov.krylov_iterations);
+      its.push_back(krylov.krylov_iterations);
+      EXPECT_LT((krylov.deformed - direct.deformed).cwiseAbs().maxCoeff(), 1e-9);
+    }
+  }
+  // The compact preconditioner and the forcing terms each save iterations.
+  EXPECT_LT(its[0], its[2]);
+  EXPECT_LT(its[0], its[1]);
+  EXPECT_LT(its[2], its[3]);
   EXPECT_EQ(SetPressureSolver("cholesky", &o).code(), absl::StatusCode::kInvalidArgument);
 }
 

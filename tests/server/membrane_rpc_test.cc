@@ -2,7 +2,8 @@
 // positions and from a stored deformed mesh (same values), chunked; the pressure-load
 // solve as a job (Newton events, the stored revision on the closed-form radius, its
 // pressure read back with ComputeMembrane from the reference's positions), a new-mesh result, a Newton that does not
-// converge (FAILED with its history, nothing stored), and bad inputs naming their fields.
+// converge (FAILED with its history, nothing stored), a cancelled solve (CANCELLED,
+// nothing stored), and bad inputs naming their fields.
 #include <cmath>
 #include <string>
 #include <vector>
@@ -220,6 +221,7 @@ TEST(MembraneRpcTest, SolveStoresTheInflatedSphereAndItsPressureReadsBack) {
       residuals.push_back(e.values().at("residual"));
       EXPECT_EQ(e.values().count("step"), 1u);
       EXPECT_EQ(e.counts().count("iteration"), 1u);
+      EXPECT_EQ(e.counts().at("krylov_iterations"), 0);  // the direct solve
     }
     if (e.phase() == "stored") {
       stored = true;
@@ -302,6 +304,49 @@ TEST(MembraneRpcTest, NewtonThatDoesNotConvergeFailsAndStoresNothing) {
   int newton = 0;
   for (const v1::JobEvent& e : events) newton += e.phase() == "newton";
   EXPECT_EQ(newton, 1);
+  grpc::ClientContext ctx;
+  v1::GetMeshRequest get;
+  get.set_mesh_id(ref->mesh_id());
+  v1::MeshInfo info;
+  ASSERT_TRUE(server.stub().GetMesh(&ctx, get, &info).ok());
+  EXPECT_EQ(info.revision(), 1);  // nothing stored
+}
+
+// CancelJob during a long solve (an unreachable tolerance keeps Newton and its load cuts
+// going: up to 12 x 7 iterations) stops it at the next poll: CANCELLED, nothing stored.
+TEST(MembraneRpcTest, CancelStopsTheSolveAndStoresNothing) {
+  InProcessServer server;
+  const Mesh sphere = testing::TestSphere(8);
+  absl::StatusOr<v1::MeshInfo> ref = testing::UploadMesh(server.stub(), sphere, "sphere");
+  ASSERT_TRUE(ref.ok()) << ref.status();
+  v1::MembraneSolveJob spec = Solve(ref->mesh_id(), 2);
+  spec.set_solver("gmres");
+  spec.set_tolerance(1e-15);
+  spec.set_max_iterations(12);
+  spec.set_max_load_cuts(6);
+  absl::StatusOr<v1::Job> job = StartSolve(server.stub(), spec);
+  ASSERT_TRUE(job.ok()) << job.status();
+  std::vector<v1::JobEvent> events;
+  bool cancelled = false;
+  ASSERT_TRUE(WatchJob(server.stub(), job->job_id(), 0, &events, [&](const v1::JobEvent& e) {
+                if (!cancelled && e.phase() == "newton") {
+                  EXPECT_GE(e.counts().at("krylov_iterations"), 1);  // GMRES's, streamed per iteration
+                  EXPECT_TRUE(testing::CancelJob(server.stub(), e.job_id()).ok());
+                  cancelled = true;
+                }
+                return false;
+              }).ok());
+  ASSERT_TRUE(cancelled);
+  const v1::JobEvent& last = events.back();
+  EXPECT_EQ(last.state(), v1::JOB_STATE_CANCELLED) << last.message();
+  EXPECT_EQ(last.error_code(), static_cast<int>(absl::StatusCode::kCancelled));
+  EXPECT_EQ(last.results_size(), 0);
+  int newton = 0;
+  for (const v1::JobEvent& e : events) {
+    newton += e.phase() == "newton";
+    EXPECT_NE(e.phase(), "stored");
+  }
+  EXPECT_LT(newton, 12);  // stopped within a few iterations of the 84 it could run
   grpc::ClientContext ctx;
   v1::GetMeshRequest get;
   get.set_mesh_id(ref->mesh_id());

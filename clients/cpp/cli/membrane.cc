@@ -409,7 +409,7 @@ absl::Status RunSolve(const std::vector<std::string>& argv) {
   p.Double("pressure", &a.pressure, "constant pressure jump [p] (inside minus outside)")
       .String("pressure-file", &a.pressure_file, "one pressure value per vertex (text, numpy.savetxt)", "FILE")
       .String("boundary", &a.boundary, "open surfaces: clamped or free", "BC")
-      .String("solver", &a.solver, "auto, umfpack, sparselu, klu, bicgstab or gmres (large meshes)", "SOLVER")
+      .String("solver", &a.solver, "auto (UMFPACK), umfpack, sparselu, klu, bicgstab or gmres", "SOLVER")
       .Double("tolerance", &a.tolerance, "relative residual |F| / |[p] n| to reach")
       .Int("max-iterations", &a.max_iterations, "Newton iterations per load step")
       .Int("max-load-cuts", &a.max_load_cuts, "halvings of the load step before giving up")
