@@ -6,6 +6,7 @@
 //   BM_FitQuantities/<degree>/<threads> FitSurface + ComputeDifferentials(all), stencils precomputed
 //   BM_FitQuantitiesScalar/<d>/<t>      the same with the scalar kernel (batched_kernel = false)
 //   BM_Neighborhoods/<degree>/<threads> BuildNeighborhoods alone (for the breakdown)
+//   BM_VertexNormals                    ApproximateVertexNormals alone (one thread)
 //   BM_Topology                         BuildTopology alone (not part of the pipeline above)
 //   BM_CgalJet/<degree>/<threads>       CGAL Monge_via_jet_fitting(d_fitting = degree, d_monge = 2)
 //                                       on our stencils; threads = 2 runs an OpenMP loop over
@@ -145,6 +146,17 @@ void BM_Neighborhoods(benchmark::State& state) {
   SetRates(state, o.degree);
 }
 
+// ApproximateVertexNormals alone (frames and safeguard weights of every fit).
+void BM_VertexNormals(benchmark::State& state) {
+  const Fixture& f = F();
+  for (auto _ : state) {
+    Positions n = ApproximateVertexNormals(f.mesh, f.topo, NormalWeighting::kArea, 1);
+    benchmark::DoNotOptimize(n.data());
+    benchmark::ClobberMemory();
+  }
+  SetRates(state, 2);
+}
+
 void BM_Topology(benchmark::State& state) {
   const Fixture& f = F();
   for (auto _ : state) {
@@ -206,6 +218,7 @@ BENCHMARK(BM_Pipeline)->Apply(Args);
 BENCHMARK(BM_FitQuantities)->Apply(Args);
 BENCHMARK(BM_FitQuantitiesScalar)->Apply(Args);
 BENCHMARK(BM_Neighborhoods)->Apply(Args);
+BENCHMARK(BM_VertexNormals)->Unit(benchmark::kMillisecond)->UseRealTime();
 BENCHMARK(BM_Topology)->Unit(benchmark::kMillisecond)->UseRealTime();
 BENCHMARK(BM_CgalJet)->Apply(Args);
 
