@@ -36,6 +36,26 @@ GEOMFIT_INLINE V Max(V a, V b) { return a < b ? b : a; }
 constexpr double Factorial(int n) { return n <= 1 ? 1.0 : n * Factorial(n - 1); }
 
 // y <- (I - tau x x^T) y over rows j..m-1 (x_j = 1 implied), lane by lane.
+// Reflect on N columns y[0..N) at once: each x[i] is loaded once for the N columns, and
+// every column sees Reflect's operations in Reflect's order (bit-equal results).
+template <int N, class V>
+GEOMFIT_INLINE void ReflectColumns(const V* x, V tau, int j, int m, V* const* y) {
+  V w[N];
+  for (int c = 0; c < N; ++c) w[c] = y[c][j];
+  for (int i = j + 1; i < m; ++i) {
+    const V xi = x[i];
+    for (int c = 0; c < N; ++c) w[c] += xi * y[c][i];
+  }
+  for (int c = 0; c < N; ++c) {
+    w[c] *= tau;
+    y[c][j] -= w[c];
+  }
+  for (int i = j + 1; i < m; ++i) {
+    const V xi = x[i];
+    for (int c = 0; c < N; ++c) y[c][i] -= w[c] * xi;
+  }
+}
+
 template <class V>
 GEOMFIT_INLINE void Reflect(const V* x, V tau, int j, int m, V* y) {
   V w = y[j];
@@ -160,7 +180,12 @@ GEOMFIT_INLINE int Solve(const WlsProblem* const problems[], int count, const Wl
     const V xj = sigma == 0 ? alpha : beta;
     for (int i = j + 1; i < m; ++i) x[i] *= inv;
     x[j] = xj;
-    for (int c = j + 1; c < kCols + dims; ++c) Reflect(x, tau[j], j, m, a + c * m);
+    int c = j + 1;
+    for (; c + 4 <= kCols + dims; c += 4) {
+      V* const y[4] = {a + c * m, a + (c + 1) * m, a + (c + 2) * m, a + (c + 3) * m};
+      ReflectColumns<4>(x, tau[j], j, m, y);
+    }
+    for (; c < kCols + dims; ++c) Reflect(x, tau[j], j, m, a + c * m);
   }
   // Zero pivots and the condition cut-off (2.4) at degree D leave the plain path.
   V amax = Abs(a[0]);
