@@ -125,7 +125,7 @@ void FinishVertex(int v, const FitInput& in, const FitOutput& out, const WlsProb
   }
 }
 
-// Vertices waiting for the batched kernel, kWlsLanes at a time (heap: ~400 KB).
+// Vertices waiting for the batched kernel, kWlsLanes at a time (heap: ~800 KB).
 struct FitBatch {
   WlsBatchWorkspace work;
   WlsProblem problems[kWlsLanes];
@@ -305,7 +305,7 @@ class SurfaceFitter {
     constexpr int64_t kGrain = 512;
     return ParallelFor((nv + kGrain - 1) / kGrain, ctx, [&](int64_t chunk) {
       const int64_t end = std::min<int64_t>(nv, (chunk + 1) * kGrain);
-      std::unique_ptr<FitBatch> batch(new FitBatch);  // default-initialized: no 400 KB memset
+      std::unique_ptr<FitBatch> batch(new FitBatch);  // default-initialized: no 800 KB memset
       for (int64_t k = chunk * kGrain; k < end; ++k) {
         const int64_t v = local_order ? topo.locality_order[k] : k;
         if (topo.is_boundary[v]) f.diagnostics_[v].flags |= kFlagBoundary;
