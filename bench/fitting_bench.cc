@@ -6,13 +6,15 @@
 //   BM_FitQuantities/<degree>/<threads> FitSurface + ComputeDifferentials(all), stencils precomputed
 //   BM_FitQuantitiesScalar/<d>/<t>      the same with the scalar kernel (batched_kernel = false)
 //   BM_Neighborhoods/<degree>/<threads> BuildNeighborhoods alone (for the breakdown)
+//   BM_VertexNormals                    ApproximateVertexNormals alone (one thread)
 //   BM_Topology                         BuildTopology alone (not part of the pipeline above)
 //   BM_CgalJet/<degree>/<threads>       CGAL Monge_via_jet_fitting(d_fitting = degree, d_monge = 2)
 //                                       on our stencils; threads = 2 runs an OpenMP loop over
 //                                       vertices with one fitter per thread (CGAL itself is serial)
 //
 // Rates: items_per_second and the "tri/s" counter are triangles per second of wall time.
-// `--mesh=FILE` runs every line on that mesh instead (e.g. a gmsh torus). See bench/README.md.
+// `--mesh=FILE` runs every line on that mesh instead (e.g. a gmsh torus); `--isa=avx2` (or
+// avx512, portable) picks the batched kernel's instruction set. See bench/README.md.
 #include <cstdio>
 #include <cstring>
 #include <memory>
@@ -28,6 +30,7 @@
 #include "core/fitting/fit.h"
 #include "core/fitting/frames.h"
 #include "core/fitting/neighborhood.h"
+#include "core/fitting/wls_batch.h"
 #include "core/mesh/io.h"
 #include "core/mesh/topology.h"
 #include "core/quantities/differentials.h"
@@ -145,6 +148,17 @@ void BM_Neighborhoods(benchmark::State& state) {
   SetRates(state, o.degree);
 }
 
+// ApproximateVertexNormals alone (frames and safeguard weights of every fit).
+void BM_VertexNormals(benchmark::State& state) {
+  const Fixture& f = F();
+  for (auto _ : state) {
+    Positions n = ApproximateVertexNormals(f.mesh, f.topo, NormalWeighting::kArea, 1);
+    benchmark::DoNotOptimize(n.data());
+    benchmark::ClobberMemory();
+  }
+  SetRates(state, 2);
+}
+
 void BM_Topology(benchmark::State& state) {
   const Fixture& f = F();
   for (auto _ : state) {
@@ -206,22 +220,32 @@ BENCHMARK(BM_Pipeline)->Apply(Args);
 BENCHMARK(BM_FitQuantities)->Apply(Args);
 BENCHMARK(BM_FitQuantitiesScalar)->Apply(Args);
 BENCHMARK(BM_Neighborhoods)->Apply(Args);
+BENCHMARK(BM_VertexNormals)->Unit(benchmark::kMillisecond)->UseRealTime();
 BENCHMARK(BM_Topology)->Unit(benchmark::kMillisecond)->UseRealTime();
 BENCHMARK(BM_CgalJet)->Apply(Args);
 
 }  // namespace
 
 int main(int argc, char** argv) {
-  for (int i = 1; i < argc; ++i)
+  for (int i = 1; i < argc;) {
     if (std::strncmp(argv[i], "--mesh=", 7) == 0) {
       g_mesh_path = argv[i] + 7;
-      for (int j = i; j + 1 < argc; ++j) argv[j] = argv[j + 1];
-      --argc;
-      break;
+    } else if (std::strncmp(argv[i], "--isa=", 6) == 0) {
+      if (!SetWlsBatchIsa(argv[i] + 6)) {
+        std::fprintf(stderr, "--isa=%s: not supported here\n", argv[i] + 6);
+        return 1;
+      }
+    } else {
+      ++i;
+      continue;
     }
+    for (int j = i; j + 1 < argc; ++j) argv[j] = argv[j + 1];
+    --argc;
+  }
   benchmark::Initialize(&argc, argv);
   if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
   const Fixture& f = F();  // build the torus and stencils before any timing
+  std::fprintf(stderr, "batched kernel: %s\n", WlsBatchIsa());
   std::fprintf(stderr, "%s: %d vertices, %d triangles; mean stencil size d2 %.1f d4 %.1f d6 %.1f\n",
                g_mesh_path.empty() ? "torus n=168" : g_mesh_path.c_str(), f.mesh.NumVertices(), f.NumTriangles(), f.avg_stencil[2], f.avg_stencil[4],
                f.avg_stencil[6]);

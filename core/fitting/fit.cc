@@ -23,6 +23,12 @@ struct FitInput {
   const FitOptions& o;
   double cos_cut;  // cos(safeguard angle) of (2.2.1)
   const Topology& topo;      // for the comparison parametrizations (parametric.h)
+  // Position and normal of vertex p at xyzn[6 * slot(p)]: a copy in the order vertices
+  // are fitted in, so neighbouring stencils read neighbouring memory (the same doubles
+  // as mesh.positions and normals, so the same results).
+  const double* xyzn;
+  const int32_t* rank;  // slot of each vertex; null: the vertex's own index
+  int Slot(int p) const { return rank ? rank[p] : p; }
 };
 
 struct FitOutput {
@@ -57,8 +63,10 @@ bool SetUpVertex(int v, const FitInput& in, const FitOutput& out, WlsProblem& P)
   VertexDiagnostics& diag = *out.diag;
   diag.degree_requested = static_cast<int8_t>(o.degree);
 
-  const Eigen::Vector3d x0 = in.mesh.positions.row(v).transpose();
-  const Eigen::Vector3d m0 = in.normals.row(v).transpose();
+  using Vec = Eigen::Map<const Eigen::Vector3d>;
+  const double* self = in.xyzn + 6 * static_cast<int64_t>(in.Slot(v));
+  const Eigen::Vector3d x0 = Vec(self);
+  const Eigen::Vector3d m0 = Vec(self + 3);
   if (m0.squaredNorm() == 0) {  // isolated vertex: no faces, no frame
     diag.flags |= kFlagIsolated;
     *out.frame = FrameFromNormal(x0, Eigen::Vector3d::UnitZ());
@@ -73,11 +81,12 @@ bool SetUpVertex(int v, const FitInput& in, const FitOutput& out, WlsProblem& P)
   P.rows = n_pts - first;
   int used = first;
   for (int i = first; i < n_pts; ++i) {
-    const int r = i - first, p = pts[i];
-    const Eigen::Vector3d d = in.mesh.positions.row(p).transpose() - x0;
+    const int r = i - first;
+    const double* q = in.xyzn + 6 * static_cast<int64_t>(in.Slot(pts[i]));
+    const Eigen::Vector3d d = Vec(q) - x0;
     P.u[r] = d.dot(frame.t1);
     P.v[r] = d.dot(frame.t2);
-    const double g = i == 0 ? 1.0 : in.normals.row(p).dot(m0);
+    const double g = i == 0 ? 1.0 : Vec(q + 3).dot(m0);
     P.gamma[r] = g >= cos_cut ? g : 0.0;
     used += P.gamma[r] > 0;
     if (dims == 1) {
@@ -116,7 +125,7 @@ void FinishVertex(int v, const FitInput& in, const FitOutput& out, const WlsProb
   }
 }
 
-// Vertices waiting for the batched kernel, kWlsLanes at a time (heap: ~400 KB).
+// Vertices waiting for the batched kernel, kWlsLanes at a time (heap: ~800 KB).
 struct FitBatch {
   WlsBatchWorkspace work;
   WlsProblem problems[kWlsLanes];
@@ -278,15 +287,25 @@ class SurfaceFitter {
         f.stencil_offsets_[v + 1] = f.stencil_offsets_[v] + static_cast<size_t>(f.stencil_rows_) * nb->Size(v);
       f.stencils_.assign(f.stencil_offsets_[nv], 0.0);
     }
-    const FitInput in{mesh, *nb, normals, o, std::cos(o.safeguard_angle_deg * M_PI / 180.0), topo};
+    // Vertices in the topology's locality order (neighbouring stencils share cache
+    // lines), unless blocks must be reported as index ranges; positions and normals
+    // copied in that order.
+    const bool local_order = !(on_fitted && *on_fitted) && static_cast<int>(topo.locality_order.size()) == nv;
+    std::vector<double> xyzn(6 * static_cast<size_t>(nv));
+    std::vector<int32_t> rank(local_order ? nv : 0);
+    ParallelFor(nv, ctx.threads(), [&](int64_t k) {
+      const int64_t v = local_order ? topo.locality_order[k] : k;
+      if (local_order) rank[v] = static_cast<int32_t>(k);
+      double* dst = xyzn.data() + 6 * k;
+      for (int c = 0; c < 3; ++c) dst[c] = mesh.positions(v, c), dst[3 + c] = normals(v, c);
+    }, 4096);
+    const FitInput in{mesh, *nb, normals, o, std::cos(o.safeguard_angle_deg * M_PI / 180.0), topo,
+                      xyzn.data(), local_order ? rank.data() : nullptr};
     const WlsSettings settings = SettingsFor(o, f.stencil_rows_);
     constexpr int64_t kGrain = 512;
-    // Vertices in the topology's locality order (neighbouring stencils share cache
-    // lines), unless blocks must be reported as index ranges.
-    const bool local_order = !(on_fitted && *on_fitted) && static_cast<int>(topo.locality_order.size()) == nv;
     return ParallelFor((nv + kGrain - 1) / kGrain, ctx, [&](int64_t chunk) {
       const int64_t end = std::min<int64_t>(nv, (chunk + 1) * kGrain);
-      std::unique_ptr<FitBatch> batch(new FitBatch);  // default-initialized: no 400 KB memset
+      std::unique_ptr<FitBatch> batch(new FitBatch);  // default-initialized: no 800 KB memset
       for (int64_t k = chunk * kGrain; k < end; ++k) {
         const int64_t v = local_order ? topo.locality_order[k] : k;
         if (topo.is_boundary[v]) f.diagnostics_[v].flags |= kFlagBoundary;

@@ -42,6 +42,7 @@ std::vector<int32_t> GrowthOrder(const Topology& t) {
     for (int v = 0; v < nv; ++v) order.push_back(v);
     return order;
   }
+  if (static_cast<int>(t.locality_order.size()) == nv) return t.locality_order;  // the same sweep, built
   std::vector<uint8_t> seen(nv, 0);
   for (int s = 0; s < nv; ++s) {
     if (seen[s]) continue;

@@ -12,24 +12,51 @@
 namespace geomfit {
 namespace {
 
-constexpr int W = kWlsLanes;
-typedef double V __attribute__((vector_size(W * sizeof(double))));
-typedef int64_t VMask __attribute__((vector_size(W * sizeof(double))));
+// W doubles in one vector: 8 (AVX-512), 4 (AVX2; SSE2 pairs in the portable build).
+template <int W>
+struct Lanes {
+  typedef double V __attribute__((vector_size(W * sizeof(double))));
+};
 
 #define GEOMFIT_INLINE inline __attribute__((always_inline))
 
+template <class V>
 GEOMFIT_INLINE V Splat(double x) { return V{} + x; }
+template <class V>
 GEOMFIT_INLINE V Sqrt(V x) {
   V r;
-  for (int l = 0; l < W; ++l) r[l] = __builtin_sqrt(x[l]);
+  for (int l = 0; l < static_cast<int>(sizeof(V) / sizeof(double)); ++l) r[l] = __builtin_sqrt(x[l]);
   return r;
 }
+template <class V>
 GEOMFIT_INLINE V Abs(V x) { return x < 0 ? -x : x; }
+template <class V>
 GEOMFIT_INLINE V Max(V a, V b) { return a < b ? b : a; }
 
 constexpr double Factorial(int n) { return n <= 1 ? 1.0 : n * Factorial(n - 1); }
 
 // y <- (I - tau x x^T) y over rows j..m-1 (x_j = 1 implied), lane by lane.
+// Reflect on N columns y[0..N) at once: each x[i] is loaded once for the N columns, and
+// every column sees Reflect's operations in Reflect's order (bit-equal results).
+template <int N, class V>
+GEOMFIT_INLINE void ReflectColumns(const V* x, V tau, int j, int m, V* const* y) {
+  V w[N];
+  for (int c = 0; c < N; ++c) w[c] = y[c][j];
+  for (int i = j + 1; i < m; ++i) {
+    const V xi = x[i];
+    for (int c = 0; c < N; ++c) w[c] += xi * y[c][i];
+  }
+  for (int c = 0; c < N; ++c) {
+    w[c] *= tau;
+    y[c][j] -= w[c];
+  }
+  for (int i = j + 1; i < m; ++i) {
+    const V xi = x[i];
+    for (int c = 0; c < N; ++c) y[c][i] -= w[c] * xi;
+  }
+}
+
+template <class V>
 GEOMFIT_INLINE void Reflect(const V* x, V tau, int j, int m, V* y) {
   V w = y[j];
   for (int i = j + 1; i < m; ++i) w += x[i] * y[i];
@@ -40,10 +67,11 @@ GEOMFIT_INLINE void Reflect(const V* x, V tau, int j, int m, V* y) {
 
 // SolveWls (wls.cc) at degree D with the first First Taylor columns fixed, for the lanes
 // of `problems`; the order of operations follows SolveWls so results agree to round-off.
-template <int D, int First>
+template <int W, int D, int First>
 GEOMFIT_INLINE int Solve(const WlsProblem* const problems[], int count, const WlsSettings& S,
                          double* const coefficients[], double* const ops[], WlsSolution solutions[],
                          WlsBatchWorkspace& work) {
+  using V = typename Lanes<W>::V;
   constexpr int kN = NumCoefficients(D), kCols = kN - First;
   const int dims = problems[0]->dims;
   // Rows with a positive safeguard factor, per lane; lanes the plain path cannot take
@@ -121,7 +149,7 @@ GEOMFIT_INLINE int Solve(const WlsProblem* const problems[], int count, const Wl
     for (int e = 1; e < kPowers; ++e) denom *= root;
     const V w = weight[i] = gg[i] > 0 ? gg[i] / denom : V{};
     V up[D + 1], vp[D + 1];
-    up[0] = vp[0] = Splat(1);
+    up[0] = vp[0] = Splat<V>(1);
     for (int e = 1; e <= D; ++e) up[e] = up[e - 1] * u, vp[e] = vp[e - 1] * v;
     int c = 0;
     for (int p = First; p <= D; ++p)
@@ -133,7 +161,7 @@ GEOMFIT_INLINE int Solve(const WlsProblem* const problems[], int count, const Wl
   for (int c = 0; c < kCols; ++c) {
     V norm2 = V{};
     for (int i = 0; i < m; ++i) norm2 += a[c * m + i] * a[c * m + i];
-    scale[c] = norm2 > 0 ? 1.0 / Sqrt(norm2) : Splat(1);
+    scale[c] = norm2 > 0 ? 1.0 / Sqrt(norm2) : Splat<V>(1);
     for (int i = 0; i < m; ++i) a[c * m + i] *= scale[c];
   }
   // Householder QR, [A | B] -> [R | Q^T B] (small_qr.h, lane by lane).
@@ -145,23 +173,30 @@ GEOMFIT_INLINE int Solve(const WlsProblem* const problems[], int count, const Wl
     const V alpha = x[j];
     const V norm = Sqrt(alpha * alpha + sigma);
     const V beta = alpha >= 0 ? -norm : norm;
-    const VMask identity = sigma == 0;  // already triangular in this column: H = I
-    const V inv = identity ? Splat(1) : 1.0 / (alpha - beta);
+    // sigma == 0: already triangular in this column, H = I. (The three selects come
+    // before any loop: GCC 12 fails on a vector comparison kept across blocks at AVX-512.)
+    const V inv = sigma == 0 ? Splat<V>(1) : 1.0 / (alpha - beta);
+    tau[j] = sigma == 0 ? V{} : (beta - alpha) / beta;
+    const V xj = sigma == 0 ? alpha : beta;
     for (int i = j + 1; i < m; ++i) x[i] *= inv;
-    tau[j] = identity ? V{} : (beta - alpha) / beta;
-    x[j] = identity ? alpha : beta;
-    for (int c = j + 1; c < kCols + dims; ++c) Reflect(x, tau[j], j, m, a + c * m);
+    x[j] = xj;
+    int c = j + 1;
+    for (; c + 4 <= kCols + dims; c += 4) {
+      V* const y[4] = {a + c * m, a + (c + 1) * m, a + (c + 2) * m, a + (c + 3) * m};
+      ReflectColumns<4>(x, tau[j], j, m, y);
+    }
+    for (; c < kCols + dims; ++c) Reflect(x, tau[j], j, m, a + c * m);
   }
   // Zero pivots and the condition cut-off (2.4) at degree D leave the plain path.
   V amax = Abs(a[0]);
-  amax = amax < 1 ? Splat(1) : amax;
+  amax = amax < 1 ? Splat<V>(1) : amax;
   const V tiny = 1e-13 * amax;
-  VMask ok = VMask{} == 0;
-  for (int c = 0; c < kCols; ++c) ok &= Abs(a[c * m + c]) > tiny;
+  V ok = Splat<V>(1);  // 1 in lanes still on the plain path
+  for (int c = 0; c < kCols; ++c) ok = Abs(a[c * m + c]) > tiny ? ok : V{};
   for (int c = 0; c < kCols; ++c) {  // R^-1 column by column (InvertUpper)
     V* x = rinv + c * kCols;
     for (int i = 0; i < kCols; ++i) x[i] = V{};
-    x[c] = Splat(1);
+    x[c] = Splat<V>(1);
     for (int i = c; i >= 0; --i) {
       const V* ri = a + i * m;
       const V xi = x[i] /= ri[i];
@@ -176,14 +211,14 @@ GEOMFIT_INLINE int Solve(const WlsProblem* const problems[], int count, const Wl
     norm_i = Max(norm_i, si);
   }
   const V condition = norm_r * norm_i;
-  ok &= condition <= S.cond_threshold[D];
+  ok = condition <= S.cond_threshold[D] ? ok : V{};
   for (int l = 0; l < W; ++l)
-    if (!ok[l]) mask &= ~(1 << l);
+    if (!(ok[l] != 0)) mask &= ~(1 << l);
   if (mask == 0) return 0;
 
   // Back substitution and unscaling: c_jk = s_c y_c / h^(j+k).
   V hp[D + 1];
-  hp[0] = Splat(1);
+  hp[0] = Splat<V>(1);
   for (int p = 1; p <= D; ++p) hp[p] = hp[p - 1] * hv;
   for (int d = 0; d < dims; ++d) {
     V y[kCols];
@@ -241,63 +276,93 @@ GEOMFIT_INLINE int Solve(const WlsProblem* const problems[], int count, const Wl
   return mask;
 }
 
-template <int First>
+template <int W, int First>
 GEOMFIT_INLINE int SolveDegree(const WlsProblem* const problems[], int count, const WlsSettings& S,
                                double* const coefficients[], double* const ops[], WlsSolution solutions[],
                                WlsBatchWorkspace& work) {
   switch (S.degree) {
-    case 1: return Solve<1, First>(problems, count, S, coefficients, ops, solutions, work);
-    case 2: return Solve<2, First>(problems, count, S, coefficients, ops, solutions, work);
-    case 3: return Solve<3, First>(problems, count, S, coefficients, ops, solutions, work);
-    case 4: return Solve<4, First>(problems, count, S, coefficients, ops, solutions, work);
-    case 5: return Solve<5, First>(problems, count, S, coefficients, ops, solutions, work);
-    case 6: return Solve<6, First>(problems, count, S, coefficients, ops, solutions, work);
+    case 1: return Solve<W, 1, First>(problems, count, S, coefficients, ops, solutions, work);
+    case 2: return Solve<W, 2, First>(problems, count, S, coefficients, ops, solutions, work);
+    case 3: return Solve<W, 3, First>(problems, count, S, coefficients, ops, solutions, work);
+    case 4: return Solve<W, 4, First>(problems, count, S, coefficients, ops, solutions, work);
+    case 5: return Solve<W, 5, First>(problems, count, S, coefficients, ops, solutions, work);
+    case 6: return Solve<W, 6, First>(problems, count, S, coefficients, ops, solutions, work);
     default: return 0;
   }
 }
 
+// The problems in groups of W lanes.
+template <int W>
 GEOMFIT_INLINE int SolveAny(const WlsProblem* const problems[], int count, const WlsSettings& S,
                             double* const coefficients[], double* const ops[], WlsSolution solutions[],
                             WlsBatchWorkspace& work) {
-  if (count <= 0 || count > W || S.oscillation_safeguard) return 0;
-  return S.interpolate ? SolveDegree<1>(problems, count, S, coefficients, ops, solutions, work)
-                       : SolveDegree<0>(problems, count, S, coefficients, ops, solutions, work);
+  if (count <= 0 || count > kWlsLanes || S.oscillation_safeguard) return 0;
+  int mask = 0;
+  for (int g = 0; g < count; g += W) {
+    const int n = count - g < W ? count - g : W;
+    mask |= (S.interpolate ? SolveDegree<W, 1>(problems + g, n, S, coefficients + g, ops + g, solutions + g, work)
+                           : SolveDegree<W, 0>(problems + g, n, S, coefficients + g, ops + g, solutions + g, work))
+            << g;
+  }
+  return mask;
 }
 
 // One copy of the kernel per instruction set; `flatten` inlines the whole kernel into each.
 __attribute__((flatten)) int SolvePortable(const WlsProblem* const problems[], int count, const WlsSettings& S,
                                            double* const coefficients[], double* const ops[],
                                            WlsSolution solutions[], WlsBatchWorkspace& work) {
-  return SolveAny(problems, count, S, coefficients, ops, solutions, work);
+  return SolveAny<4>(problems, count, S, coefficients, ops, solutions, work);
 }
 
 #if defined(__x86_64__) && defined(__GNUC__)
-#define GEOMFIT_HAVE_AVX2_KERNEL 1
+#define GEOMFIT_HAVE_X86_KERNELS 1
 __attribute__((flatten, target("avx2"))) int SolveAvx2(const WlsProblem* const problems[], int count,
                                                            const WlsSettings& S, double* const coefficients[],
                                                            double* const ops[], WlsSolution solutions[],
                                                            WlsBatchWorkspace& work) {
-  return SolveAny(problems, count, S, coefficients, ops, solutions, work);
+  return SolveAny<4>(problems, count, S, coefficients, ops, solutions, work);
+}
+__attribute__((flatten, target("avx512f,avx512dq,avx512vl,avx512bw,prefer-vector-width=512"))) int SolveAvx512(
+    const WlsProblem* const problems[], int count, const WlsSettings& S, double* const coefficients[],
+    double* const ops[], WlsSolution solutions[], WlsBatchWorkspace& work) {
+  return SolveAny<8>(problems, count, S, coefficients, ops, solutions, work);
 }
 #endif
 
 using Kernel = int (*)(const WlsProblem* const[], int, const WlsSettings&, double* const[], double* const[],
                        WlsSolution[], WlsBatchWorkspace&);
 
-struct Dispatch {
-  Kernel kernel = SolvePortable;
-  const char* isa = "portable";
-  Dispatch() {
-#ifdef GEOMFIT_HAVE_AVX2_KERNEL
-    __builtin_cpu_init();
-    if (__builtin_cpu_supports("avx2")) kernel = SolveAvx2, isa = "avx2";
-#endif
-  }
+struct Isa {
+  const char* name;
+  Kernel kernel;
+  bool (*supported)();
 };
 
-const Dispatch& Selected() {
-  static const Dispatch dispatch;
-  return dispatch;
+const Isa kIsas[] = {
+#ifdef GEOMFIT_HAVE_X86_KERNELS
+    {"avx512", SolveAvx512,
+     [] {
+       __builtin_cpu_init();
+       return __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512dq") &&
+              __builtin_cpu_supports("avx512vl") && __builtin_cpu_supports("avx512bw");
+     }},
+    {"avx2", SolveAvx2,
+     [] {
+       __builtin_cpu_init();
+       return static_cast<bool>(__builtin_cpu_supports("avx2"));
+     }},
+#endif
+    {"portable", SolvePortable, [] { return true; }},
+};
+
+// The best kernel this CPU runs (first supported in kIsas), unless SetWlsBatchIsa chose.
+const Isa*& Selected() {
+  static const Isa* selected = [] {
+    for (const Isa& isa : kIsas)
+      if (isa.supported()) return &isa;
+    return &kIsas[0];
+  }();
+  return selected;
 }
 
 }  // namespace
@@ -305,9 +370,25 @@ const Dispatch& Selected() {
 int SolveWlsBatch(const WlsProblem* const problems[], int count, const WlsSettings& settings,
                   double* const coefficients[], double* const ops[], WlsSolution solutions[],
                   WlsBatchWorkspace& work) {
-  return Selected().kernel(problems, count, settings, coefficients, ops, solutions, work);
+  return Selected()->kernel(problems, count, settings, coefficients, ops, solutions, work);
 }
 
-const char* WlsBatchIsa() { return Selected().isa; }
+const char* WlsBatchIsa() { return Selected()->name; }
+
+std::vector<std::string> WlsBatchIsas() {
+  std::vector<std::string> names;
+  for (const Isa& isa : kIsas)
+    if (isa.supported()) names.push_back(isa.name);
+  return names;
+}
+
+bool SetWlsBatchIsa(std::string_view isa) {
+  for (const Isa& candidate : kIsas)
+    if (isa == candidate.name && candidate.supported()) {
+      Selected() = &candidate;
+      return true;
+    }
+  return false;
+}
 
 }  // namespace geomfit

@@ -1,14 +1,18 @@
 #pragma once
 #include <memory>
+#include <string>
+#include <string_view>
+#include <vector>
 
 #include "core/fitting/wls.h"
 
 namespace geomfit {
 
-/// Problems solved together by SolveWlsBatch, one per SIMD lane.
-inline constexpr int kWlsLanes = 4;
+/// Problems solved together by SolveWlsBatch, one per SIMD lane: 8 lanes of one
+/// AVX-512 vector, or two groups of 4 (AVX2, portable).
+inline constexpr int kWlsLanes = 8;
 
-/// Scratch space of SolveWlsBatch (about 225 KB): allocate once per thread or block of
+/// Scratch space of SolveWlsBatch (about 450 KB): allocate once per thread or block of
 /// vertices, never per call.
 struct WlsBatchWorkspace {
   static constexpr int kDoubles =
@@ -26,12 +30,21 @@ struct WlsBatchWorkspace {
 /// the cut-off, so a degree drop, or the oscillation safeguard, which is never batched)
 /// is not written: the returned bit mask has bit l set iff problem l was solved, and the
 /// caller solves the others with SolveWls. `ops[l]` may be null (no operator rows).
-/// Runs AVX2 code when the CPU has it, portable code otherwise (one binary).
+/// Runs AVX-512 code (8 lanes) when the CPU has it, else AVX2 (4 lanes), else portable
+/// code (one binary); every lane performs the same operations in the same order.
 int SolveWlsBatch(const WlsProblem* const problems[], int count, const WlsSettings& settings,
                   double* const coefficients[], double* const ops[], WlsSolution solutions[],
                   WlsBatchWorkspace& work);
 
-/// The instruction set SolveWlsBatch runs with on this CPU: "avx2" or "portable".
+/// The instruction set SolveWlsBatch runs with: "avx512", "avx2" or "portable" (the
+/// best this CPU has unless SetWlsBatchIsa chose another).
 const char* WlsBatchIsa();
+
+/// The kernels this CPU and build run, best (the default) first, "portable" last.
+std::vector<std::string> WlsBatchIsas();
+
+/// Tests and benchmarks: run SolveWlsBatch with `isa` from now on (not thread-safe:
+/// call before fitting). False, and nothing changes, if this CPU or build lacks it.
+bool SetWlsBatchIsa(std::string_view isa);
 
 }  // namespace geomfit

@@ -7,8 +7,10 @@
 #include <gtest/gtest.h>
 
 #include "core/fitting/fit.h"
+#include "core/fitting/frames.h"
 #include "core/quantities/differentials.h"
 #include "core/surfaces/analytic.h"
+#include "tests/mesh/make_mesh.h"
 
 namespace geomfit {
 namespace {
@@ -53,6 +55,44 @@ Eigen::Vector2d PolyGrad(int d, double x, double y) {
       if (k > 0) g.y() += c * k * std::pow(x, j) * std::pow(y, k - 1);
     }
   return g;
+}
+
+// ApproximateVertexNormals sums corner normals face by face; each vertex's sum must be
+// the one over its fan in topo.VertexFaces order, bit for bit, on any numbering, with
+// quads, for either weighting and thread count.
+TEST(FitTest, VertexNormalsEqualTheSumsOverEachFanInOrder) {
+  GeneratorOptions g;
+  g.n = 7;
+  for (const Mesh& base : {GenerateTorusMesh(g), GenerateSphereMesh(g), GenerateBumpMesh(g)}) {
+    const Mesh mesh = testing_util::ShuffleVertices(base, 5);
+    const Topology t = BuildTopology(mesh).value();
+    for (NormalWeighting w : {NormalWeighting::kArea, NormalWeighting::kAngle}) {
+      Positions want(mesh.NumVertices(), 3);
+      for (int v = 0; v < mesh.NumVertices(); ++v) {
+        Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+        const Eigen::Vector3d x = mesh.positions.row(v).transpose();
+        for (int i = 0; i < t.NumVertexFaces(v); ++i) {
+          const int f = t.VertexFaces(v)[i];
+          int c = 0;
+          while (mesh.faces(f, c) != v) ++c;
+          const Eigen::Vector3d a = mesh.positions.row(mesh.Next(f, c)).transpose() - x;
+          const Eigen::Vector3d b = mesh.positions.row(mesh.Prev(f, c)).transpose() - x;
+          const Eigen::Vector3d cr = a.cross(b);
+          if (w == NormalWeighting::kArea) {
+            sum += cr;
+          } else if (cr.norm() > 0) {
+            sum += std::atan2(cr.norm(), a.dot(b)) * cr / cr.norm();
+          }
+        }
+        want.row(v) = sum / sum.norm();
+      }
+      for (int threads : {1, 2}) {
+        const Positions got = ApproximateVertexNormals(mesh, t, w, threads);
+        for (int v = 0; v < mesh.NumVertices(); ++v)
+          for (int k = 0; k < 3; ++k) ASSERT_EQ(got(v, k), want(v, k)) << "vertex " << v << " threads " << threads;
+      }
+    }
+  }
 }
 
 TEST(FitTest, StencilsReproducePolynomialsOfTheFitDegreeExactly) {

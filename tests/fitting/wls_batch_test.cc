@@ -39,7 +39,28 @@ std::vector<Case> Meshes() {
   return cases;
 }
 
-TEST(WlsBatchTest, FitsNormalsCurvaturesAndStencilsEqualTheScalarPath) {
+// Each test runs with every kernel this CPU runs (WlsBatchIsas: AVX-512, AVX2,
+// portable), then goes back to the default.
+class WlsBatchIsaTest : public ::testing::TestWithParam<std::string> {
+ protected:
+  void SetUp() override {
+    default_ = WlsBatchIsa();
+    ASSERT_TRUE(SetWlsBatchIsa(GetParam()));
+  }
+  void TearDown() override { ASSERT_TRUE(SetWlsBatchIsa(default_)); }
+  std::string default_;
+};
+
+TEST(WlsBatchTest, TheDefaultKernelIsTheBestSupported) {
+  const std::vector<std::string> isas = WlsBatchIsas();
+  ASSERT_FALSE(isas.empty());
+  EXPECT_EQ(isas.front(), WlsBatchIsa());
+  EXPECT_EQ(isas.back(), "portable");
+  EXPECT_FALSE(SetWlsBatchIsa("sse9"));
+  EXPECT_EQ(isas.front(), WlsBatchIsa());
+}
+
+TEST_P(WlsBatchIsaTest, FitsNormalsCurvaturesAndStencilsEqualTheScalarPath) {
   int batched_vertices = 0, total = 0;
   for (const Case& c : Meshes()) {
     const Topology t = BuildTopology(c.mesh).value();
@@ -126,37 +147,50 @@ WlsProblem RandomProblem(int rows, std::mt19937& rng) {
   return P;
 }
 
-TEST(WlsBatchTest, LanesLeavingThePlainPathAreLeftToTheScalarSolver) {
+TEST_P(WlsBatchIsaTest, LanesLeavingThePlainPathAreLeftToTheScalarSolver) {
   std::mt19937 rng(7);
   WlsSettings S;
   S.degree = 2;
   const double thresholds[kMaxDegree + 1] = {0, 1e3, 1e3, 3.3e3, 1e4, 1e5, 1e6};
   S.cond_threshold = thresholds;
-  WlsProblem P[kWlsLanes] = {RandomProblem(20, rng), RandomProblem(4, rng), RandomProblem(30, rng),
-                             RandomProblem(12, rng)};
-  // Lane 3: all points on the line v = 0 make R singular (a zero pivot).
-  for (int r = 0; r < P[3].rows; ++r) P[3].v[r] = 0;
-  const WlsProblem* p[kWlsLanes] = {&P[0], &P[1], &P[2], &P[3]};
-  double coef[kWlsLanes][kMaxCoefficients], op[kWlsLanes][kMaxCoefficients * kMaxStencil];
-  double* c[kWlsLanes] = {coef[0], coef[1], coef[2], coef[3]};
-  double* o[kWlsLanes] = {op[0], op[1], op[2], op[3]};
+  // Lanes 0-3 and again 4-7 (the second group of 4 on AVX2): lane 1 (5) has 4 rows (3
+  // kept) for 5 columns; lane 3 (7) has all its points on the line v = 0, which makes R
+  // singular (a zero pivot).
+  WlsProblem P[kWlsLanes];
+  for (int l = 0; l < kWlsLanes; ++l) {
+    P[l] = RandomProblem(l % 4 == 0 ? 20 : l % 4 == 1 ? 4 : l % 4 == 2 ? 30 : 12, rng);
+    if (l % 4 == 3)
+      for (int r = 0; r < P[l].rows; ++r) P[l].v[r] = 0;
+  }
+  const WlsProblem* p[kWlsLanes];
+  auto coef = std::make_unique<double[]>(kWlsLanes * kMaxCoefficients);
+  auto op = std::make_unique<double[]>(kWlsLanes * kMaxCoefficients * kMaxStencil);
+  double *c[kWlsLanes], *o[kWlsLanes];
+  for (int l = 0; l < kWlsLanes; ++l) {
+    p[l] = &P[l];
+    c[l] = coef.get() + l * kMaxCoefficients;
+    o[l] = op.get() + l * kMaxCoefficients * kMaxStencil;
+  }
   WlsSolution sol[kWlsLanes];
   auto work = std::make_unique<WlsBatchWorkspace>();
-  // Lane 1 has 4 rows (3 kept) for 5 columns.
-  EXPECT_EQ(SolveWlsBatch(p, kWlsLanes, S, c, o, sol, *work), 0b0101);
-  for (int l : {0, 2}) {
+  EXPECT_EQ(SolveWlsBatch(p, kWlsLanes, S, c, o, sol, *work), 0b01010101);
+  EXPECT_EQ(SolveWlsBatch(p, 6, S, c, o, sol, *work), 0b010101);  // a partial batch
+  for (int l : {0, 2, 4}) {
     double ref[kMaxCoefficients], ref_op[kMaxCoefficients * kMaxStencil];
     const WlsSolution s = SolveWls(P[l], S, ref, ref_op);
     EXPECT_EQ(sol[l].degree_used, s.degree_used);
     EXPECT_NEAR(sol[l].condition, s.condition, 1e-12 * s.condition);
-    for (int i = 0; i < NumCoefficients(2); ++i) EXPECT_NEAR(coef[l][i], ref[i], 1e-12 * std::abs(ref[i]) + 1e-15);
-    for (int i = 0; i < NumCoefficients(2) * P[l].rows; ++i) EXPECT_NEAR(op[l][i], ref_op[i], 1e-12);
+    for (int i = 0; i < NumCoefficients(2); ++i) EXPECT_NEAR(c[l][i], ref[i], 1e-12 * std::abs(ref[i]) + 1e-15);
+    for (int i = 0; i < NumCoefficients(2) * P[l].rows; ++i) EXPECT_NEAR(o[l][i], ref_op[i], 1e-12);
   }
   // The oscillation safeguard is never batched.
   S.oscillation_safeguard = true;
   EXPECT_EQ(SolveWlsBatch(p, kWlsLanes, S, c, o, sol, *work), 0);
-  EXPECT_TRUE(std::string(WlsBatchIsa()) == "avx2" || std::string(WlsBatchIsa()) == "portable");
+  EXPECT_EQ(std::string(WlsBatchIsa()), GetParam());
 }
+
+INSTANTIATE_TEST_SUITE_P(Kernels, WlsBatchIsaTest, ::testing::ValuesIn(WlsBatchIsas()),
+                         [](const ::testing::TestParamInfo<std::string>& info) { return info.param; });
 
 }  // namespace
 }  // namespace geomfit
