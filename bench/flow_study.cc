@@ -16,6 +16,8 @@
 #include <Eigen/SparseCholesky>
 
 #include "core/flow/flow.h"
+#include "core/linalg/amg.h"
+#include "core/operators/operators.h"
 #include "core/integration/integrate.h"
 #include "core/reconstruction/surface.h"
 #include "core/surfaces/analytic.h"
@@ -155,11 +157,15 @@ void Steps(const std::vector<int>& sizes, int threads, const std::string& solver
         o.kind = kind;
         o.scheme = scheme;
         o.dt = kind == FlowKind::kMeanCurvature ? 1e-3 : 1e-6;
-        // "bicgstab-ilut" selects BiCGSTAB with the ILUT preconditioner.
-        const bool ilut = solver == "bicgstab-ilut";
-        o.solver.kind = ParseSolverKind(ilut ? "bicgstab" : solver).value();
+        // "bicgstab-ilut" selects BiCGSTAB with the ILUT preconditioner; "auto-jacobi" the
+        // flows' default solver with Jacobi instead of AMG (MCF's system, SD's reduced one).
+        const bool ilut = solver == "bicgstab-ilut", jacobi = solver == "auto-jacobi";
+        o.solver.kind = ParseSolverKind(ilut ? "bicgstab" : jacobi ? "auto" : solver).value();
         if (ilut) o.solver.preconditioner = Preconditioner::kIlut;
+        if (jacobi) o.solver.preconditioner = Preconditioner::kDiagonal;
         if (const char* f = std::getenv("GF_ILUT_FILL")) o.solver.ilut_fill = std::atoi(f);
+        if (std::getenv("GF_AMG_PLAIN")) o.solver.amg.smooth_prolongator = false;
+        if (const char* v = std::getenv("GF_AMG_THETA")) o.solver.amg.strength = std::atof(v);
         if (const char* d = std::getenv("GF_ILUT_DROP")) o.solver.ilut_drop = std::atof(d);
         const RunContext ctx = RunContext().WithThreads(threads);
         auto stepper = FlowStepper::Create(mesh, o, ctx);
@@ -193,6 +199,152 @@ void Steps(const std::vector<int>& sizes, int threads, const std::string& solver
   }
 }
 
+
+// AMG on the flows' systems, outside the stepper: MCF's I - dt K and surface diffusion's
+// I + dt B K (matrix-free) with its factored preconditioner, against Jacobi.
+void AmgProbe(const std::vector<int>& sizes, double dt_mcf, double dt_sd, const AmgOptions& ao) {
+  for (int target : sizes) {
+    const int n = static_cast<int>(std::lround(std::sqrt((target - 2) / 6.0)));
+    const Mesh mesh = std::getenv("GF_DELAUNAY") ? GenerateDelaunaySphereMesh(target) : Sphere(n);
+    const int nv = mesh.NumVertices();
+    FlowOptions fo;
+    auto stepper = FlowStepper::Create(mesh, fo).value();
+    const SparseMatrix K = stepper->CurvatureJacobian().value();
+    const Topology topo = BuildTopology(mesh).value();
+    const auto fits = FitForOperators(mesh, topo, DefaultFlowFitOptions(), nullptr, RunContext()).value();
+    const SparseMatrix B = LaplaceBeltramiMatrix(*fits).value();
+    SparseMatrix I(nv, nv);
+    I.setIdentity();
+    Eigen::VectorXd rhs(nv);
+    for (int i = 0; i < nv; ++i) rhs(i) = std::sin(3 * mesh.positions(i, 0)) + mesh.positions(i, 2);
+    auto report = [&](const char* what, const LinearMap& A, const LinearMap& P, double setup_ms) {
+      Eigen::VectorXd x;
+      const Stopwatch w;
+      auto it = SolveBicgstab(A, P, rhs, &x, 1e-12, 3000);
+      std::printf("  %-28s n %8d  setup %8.1f ms  solve %9.1f ms  iterations %s\n", what, nv, setup_ms, w.Millis(),
+                  it.ok() ? std::to_string(*it).c_str() : it.status().ToString().c_str());
+      std::fflush(stdout);
+    };
+    auto jacobi_of = [](const SparseMatrix& A) {
+      Eigen::VectorXd d = A.diagonal().cwiseInverse();
+      return LinearMap([d](const Eigen::VectorXd& x, Eigen::VectorXd* y) { *y = d.cwiseProduct(x); });
+    };
+    if (std::getenv("GF_AMG_ROW")) {
+      const SparseMatrix A = I - dt_mcf * K;
+      for (int i : {0, 17, nv / 2}) {
+        std::printf("row %d:", i);
+        for (SparseMatrix::InnerIterator it(A, i); it; ++it) std::printf(" %d:%.3g", (int)it.col(), it.value());
+        std::printf("\nB row %d:", i);
+        for (SparseMatrix::InnerIterator it(B, i); it; ++it) std::printf(" %d:%.3g", (int)it.col(), it.value());
+        std::printf("\n");
+      }
+    }
+    if (std::getenv("GF_DIAG")) {  // where does damped Jacobi diverge?
+      const SparseMatrix A = I - dt_mcf * K;
+      const Eigen::VectorXd d = A.diagonal();
+      Eigen::VectorXd e(nv), ae;
+      for (int i = 0; i < nv; ++i) e(i) = std::sin(12.9898 * i) * 43758.5453 - std::floor(std::sin(12.9898 * i) * 43758.5453);
+      double growth = 0;
+      for (int it = 0; it < 200; ++it) {
+        MultiplySerial(A, e, &ae);
+        e -= 0.4 * ae.cwiseQuotient(d);
+        growth = e.norm();
+        e /= growth;
+      }
+      int imax;
+      e.cwiseAbs().maxCoeff(&imax);
+      std::printf("jacobi growth per sweep %.4f, peak at vertex %d (|e| %.3f), valence-ish row nnz %d, diag %.4g\n", growth, imax,
+                  std::abs(e(imax)), (int)(A.outerIndexPtr()[imax + 1] - A.outerIndexPtr()[imax]), d(imax));
+      std::vector<std::pair<double, int>> top;
+      for (int i = 0; i < nv; ++i) top.push_back({-std::abs(e(i)), i});
+      std::sort(top.begin(), top.end());
+      for (int k = 0; k < 8; ++k) std::printf("  v%d %.3f pos (%.3f %.3f %.3f)\n", top[k].second, -top[k].first,
+                                              mesh.positions(top[k].second, 0), mesh.positions(top[k].second, 1), mesh.positions(top[k].second, 2));
+      const int r = imax;
+      std::printf("row %d:", r);
+      for (SparseMatrix::InnerIterator it(A, r); it; ++it) std::printf(" %d:%.3g", (int)it.col(), it.value());
+      std::printf("\n");
+    }
+    {  // MCF
+      SparseMatrix A = I - dt_mcf * K;
+      if (std::getenv("GF_COTAN")) {
+        const CotanLaplacian cot = BuildCotanLaplacian(mesh);
+        Eigen::SparseMatrix<double> C = -0.5 * dt_mcf * cot.stiffness;
+        for (int i = 0; i < nv; ++i) C.coeffRef(i, i) += cot.mass(i);
+        A = C;
+      }
+      const LinearMap op = [&](const Eigen::VectorXd& x, Eigen::VectorXd* y) { MultiplySerial(A, x, y); };
+      if (!std::getenv("GF_NO_JACOBI")) report("mcf jacobi", op, jacobi_of(A), 0);
+      Amg amg;
+      const Stopwatch w;
+      if (absl::Status s = amg.Build(A, ao); !s.ok()) std::printf("amg: %s\n", s.ToString().c_str());
+      const double setup = w.Millis();
+      std::printf("  levels %d:", amg.num_levels());
+      for (int l = 0; l < amg.num_levels(); ++l) std::printf(" %d", amg.rows(l));
+      std::printf("  complexity %.2f\n", amg.operator_complexity());
+      {
+        Eigen::VectorXd x = Eigen::VectorXd::Zero(nv), r = rhs, e, ax;
+        double r0 = r.norm(), factor = 0;
+        for (int it = 0; it < 12; ++it) {
+          amg.Apply(r, &e);
+          x += e;
+          MultiplySerial(A, x, &ax);
+          r = rhs - ax;
+          if (it == 11) factor = std::pow(r.norm() / r0, 1.0 / 12);
+        }
+        std::printf("  stationary V-cycle factor %.3f\n", factor);
+      }
+      report("mcf amg", op, [&](const Eigen::VectorXd& x, Eigen::VectorXd* y) { amg.Apply(x, y); }, setup);
+    }
+    if (dt_sd > 0) {  // SD: (I + a B K), preconditioned by (I - c B)(I - 2 c K~), c = sqrt(a/2)
+      Eigen::VectorXd tmp;
+      const LinearMap op = [&](const Eigen::VectorXd& x, Eigen::VectorXd* y) {
+        MultiplySerial(K, x, &tmp);
+        MultiplySerial(B, tmp, y);
+        *y = x + dt_sd * *y;
+      };
+      const double c = std::sqrt(dt_sd / 2);
+      SparseMatrix Kt = K;
+      const Eigen::VectorXd row_sums = K * Eigen::VectorXd::Ones(nv);
+      for (int i = 0; i < nv; ++i) Kt.coeffRef(i, i) -= row_sums(i);
+      const SparseMatrix PB = I - c * B, PK = I - 2 * c * Kt, PB2 = I - c * B;
+      Amg ab, ak;
+      const Stopwatch w;
+      (void)ab.Build(PB, ao);
+      (void)ak.Build(PK, ao);
+      const double setup = w.Millis();
+      Eigen::VectorXd half;
+      report("sd amg (I-cB)(I-2cK~)", op, [&](const Eigen::VectorXd& x, Eigen::VectorXd* y) {
+        ab.Apply(x, &half);
+        ak.Apply(half, y);
+      }, setup);
+      report("sd amg (I-cB)^2", op, [&](const Eigen::VectorXd& x, Eigen::VectorXd* y) {
+        ab.Apply(x, &half);
+        ab.Apply(half, y);
+      }, setup / 2);
+      if (std::getenv("GF_EXACT")) {
+        auto inner = [&](const SparseMatrix& M, const Amg& amg, const Eigen::VectorXd& b, Eigen::VectorXd* x) {
+          x->resize(0);
+          (void)SolveBicgstab([&](const Eigen::VectorXd& u, Eigen::VectorXd* v) { MultiplySerial(M, u, v); },
+                              [&](const Eigen::VectorXd& u, Eigen::VectorXd* v) { amg.Apply(u, v); }, b, x, 1e-11, 500);
+        };
+        report("sd exact (I-cB)(I-2cK~)", op, [&](const Eigen::VectorXd& x, Eigen::VectorXd* y) {
+          inner(PB, ab, x, &half);
+          inner(PK, ak, half, y);
+        }, setup);
+        report("sd exact (I-cB)^2", op, [&](const Eigen::VectorXd& x, Eigen::VectorXd* y) {
+          inner(PB, ab, x, &half);
+          inner(PB, ab, half, y);
+        }, setup);
+      }
+      Eigen::VectorXd d(nv);
+      const SparseMatrix Ktr = K.transpose();
+      for (int i = 0; i < nv; ++i) d(i) = 1 / (1 + dt_sd * B.row(i).dot(Ktr.row(i)));
+      report("sd jacobi", op, [&](const Eigen::VectorXd& x, Eigen::VectorXd* y) { *y = d.cwiseProduct(x); }, 0);
+    }
+  }
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -205,6 +357,16 @@ int main(int argc, char** argv) {
     for (std::string item; std::getline(ss, item, ',');) sizes.push_back(std::atoi(item.c_str()));
     Steps(sizes, argc > 3 ? std::atoi(argv[3]) : 1, argc > 4 ? argv[4] : "auto", argc > 5 ? argv[5] : "",
           argc > 6 ? argv[6] : "");
+  } else if (what == "amg") {
+    std::vector<int> sizes;
+    std::stringstream ss(argc > 2 ? argv[2] : "10000,40000");
+    for (std::string item; std::getline(ss, item, ',');) sizes.push_back(std::atoi(item.c_str()));
+    AmgOptions ao;
+    if (const char* v = std::getenv("GF_AMG_THETA")) ao.strength = std::atof(v);
+    if (const char* v = std::getenv("GF_AMG_JACOBI")) ao.smoother = AmgSmoother::kJacobi, ao.jacobi_weight = std::atof(v);
+    if (std::getenv("GF_AMG_PLAIN")) ao.smooth_prolongator = false;
+    if (const char* v = std::getenv("GF_AMG_SWEEPS")) ao.sweeps = std::atoi(v);
+    AmgProbe(sizes, argc > 3 ? std::atof(argv[3]) : 1e-3, argc > 4 ? std::atof(argv[4]) : 1e-6, ao);
   } else {
     std::fprintf(stderr, "usage: flow_study table [cubed|delaunay|jittered] | steps [sizes] [threads] [solver] [mcf|surface_diffusion] [scheme]\n");
     return 2;

@@ -39,15 +39,7 @@ void ForEachTriangle(const Mesh& m, Fn&& fn) {
 // threads meet 4 times per BiCGSTAB iteration, which on a loaded machine cost 40-50x
 // (SD at 10k vertices: 7.4-8.3 s against 0.17 s per solve).
 void Multiply(const SparseMatrix& A, const Eigen::VectorXd& x, Eigen::VectorXd* y, const RunContext& ctx) {
-  y->resize(A.rows());
-  const int* outer = A.outerIndexPtr();
-  const int* inner = A.innerIndexPtr();
-  const double* values = A.valuePtr();
-  for (Eigen::Index i = 0; i < A.rows(); ++i) {
-    double acc = 0;
-    for (int p = outer[i]; p < outer[i + 1]; ++p) acc += values[p] * x(inner[p]);
-    (*y)(i) = acc;
-  }
+  MultiplySerial(A, x, y);
   if (ctx.cancelled()) y->setConstant(std::nan(""));
 }
 
@@ -175,6 +167,14 @@ absl::Status FlowStepper::Linearize(const Mesh& fit_mesh, const Positions& base,
 // equivalent to the GFD system (wide stencils barely see the mesh's highest
 // frequencies): iterations grow with n (bench/README.md, "Flows").
 struct FlowStepper::Schur {
+  // AMG: P = (I - c B)^2, c = sqrt(a / 2), P^{-1} ~ two V-cycles of one hierarchy.
+  bool amg = true;
+  Amg hierarchy;
+  SparseMatrix shifted;           // I - c B
+  double amg_c = -1;              // the hierarchy's c
+  bool amg_stale = true;
+  int amg_iterations_at_build = -1;
+  int amg_builds = 0;
   bool cotan = false;             // switched from Jacobi
   Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> ldlt;
   Eigen::VectorXd mass;
@@ -220,6 +220,40 @@ absl::StatusOr<int> FlowStepper::SolveSchur(const Mesh& geometry, const Eigen::V
   rhs *= -adt;
   const double tolerance = options_.solver.tolerance;
   const int max_iterations = options_.solver.max_iterations;
+  if (z.amg) {
+    const double c = std::sqrt(adt / 2);  // see Schur
+    if (z.shifted.rows() != B_.rows()) z.shifted = B_;
+    const int nv = static_cast<int>(B_.rows());
+    for (Eigen::Index p = 0; p < B_.nonZeros(); ++p) z.shifted.valuePtr()[p] = -c * B_.valuePtr()[p];
+    for (int i = 0; i < nv; ++i) z.shifted.valuePtr()[z.shifted.outerIndexPtr()[i] + assembler_->Slot(i, 0)] += 1;
+    if (z.amg_stale || c != z.amg_c || !z.hierarchy.built()) {
+      GF_RETURN_IF_ERROR(z.hierarchy.Build(z.shifted, options_.solver.amg, ctx));
+      z.amg_c = c;
+      z.amg_stale = false;
+      z.amg_iterations_at_build = -1;
+      ++z.amg_builds;
+    } else {
+      GF_RETURN_IF_ERROR(z.hierarchy.UpdateFinest(z.shifted));
+    }
+    Eigen::VectorXd half;
+    const LinearMap vcycles = [&](const Eigen::VectorXd& x, Eigen::VectorXd* y) {
+      z.hierarchy.Apply(x, &half);
+      z.hierarchy.Apply(half, y);
+    };
+    *s = solution_;  // warm start
+    const absl::StatusOr<int> iterations = SolveBicgstab(apply, vcycles, rhs, s, tolerance, max_iterations);
+    GF_RETURN_IF_ERROR(ctx.Check());
+    if (iterations.ok()) {
+      if (z.amg_iterations_at_build < 0) {
+        z.amg_iterations_at_build = *iterations;
+      } else if (*iterations > 1.5 * z.amg_iterations_at_build + 2) {
+        z.amg_stale = true;  // rebuild at the next step
+      }
+      solution_ = *s;
+      return iterations;
+    }
+    z.amg = false;
+  }
   if (!z.cotan) {
     const SparseMatrix Kt = K_.transpose();
     Eigen::VectorXd inverse_diagonal(K_.rows());
@@ -279,9 +313,11 @@ absl::StatusOr<std::unique_ptr<FlowStepper>> FlowStepper::Create(const Mesh& mes
   SolverOptions so = options.solver;
   if (so.kind == SolverKind::kAuto) {  // see SolverOptions::kind
     so.kind = SolverKind::kBiCGSTAB;
-    so.preconditioner = options.kind == FlowKind::kMeanCurvature ? Preconditioner::kDiagonal : Preconditioner::kIlut;
-    if (options.kind == FlowKind::kSurfaceDiffusion && options.scheme != FlowScheme::kExplicit)
+    if (options.kind == FlowKind::kSurfaceDiffusion) so.preconditioner = Preconditioner::kIlut;
+    if (options.kind == FlowKind::kSurfaceDiffusion && options.scheme != FlowScheme::kExplicit) {
       s->schur_ = std::make_unique<Schur>();
+      s->schur_->amg = options.solver.preconditioner != Preconditioner::kDiagonal;
+    }
   }
   s->solver_ = SparseSolver(so);
   return s;

@@ -11,6 +11,7 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "core/linalg/amg.h"
 
 namespace geomfit {
 
@@ -25,6 +26,11 @@ enum class SolverKind {
 enum class Preconditioner {
   kDiagonal,  ///< Jacobi: cheapest; enough for (I - dt K) at moderate dt |K|
   kIlut,      ///< incomplete LU with thresholding (ilut_drop, ilut_fill)
+  /// One V-cycle of smoothed-aggregation AMG (amg.h, SolverOptions::amg): iterations
+  /// nearly independent of n where Jacobi's grow like 1/h. The hierarchy is built once
+  /// and kept across Factorize calls (only the finest operator is replaced) until a
+  /// solve takes more than 1.5 x + 2 the iterations of the first solve after the build.
+  kAmg,
 };
 const char* SolverKindName(SolverKind kind);
 /// Parses "auto", "sparselu", "umfpack", "klu", "bicgstab".
@@ -46,12 +52,13 @@ struct SolverOptions {
   SolverKind kind = SolverKind::kAuto;
   double tolerance = 1e-12;   ///< BiCGSTAB relative residual
   int max_iterations = 1000;  ///< BiCGSTAB
-  Preconditioner preconditioner = Preconditioner::kDiagonal;
+  Preconditioner preconditioner = Preconditioner::kAmg;
   double ilut_drop = 1e-3;    ///< ILUT drop tolerance
   int ilut_fill = 5;          ///< ILUT fill factor (5, 1e-3: 1.5x faster SD steps than 20, 1e-4)
   /// UMFPACK's iterative refinement steps per solve (its default 2); 0 for a
   /// preconditioner, where each solve need not be exact.
   int umfpack_refinement = 2;
+  AmgOptions amg;  ///< Preconditioner::kAmg
 };
 absl::Status ValidateSolverOptions(const SolverOptions& o);
 
@@ -78,6 +85,8 @@ class SparseSolver {
   int analyses() const { return analyses_; }
   /// Iterations of the last solve (1 for direct solvers).
   int iterations() const { return iterations_; }
+  /// AMG hierarchies built so far (Preconditioner::kAmg).
+  int preconditioner_builds() const { return builds_; }
 
  private:
   struct Impl;
@@ -85,6 +94,7 @@ class SparseSolver {
   std::unique_ptr<Impl> impl_;
   int analyses_ = 0;
   int iterations_ = 0;
+  int builds_ = 0;
 };
 
 /// y = A x for an operator given only by its action (matrix-free); `*y` is resized.
