@@ -205,6 +205,9 @@ FlowStepper::FlowStepper() = default;
 FlowStepper::~FlowStepper() = default;
 
 int FlowStepper::preconditioner_factorizations() const { return schur_ ? schur_->factorizations : 0; }
+int FlowStepper::preconditioner_builds() const {
+  return schur_ ? schur_->amg_builds : solver_.preconditioner_builds();
+}
 
 absl::StatusOr<int> FlowStepper::SolveSchur(const Mesh& geometry, const Eigen::VectorXd& mean, double adt,
                                             const RunContext& ctx, Eigen::VectorXd* s) {

@@ -99,8 +99,11 @@ class FlowStepper {
   int steps_taken() const { return steps_; }
   const SparseSolver& solver() const { return solver_; }
   /// Surface diffusion with the default solver: cotan preconditioner factorizations so
-  /// far (0 while Jacobi suffices; 1 for a run whose geometry changes slowly).
+  /// far (0 while AMG or Jacobi suffices; 1 for a run whose geometry changes slowly).
   int preconditioner_factorizations() const;
+  /// AMG hierarchies built so far (MCF's system or SD's reduced one; 1 for a run whose
+  /// geometry changes slowly).
+  int preconditioner_builds() const;
 
   ~FlowStepper();
 
