@@ -298,7 +298,7 @@ absl::Status Amg::UpdateFinest(const Matrix& A) {
   return levels_[0]->SetMatrix(A);
 }
 
-void Amg::Smooth(const Level& l, const Eigen::VectorXd& b, Eigen::VectorXd* x, bool forward) const {
+void Amg::Smooth(const Level& l, const Eigen::VectorXd& b, Eigen::VectorXd* x, bool forward, bool from_zero) const {
   const int n = static_cast<int>(l.A.rows());
   const int* outer = l.A.outerIndexPtr();
   const int* inner = l.A.innerIndexPtr();
@@ -314,7 +314,13 @@ void Amg::Smooth(const Level& l, const Eigen::VectorXd& b, Eigen::VectorXd* x, b
     for (int p = outer[i]; p < outer[i + 1]; ++p) acc -= values[p] * xv[inner[p]];
     xv[i] += acc * l.inverse_diagonal(i);
   };
-  if (forward) {
+  if (from_zero && forward) {  // x_j = 0 for j >= i: only the (sorted) columns below i count
+    for (int i = 0; i < n; ++i) {
+      double acc = b(i);
+      for (int p = outer[i]; p < outer[i + 1] && inner[p] < i; ++p) acc -= values[p] * xv[inner[p]];
+      xv[i] = acc * l.inverse_diagonal(i);
+    }
+  } else if (forward) {
     for (int i = 0; i < n; ++i) relax(i);
   } else {
     for (int i = n - 1; i >= 0; --i) relax(i);
@@ -329,11 +335,11 @@ void Amg::Cycle(int level, const Eigen::VectorXd& b, Eigen::VectorXd* x) const {
       return;
     }
     x->setZero(b.size());
-    for (int s = 0; s < 4 * options_.sweeps; ++s) Smooth(l, b, x, s % 2 == 0);
+    for (int s = 0; s < 4 * options_.sweeps; ++s) Smooth(l, b, x, s % 2 == 0, s == 0);
     return;
   }
   x->setZero(b.size());
-  for (int s = 0; s < options_.sweeps; ++s) Smooth(l, b, x, true);
+  for (int s = 0; s < options_.sweeps; ++s) Smooth(l, b, x, true, s == 0);
   MultiplySerial(l.A, *x, &l.r);
   l.r = b - l.r;
   const Level& c = *levels_[level + 1];
@@ -341,7 +347,7 @@ void Amg::Cycle(int level, const Eigen::VectorXd& b, Eigen::VectorXd* x) const {
   Cycle(level + 1, c.b, &c.x);
   MultiplySerial(l.P, c.x, &l.r);
   *x += l.r;
-  for (int s = 0; s < options_.sweeps; ++s) Smooth(l, b, x, false);
+  for (int s = 0; s < options_.sweeps; ++s) Smooth(l, b, x, false, false);
 }
 
 void Amg::Apply(const Eigen::VectorXd& b, Eigen::VectorXd* x) const {

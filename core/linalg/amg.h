@@ -76,7 +76,8 @@ class Amg {
  private:
   struct Level;
   void Cycle(int level, const Eigen::VectorXd& b, Eigen::VectorXd* x) const;
-  void Smooth(const Level& l, const Eigen::VectorXd& b, Eigen::VectorXd* x, bool forward) const;
+  /// One sweep; `from_zero`: x is zero (a forward Gauss-Seidel sweep then skips the upper part).
+  void Smooth(const Level& l, const Eigen::VectorXd& b, Eigen::VectorXd* x, bool forward, bool from_zero) const;
 
   AmgOptions options_;
   std::vector<std::unique_ptr<Level>> levels_;
