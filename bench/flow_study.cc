@@ -4,11 +4,16 @@
 //                      levels, beside the cotan (Dziuk) implicit MCF with lumped mass.
 //   flow_study steps [sizes] [threads] [solver] [mcf|surface_diffusion] [scheme]
 //                      semi-implicit MCF and SD step times split into fit / assemble /
-//                      solve (median of steps 2..4), and a degree-4 fit of the same mesh.
+//                      solve (median of steps 2..4), and a degree-4 fit of the same mesh;
+//                      solver: auto (default), auto-jacobi, auto-amg, sparselu, ...
+//   flow_study amg [sizes] [dt_mcf] [dt_sd]
+//                      AMG on the flows' systems outside the stepper: hierarchy, V-cycle
+//                      convergence factor and cost, BiCGSTAB iterations against Jacobi.
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <ctime>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -136,19 +141,21 @@ double Median(std::vector<double> v) {
 void Steps(const std::vector<int>& sizes, int threads, const std::string& solver, const std::string& only,
            const std::string& only_scheme) {
   std::printf("step times (ms, median of steps 2..4), threads %d, solver %s\n", threads, solver.c_str());
-  std::printf("  flow  scheme          verts     fit4    fit  assemble   solve   total  iters  total/fit4  step1\n");
+  std::printf("  flow  scheme          verts     fit4    fit  assemble   solve   total  iters  total/fit4  step1  step-cpu  cpu/fit4-cpu\n");
   for (int target : sizes) {
     const int n = static_cast<int>(std::lround(std::sqrt((target - 2) / 6.0)));
     const Mesh mesh = Sphere(n);
     const Topology topo = BuildTopology(mesh).value();
     FitOptions fo = DefaultFlowFitOptions();
-    std::vector<double> fit_times;
+    std::vector<double> fit_times, fit_cpu;
     for (int i = 0; i < 3; ++i) {
       const Stopwatch w;
+      const std::clock_t c0 = std::clock();
       (void)FitSurface(mesh, topo, fo, nullptr, {}, RunContext(nullptr, threads)).value();
       fit_times.push_back(w.Millis());
+      fit_cpu.push_back(1e3 * static_cast<double>(std::clock() - c0) / CLOCKS_PER_SEC);
     }
-    const double fit4 = Median(fit_times);
+    const double fit4 = Median(fit_times), fit4_cpu = Median(fit_cpu);
     for (FlowKind kind : {FlowKind::kMeanCurvature, FlowKind::kSurfaceDiffusion}) {
       if (!only.empty() && only != FlowKindName(kind)) continue;
       for (FlowScheme scheme : {FlowScheme::kSemiImplicit, FlowScheme::kBdf2}) {
@@ -157,12 +164,14 @@ void Steps(const std::vector<int>& sizes, int threads, const std::string& solver
         o.kind = kind;
         o.scheme = scheme;
         o.dt = kind == FlowKind::kMeanCurvature ? 1e-3 : 1e-6;
-        // "bicgstab-ilut" selects BiCGSTAB with the ILUT preconditioner; "auto-jacobi" the
-        // flows' default solver with Jacobi instead of AMG (MCF's system, SD's reduced one).
-        const bool ilut = solver == "bicgstab-ilut", jacobi = solver == "auto-jacobi";
-        o.solver.kind = ParseSolverKind(ilut ? "bicgstab" : jacobi ? "auto" : solver).value();
+        // "bicgstab-ilut" selects BiCGSTAB with the ILUT preconditioner; "auto-jacobi" and
+        // "auto-amg" the flows' default solver (MCF's system, SD's reduced one) with Jacobi
+        // or AMG from the start instead of the adaptive choice.
+        const bool ilut = solver == "bicgstab-ilut", jacobi = solver == "auto-jacobi", amg = solver == "auto-amg";
+        o.solver.kind = ParseSolverKind(ilut ? "bicgstab" : jacobi || amg ? "auto" : solver).value();
         if (ilut) o.solver.preconditioner = Preconditioner::kIlut;
         if (jacobi) o.solver.preconditioner = Preconditioner::kDiagonal;
+        if (amg) o.solver.preconditioner = Preconditioner::kAmg;
         if (const char* f = std::getenv("GF_ILUT_FILL")) o.solver.ilut_fill = std::atoi(f);
         if (std::getenv("GF_AMG_PLAIN")) o.solver.amg.smooth_prolongator = false;
         if (const char* v = std::getenv("GF_AMG_THETA")) o.solver.amg.strength = std::atof(v);
@@ -173,12 +182,14 @@ void Steps(const std::vector<int>& sizes, int threads, const std::string& solver
           std::printf("error: %s\n", stepper.status().ToString().c_str());
           return;
         }
-        std::vector<double> f, a, s, tot;
+        std::vector<double> f, a, s, tot, cpu;
         int iters = 0;
         double first = 0;  // step 1: symbolic analyses, the SD preconditioner's factorization
         for (int i = 0; i < 4; ++i) {
           const Stopwatch w;
+          const std::clock_t c0 = std::clock();
           auto st = (*stepper)->Step(ctx);
+          const double cpu_ms = 1e3 * static_cast<double>(std::clock() - c0) / CLOCKS_PER_SEC;
           if (!st.ok()) {
             std::printf("error: %s\n", st.status().ToString().c_str());
             return;
@@ -188,11 +199,13 @@ void Steps(const std::vector<int>& sizes, int threads, const std::string& solver
             continue;
           }
           f.push_back(st->fit_ms), a.push_back(st->assemble_ms), s.push_back(st->solve_ms), tot.push_back(w.Millis());
+          cpu.push_back(cpu_ms);
           iters = st->solver_iterations;
         }
-        std::printf("  %-4s  %-13s %8d %8.1f %6.1f %8.1f %8.1f %7.1f %5d  %6.2f  %7.1f\n",
+        std::printf("  %-4s  %-13s %8d %8.1f %6.1f %8.1f %8.1f %7.1f %5d  %6.2f  %7.1f  %8.1f  %.2f\n",
                     kind == FlowKind::kMeanCurvature ? "mcf" : "sd", FlowSchemeName(scheme), mesh.NumVertices(), fit4,
-                    Median(f), Median(a), Median(s), Median(tot), iters, Median(tot) / fit4, first);
+                    Median(f), Median(a), Median(s), Median(tot), iters, Median(tot) / fit4, first, Median(cpu),
+                    Median(cpu) / fit4_cpu);
         std::fflush(stdout);
       }
     }
@@ -292,7 +305,13 @@ void AmgProbe(const std::vector<int>& sizes, double dt_mcf, double dt_sd, const 
           r = rhs - ax;
           if (it == 11) factor = std::pow(r.norm() / r0, 1.0 / 12);
         }
-        std::printf("  stationary V-cycle factor %.3f\n", factor);
+        const std::clock_t c0 = std::clock();
+        for (int it = 0; it < 10; ++it) amg.Apply(rhs, &e);
+        const std::clock_t c1 = std::clock();
+        for (int it = 0; it < 10; ++it) MultiplySerial(A, rhs, &e);
+        const std::clock_t c2 = std::clock();
+        std::printf("  stationary V-cycle factor %.3f; V-cycle %.2f ms, product %.2f ms (CPU)\n", factor,
+                    100.0 * (c1 - c0) / CLOCKS_PER_SEC, 100.0 * (c2 - c1) / CLOCKS_PER_SEC);
       }
       report("mcf amg", op, [&](const Eigen::VectorXd& x, Eigen::VectorXd* y) { amg.Apply(x, y); }, setup);
     }

@@ -154,21 +154,31 @@ absl::Status FlowStepper::Linearize(const Mesh& fit_mesh, const Positions& base,
 
 // Surface diffusion's reduced system (I + a B K) s = -a B M (eliminating mu = M + K s
 // from [[I, a B], [-K, I]]), solved matrix-free by BiCGSTAB warm-started from the last
-// step, first with Jacobi (the diagonal of I + a B K): no set-up, parallel, the fastest
-// while a |B K| is moderate (bench/README.md: 27 iterations at 10k vertices, dt = 1e-6).
-// When Jacobi does not converge within max_iterations, the flow switches for good to the cotan
+// step. Default preconditioner P = (I - c B)^2, c = sqrt(a / 2), built from the GFD
+// operators themselves: B ~ Laplace-Beltrami (eigenvalues -lambda) and K ~ its half plus
+// the curvature term, so on a mode lambda, I + a B K ~ 1 + c^2 lambda^2 (up to the
+// curvature term) while P ~ (1 + c lambda)^2: a ratio within [1, 2] at every frequency the
+// stencils see, whatever n and a (the cotan square below lacks this: its 1-ring operator
+// is not the wide stencils'). P^{-1} is two V-cycles of one AMG hierarchy of I - c B,
+// kept from step to step (only the finest matrix is refreshed) until the iterations
+// exceed 1.5x + 2 those after its build. Iterations: 7 at 386 vertices for a = 1e-4 and
+// a = 1e4 alike (tests/flow SolversAgree); 12 / 25 at 10k / 40k (a = 1e-6), against
+// Jacobi's 59 / 252 (bench/README.md, "Flows").
+// With Preconditioner::kDiagonal: Jacobi (the diagonal of I + a B K), no set-up, fine
+// while a |B K| is moderate (27 iterations at 10k vertices, dt = 1e-6, wide stencils).
+// When AMG or Jacobi does not converge within max_iterations, the flow switches for good to the cotan
 // square P = (I - c M^{-1} S)^2: with B ~ Laplace-Beltrami and K ~ Laplace-Beltrami / 2,
 // a B K ~ (a/2) Laplace-Beltrami^2, and P^{-1} = ((M - c S)^{-1} M)^2 costs one sparse
 // Cholesky factorization of the 1-ring matrix M - c S, kept while the iterations stay
 // within twice those of its first solve. c = sqrt(a/2) / 2: the 1-ring cotan operator's
 // top eigenvalues are ~3x the wide GFD stencils' (630 vs 190 at 386 vertices); halving c
 // balances the spectrum of P^{-1} (I + a B K) to [0.15, 3] (a = 1e-2) .. [0.68, 1]
-// (a = 1e-6), against [0.04, 1] .. [0.48, 1] with c = sqrt(a/2). Neither is spectrally
+// (a = 1e-6), against [0.04, 1] .. [0.48, 1] with c = sqrt(a/2). It is not spectrally
 // equivalent to the GFD system (wide stencils barely see the mesh's highest
 // frequencies): iterations grow with n (bench/README.md, "Flows").
 struct FlowStepper::Schur {
   // AMG: P = (I - c B)^2, c = sqrt(a / 2), P^{-1} ~ two V-cycles of one hierarchy.
-  bool amg = true;
+  bool amg = false;               // from the start (kAmg), or once Jacobi needs > jacobi_limit (kAuto)
   Amg hierarchy;
   SparseMatrix shifted;           // I - c B
   double amg_c = -1;              // the hierarchy's c
@@ -223,6 +233,33 @@ absl::StatusOr<int> FlowStepper::SolveSchur(const Mesh& geometry, const Eigen::V
   rhs *= -adt;
   const double tolerance = options_.solver.tolerance;
   const int max_iterations = options_.solver.max_iterations;
+  const bool adaptive = options_.solver.preconditioner == Preconditioner::kAuto;
+  *s = solution_;  // warm start
+  int jacobi_iterations = 0;
+  if (!z.amg && !z.cotan) {
+    const SparseMatrix Kt = K_.transpose();
+    Eigen::VectorXd inverse_diagonal(K_.rows());
+    GF_RETURN_IF_ERROR(ParallelFor(K_.rows(), ctx, [&](int64_t i) {
+      inverse_diagonal(i) = 1 / (1 + adt * B_.row(i).dot(Kt.row(i)));
+    }, 4096));
+    const LinearMap jacobi = [&](const Eigen::VectorXd& x, Eigen::VectorXd* y) {
+      *y = inverse_diagonal.cwiseProduct(x);
+    };
+    const int limit = adaptive ? std::min(options_.solver.jacobi_limit, max_iterations) : max_iterations;
+    const absl::StatusOr<int> iterations = SolveBicgstab(apply, jacobi, rhs, s, tolerance, limit);
+    GF_RETURN_IF_ERROR(ctx.Check());
+    if (iterations.ok()) {
+      solution_ = *s;
+      return iterations;
+    }
+    jacobi_iterations = limit;
+    if (!s->allFinite()) *s = solution_;
+    if (adaptive) {
+      z.amg = true;  // Jacobi is too slow for this system: AMG from now on, from Jacobi's iterate
+    } else {
+      z.cotan = true;
+    }
+  }
   if (z.amg) {
     const double c = std::sqrt(adt / 2);  // see Schur
     if (z.shifted.rows() != B_.rows()) z.shifted = B_;
@@ -243,7 +280,6 @@ absl::StatusOr<int> FlowStepper::SolveSchur(const Mesh& geometry, const Eigen::V
       z.hierarchy.Apply(x, &half);
       z.hierarchy.Apply(half, y);
     };
-    *s = solution_;  // warm start
     const absl::StatusOr<int> iterations = SolveBicgstab(apply, vcycles, rhs, s, tolerance, max_iterations);
     GF_RETURN_IF_ERROR(ctx.Check());
     if (iterations.ok()) {
@@ -253,28 +289,11 @@ absl::StatusOr<int> FlowStepper::SolveSchur(const Mesh& geometry, const Eigen::V
         z.amg_stale = true;  // rebuild at the next step
       }
       solution_ = *s;
-      return iterations;
+      return jacobi_iterations + *iterations;
     }
     z.amg = false;
-  }
-  if (!z.cotan) {
-    const SparseMatrix Kt = K_.transpose();
-    Eigen::VectorXd inverse_diagonal(K_.rows());
-    GF_RETURN_IF_ERROR(ParallelFor(K_.rows(), ctx, [&](int64_t i) {
-      inverse_diagonal(i) = 1 / (1 + adt * B_.row(i).dot(Kt.row(i)));
-    }, 4096));
-    const LinearMap jacobi = [&](const Eigen::VectorXd& x, Eigen::VectorXd* y) {
-      *y = inverse_diagonal.cwiseProduct(x);
-    };
-    *s = solution_;  // warm start
-    const absl::StatusOr<int> iterations =
-        SolveBicgstab(apply, jacobi, rhs, s, tolerance, max_iterations);
-    GF_RETURN_IF_ERROR(ctx.Check());
-    if (iterations.ok()) {
-      solution_ = *s;
-      return iterations;
-    }
     z.cotan = true;
+    *s = solution_;
   }
   const double c = 0.5 * std::sqrt(adt / 2);  // see Schur
   if (z.refactor || c != z.c) GF_RETURN_IF_ERROR(z.Factorize(geometry, c));
@@ -319,7 +338,8 @@ absl::StatusOr<std::unique_ptr<FlowStepper>> FlowStepper::Create(const Mesh& mes
     if (options.kind == FlowKind::kSurfaceDiffusion) so.preconditioner = Preconditioner::kIlut;
     if (options.kind == FlowKind::kSurfaceDiffusion && options.scheme != FlowScheme::kExplicit) {
       s->schur_ = std::make_unique<Schur>();
-      s->schur_->amg = options.solver.preconditioner != Preconditioner::kDiagonal;
+      s->schur_->amg = options.solver.preconditioner == Preconditioner::kAmg ||
+                       options.solver.preconditioner == Preconditioner::kIlut;
     }
   }
   s->solver_ = SparseSolver(so);

@@ -4,14 +4,18 @@
 // (I - dt K) and the factors of surface diffusion's preconditioner. Generic: built from
 // any square row-major matrix with a nonzero diagonal, applied as one V-cycle.
 //
-// Set-up: strength graph |a_ij| >= theta sqrt(|a_ii a_jj|) (symmetrized), greedy
-// aggregation (seed + strong neighbours; leftovers join a neighbouring aggregate),
-// tentative prolongator T (piecewise constants), smoothed P = (I - w D^{-1} A) T with
-// w = 4 / (3 rho(D^{-1} A)), restriction R = P^T, Galerkin coarse operators R A P, a
-// dense LU at the coarsest level. Cycle: Gauss-Seidel (forward before, backward after
-// the coarse correction) or damped Jacobi. Every loop is serial: the preconditioner runs
-// inside a Krylov iteration whose products are serial too (parallel loops meeting several
-// times per iteration lose badly on a loaded machine; bench/README.md, "Flows").
+// Set-up: strength graph |a_ij| >= theta sqrt(|a_ii a_jj|) (symmetrized; every coupling
+// when that stalls the coarsening), greedy aggregation (seed + strong neighbours; leftovers
+// join a neighbouring aggregate), tentative prolongator T (piecewise constants), smoothed
+// P = (I - w D^{-1} A) T with w = 4 / (3 rho(D^{-1} A)), restriction R = P^T, Galerkin
+// coarse operators R A P, a dense LU at the coarsest level. Cycle: Gauss-Seidel (forward
+// before, backward after the coarse correction) or damped Jacobi. D is the diagonal,
+// except in rows where it is small against the couplings (|a_ii| < sum_j |a_ij| / 2: the
+// GFD stencils of valence-3 vertices have a_ii ~ 0 or < 0), which take the l1 diagonal
+// |a_ii| + sum_j |a_ij| (plain D made the V-cycle diverge there). Every loop is serial: the
+// preconditioner runs inside a Krylov iteration whose products are serial too (parallel
+// loops meeting several times per iteration lose badly on a loaded machine;
+// bench/README.md, "Flows").
 #include <memory>
 #include <vector>
 
@@ -30,7 +34,7 @@ enum class AmgSmoother {
 
 struct AmgOptions {
   double strength = 0.08;           ///< theta of the strength graph, [0, 1)
-  bool smooth_prolongator = true;   ///< false: plain aggregation (P = T)
+  bool smooth_prolongator = true;   ///< false: plain aggregation (P = T; cheaper cycles, not scalable)
   AmgSmoother smoother = AmgSmoother::kGaussSeidel;
   double jacobi_weight = 0.6;       ///< damping of the Jacobi smoother
   int sweeps = 1;                   ///< smoothing sweeps before and after the coarse correction

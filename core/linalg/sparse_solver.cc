@@ -56,7 +56,8 @@ absl::Status ValidateSolverOptions(const SolverOptions& o) {
   if (!(o.ilut_drop >= 0) || o.ilut_fill < 1)
     return absl::InvalidArgumentError("solver.ilut_drop must be >= 0 and solver.ilut_fill >= 1");
   if (o.umfpack_refinement < 0) return absl::InvalidArgumentError("solver.umfpack_refinement must be >= 0");
-  if (o.preconditioner == Preconditioner::kAmg) {
+  if (o.jacobi_limit < 1) return absl::InvalidArgumentError("solver.jacobi_limit must be >= 1");
+  if (o.preconditioner == Preconditioner::kAmg || o.preconditioner == Preconditioner::kAuto) {
     if (absl::Status s = ValidateAmgOptions(o.amg); !s.ok())
       return absl::InvalidArgumentError(absl::StrCat("solver.", s.message()));
   }
@@ -72,6 +73,7 @@ struct SparseSolver::Impl {
   SparseSolver::Matrix rows;
   Eigen::VectorXd inverse_diagonal;
   Amg amg;
+  bool use_amg = false;  // kAmg, or kAuto once Jacobi needed more than jacobi_limit
   bool amg_stale = true;
   int iterations_at_build = -1;
   std::vector<int> outer, inner;  // pattern of the last analysis
@@ -115,20 +117,11 @@ absl::Status SparseSolver::Factorize(const Matrix& A) {
     m.rows = A;
     m.rows.makeCompressed();
     if (analyze) ++analyses_;
-    if (options_.preconditioner == Preconditioner::kAmg) {
-      if (analyze || m.amg_stale || !m.amg.built()) {
-        GF_RETURN_IF_ERROR(m.amg.Build(m.rows, options_.amg));
-        m.amg_stale = false;
-        m.iterations_at_build = -1;
-        ++builds_;
-      } else {
-        GF_RETURN_IF_ERROR(m.amg.UpdateFinest(m.rows));
-      }
-      return absl::OkStatus();
-    }
     m.inverse_diagonal = m.rows.diagonal();
     for (Eigen::Index i = 0; i < m.inverse_diagonal.size(); ++i)
       m.inverse_diagonal(i) = m.inverse_diagonal(i) != 0 ? 1 / m.inverse_diagonal(i) : 1;  // Eigen's rule
+    if (options_.preconditioner == Preconditioner::kAmg) m.use_amg = true;
+    if (m.use_amg) return RefreshAmg(analyze);
     return absl::OkStatus();
   }
   m.A = A;
@@ -178,23 +171,53 @@ absl::Status SparseSolver::Factorize(const Matrix& A) {
   return absl::OkStatus();
 }
 
+absl::Status SparseSolver::RefreshAmg(bool rebuild) {
+  Impl& m = *impl_;
+  if (rebuild || m.amg_stale || !m.amg.built()) {
+    GF_RETURN_IF_ERROR(m.amg.Build(m.rows, options_.amg));
+    m.amg_stale = false;
+    m.iterations_at_build = -1;
+    ++builds_;
+    return absl::OkStatus();
+  }
+  return m.amg.UpdateFinest(m.rows);
+}
+
 absl::Status SparseSolver::Solve(const Eigen::VectorXd& b, Eigen::VectorXd* x) {
   Impl& m = *impl_;
   if (m.OwnBicgstab(options_)) {
     if (b.size() != m.rows.rows()) return absl::InvalidArgumentError("right-hand side size does not match the system");
     const LinearMap product = [&](const Eigen::VectorXd& u, Eigen::VectorXd* v) { MultiplySerial(m.rows, u, v); };
-    LinearMap preconditioner = [&](const Eigen::VectorXd& u, Eigen::VectorXd* v) { m.amg.Apply(u, v); };
-    if (options_.preconditioner == Preconditioner::kDiagonal)
-      preconditioner = [&](const Eigen::VectorXd& u, Eigen::VectorXd* v) { *v = m.inverse_diagonal.cwiseProduct(u); };
-    const absl::StatusOr<int> it = SolveBicgstab(product, preconditioner, b, x, options_.tolerance, options_.max_iterations);
+    const LinearMap jacobi = [&](const Eigen::VectorXd& u, Eigen::VectorXd* v) {
+      *v = m.inverse_diagonal.cwiseProduct(u);
+    };
+    iterations_ = 0;
+    if (!m.use_amg) {
+      const bool adaptive = options_.preconditioner == Preconditioner::kAuto;
+      const Eigen::VectorXd start = *x;
+      const absl::StatusOr<int> it =
+          SolveBicgstab(product, jacobi, b, x, options_.tolerance,
+                        adaptive ? std::min(options_.jacobi_limit, options_.max_iterations) : options_.max_iterations);
+      if (it.ok() || !adaptive) {
+        if (it.ok()) iterations_ = *it;
+        return it.status();
+      }
+      iterations_ = std::min(options_.jacobi_limit, options_.max_iterations);
+      if (!x->allFinite()) *x = start;
+      m.use_amg = true;  // Jacobi is too slow for these systems: AMG from now on
+      GF_RETURN_IF_ERROR(RefreshAmg(true));
+    }
+    const absl::StatusOr<int> it =
+        SolveBicgstab(product, [&](const Eigen::VectorXd& u, Eigen::VectorXd* v) { m.amg.Apply(u, v); }, b, x,
+                      options_.tolerance, options_.max_iterations);
     if (!it.ok()) {
       m.amg_stale = true;
       return it.status();
     }
-    iterations_ = *it;
+    iterations_ += *it;
     if (m.iterations_at_build < 0) {
-      m.iterations_at_build = iterations_;
-    } else if (AmgStale(iterations_, m.iterations_at_build)) {
+      m.iterations_at_build = *it;
+    } else if (AmgStale(*it, m.iterations_at_build)) {
       m.amg_stale = true;
     }
     return absl::OkStatus();

@@ -22,7 +22,8 @@ enum class SolverKind {
   kKlu,       ///< SuiteSparse KLU through Eigen's KLU (libsuitesparse-dev)
   kBiCGSTAB,  ///< BiCGSTAB, warm-started from the previous solution (see Preconditioner)
 };
-/// BiCGSTAB's preconditioner.
+/// BiCGSTAB's preconditioner. kDiagonal and kAmg run SolveBicgstab below (serial
+/// products); kIlut Eigen's BiCGSTAB.
 enum class Preconditioner {
   kDiagonal,  ///< Jacobi: cheapest; enough for (I - dt K) at moderate dt |K|
   kIlut,      ///< incomplete LU with thresholding (ilut_drop, ilut_fill)
@@ -31,6 +32,12 @@ enum class Preconditioner {
   /// and kept across Factorize calls (only the finest operator is replaced) until a
   /// solve takes more than 1.5 x + 2 the iterations of the first solve after the build.
   kAmg,
+  /// Jacobi while a solve converges within SolverOptions::jacobi_limit iterations; from
+  /// the first solve that needs more, AMG for good (that solve goes on from Jacobi's
+  /// iterate). Jacobi's iterations are cheap (~1/5 of an AMG one) but grow like 1/h:
+  /// this keeps Jacobi where it is faster (MCF at 10k vertices: 12 iterations) and AMG
+  /// where it wins (bench/README.md, "Flows").
+  kAuto,
 };
 const char* SolverKindName(SolverKind kind);
 /// Parses "auto", "sparselu", "umfpack", "klu", "bicgstab".
@@ -39,12 +46,14 @@ absl::StatusOr<SolverKind> ParseSolverKind(const std::string& name);
 bool SolverAvailable(SolverKind kind);
 
 struct SolverOptions {
-  /// kAuto lets the caller choose. Flows take BiCGSTAB, warm-started: with Jacobi for
-  /// MCF; for surface diffusion, on the system reduced to the normal offsets,
-  /// (I + dt B K) s = -dt B M, matrix-free, with Jacobi, or once Jacobi does not
-  /// converge within max_iterations with the cotan square (I - c Lc)^2, c = sqrt(dt / 2) / 2, whose
-  /// factorization is reused while it works (FlowStepper::Schur in flow.cc). Any other
-  /// kind solves SD's 2n block system (ILUT for BiCGSTAB: Jacobi stalls there).
+  /// kAuto lets the caller choose. Flows take BiCGSTAB, warm-started, with `preconditioner`
+  /// (AMG by default; Jacobi with kDiagonal): for MCF on (I - dt K); for surface
+  /// diffusion on the system reduced to the normal offsets, (I + dt B K) s = -dt B M,
+  /// matrix-free, preconditioned by (I - c B)^2, c = sqrt(dt / 2) (AMG V-cycles), or
+  /// with kDiagonal by Jacobi; when those do not converge within max_iterations, by the
+  /// cotan square (I - c Lc)^2, c = sqrt(dt / 2) / 2, whose factorization is reused while
+  /// it works (FlowStepper::Schur in flow.cc). Any other kind solves SD's 2n block system
+  /// (ILUT for BiCGSTAB: Jacobi stalls there).
   /// GFD stencils of 25-40 points per row fill direct factorizations badly: MCF at 5768
   /// vertices solves in ~10 ms against ~1 s for SparseLU, UMFPACK or KLU; SD's block
   /// system at 10k vertices in ~0.7 s (ILUT) against 5 s for UMFPACK, the best direct
@@ -52,7 +61,8 @@ struct SolverOptions {
   SolverKind kind = SolverKind::kAuto;
   double tolerance = 1e-12;   ///< BiCGSTAB relative residual
   int max_iterations = 1000;  ///< BiCGSTAB
-  Preconditioner preconditioner = Preconditioner::kAmg;
+  Preconditioner preconditioner = Preconditioner::kAuto;
+  int jacobi_limit = 40;  ///< Preconditioner::kAuto
   double ilut_drop = 1e-3;    ///< ILUT drop tolerance
   int ilut_fill = 5;          ///< ILUT fill factor (5, 1e-3: 1.5x faster SD steps than 20, 1e-4)
   /// UMFPACK's iterative refinement steps per solve (its default 2); 0 for a
@@ -90,6 +100,8 @@ class SparseSolver {
 
  private:
   struct Impl;
+  /// Builds the AMG hierarchy of the current matrix, or refreshes its finest level.
+  absl::Status RefreshAmg(bool rebuild);
   SolverOptions options_;
   std::unique_ptr<Impl> impl_;
   int analyses_ = 0;

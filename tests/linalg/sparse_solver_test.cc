@@ -33,7 +33,8 @@ TEST(SparseSolver, EveryKindSolvesAndDirectOnesAnalyseOnce) {
   const Eigen::VectorXd x_true = Eigen::VectorXd::LinSpaced(400, -1, 1);
   for (SolverKind k : {SolverKind::kAuto, SolverKind::kSparseLU, SolverKind::kUmfpack, SolverKind::kKlu,
                        SolverKind::kBiCGSTAB}) {
-    for (Preconditioner p : {Preconditioner::kDiagonal, Preconditioner::kIlut, Preconditioner::kAmg}) {
+    for (Preconditioner p : {Preconditioner::kDiagonal, Preconditioner::kIlut, Preconditioner::kAmg,
+                             Preconditioner::kAuto}) {
       SolverOptions o;
       o.kind = k;
       o.preconditioner = p;
