@@ -283,9 +283,10 @@ absl::StatusOr<int> FlowStepper::SolveSchur(const Mesh& geometry, const Eigen::V
     const absl::StatusOr<int> iterations = SolveBicgstab(apply, vcycles, rhs, s, tolerance, max_iterations);
     GF_RETURN_IF_ERROR(ctx.Check());
     if (iterations.ok()) {
-      if (z.amg_iterations_at_build < 0) {
+      // A solve that went on from Jacobi's iterate is no baseline for the hierarchy.
+      if (jacobi_iterations == 0 && z.amg_iterations_at_build < 0) {
         z.amg_iterations_at_build = *iterations;
-      } else if (*iterations > 1.5 * z.amg_iterations_at_build + 2) {
+      } else if (AmgHierarchyStale(*iterations, z.amg_iterations_at_build)) {
         z.amg_stale = true;  // rebuild at the next step
       }
       solution_ = *s;

@@ -48,6 +48,13 @@ absl::Status ValidateAmgOptions(const AmgOptions& o);
 void MultiplySerial(const Eigen::SparseMatrix<double, Eigen::RowMajor, int>& A, const Eigen::VectorXd& x,
                     Eigen::VectorXd* y);
 
+/// Whether a hierarchy kept across a sequence of matrices (time steps) should be rebuilt:
+/// a solve took more than 1.5 x + 2 the iterations of the first solve after its build
+/// (`iterations_at_build` < 0: no baseline yet).
+inline bool AmgHierarchyStale(int iterations, int iterations_at_build) {
+  return iterations_at_build >= 0 && iterations > 1.5 * iterations_at_build + 2;
+}
+
 /// An AMG hierarchy for one matrix. Not thread-safe: the cycle uses work vectors.
 class Amg {
  public:

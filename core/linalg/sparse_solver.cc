@@ -64,9 +64,6 @@ absl::Status ValidateSolverOptions(const SolverOptions& o) {
   return absl::OkStatus();
 }
 
-// Iterations growth after which a kept AMG hierarchy is rebuilt (see Preconditioner::kAmg).
-bool AmgStale(int iterations, int at_build) { return at_build >= 0 && iterations > 1.5 * at_build + 2; }
-
 struct SparseSolver::Impl {
   ColMatrix A;
   // Jacobi and AMG: our BiCGSTAB on the row-major matrix with a serial product.
@@ -214,10 +211,12 @@ absl::Status SparseSolver::Solve(const Eigen::VectorXd& b, Eigen::VectorXd* x) {
       m.amg_stale = true;
       return it.status();
     }
+    // A solve that went on from Jacobi's iterate is no baseline for the hierarchy.
+    const bool baseline = iterations_ == 0;
     iterations_ += *it;
-    if (m.iterations_at_build < 0) {
+    if (baseline && m.iterations_at_build < 0) {
       m.iterations_at_build = *it;
-    } else if (AmgStale(*it, m.iterations_at_build)) {
+    } else if (AmgHierarchyStale(*it, m.iterations_at_build)) {
       m.amg_stale = true;
     }
     return absl::OkStatus();
