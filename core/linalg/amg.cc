@@ -341,13 +341,13 @@ void Amg::Cycle(int level, const Eigen::VectorXd& b, Eigen::VectorXd* x) const {
   x->setZero(b.size());
   for (int s = 0; s < options_.sweeps; ++s) Smooth(l, b, x, true, s == 0);
   if (options_.sweeps == 1 && options_.smoother == AmgSmoother::kGaussSeidel) {
-    // After one forward sweep from zero, row i's residual is what the later updates of
-    // x_j, j > i, changed: r_i = -sum_{j > i} a_ij x_j (half a product).
+    // After one forward sweep from zero, b_i - sum_{j <= i} a_ij x_j = (d_i - a_ii) x_i (d_i
+    // the relaxation's diagonal), so r_i = (d_i - a_ii) x_i - sum_{j > i} a_ij x_j: half a product.
     const int* outer = l.A.outerIndexPtr();
     const int* inner = l.A.innerIndexPtr();
     const double* values = l.A.valuePtr();
     for (Eigen::Index i = 0; i < l.A.rows(); ++i) {
-      double acc = 0;
+      double acc = (1 / l.inverse_diagonal(i) - l.diagonal(i)) * (*x)(i);
       for (int p = outer[i + 1] - 1; p >= outer[i] && inner[p] > i; --p) acc -= values[p] * (*x)(inner[p]);
       l.r(i) = acc;
     }
