@@ -214,7 +214,10 @@ void Steps(const std::vector<int>& sizes, int threads, const std::string& solver
 
 
 // AMG on the flows' systems, outside the stepper: MCF's I - dt K and surface diffusion's
-// I + dt B K (matrix-free) with its factored preconditioner, against Jacobi.
+// I + dt B K (matrix-free) with its factored preconditioners, against Jacobi. Environment:
+// GF_AMG_THETA, GF_AMG_JACOBI (weight: Jacobi smoother), GF_AMG_PLAIN, GF_AMG_SWEEPS (AMG
+// options); GF_NO_JACOBI; GF_COTAN (the cotan matrix M - dt/2 S instead of I - dt K);
+// GF_EXACT (SD with exact inner solves); GF_DELAUNAY (Fibonacci hulls, not cubed spheres).
 void AmgProbe(const std::vector<int>& sizes, double dt_mcf, double dt_sd, const AmgOptions& ao) {
   for (int target : sizes) {
     const int n = static_cast<int>(std::lround(std::sqrt((target - 2) / 6.0)));
@@ -242,42 +245,6 @@ void AmgProbe(const std::vector<int>& sizes, double dt_mcf, double dt_sd, const 
       Eigen::VectorXd d = A.diagonal().cwiseInverse();
       return LinearMap([d](const Eigen::VectorXd& x, Eigen::VectorXd* y) { *y = d.cwiseProduct(x); });
     };
-    if (std::getenv("GF_AMG_ROW")) {
-      const SparseMatrix A = I - dt_mcf * K;
-      for (int i : {0, 17, nv / 2}) {
-        std::printf("row %d:", i);
-        for (SparseMatrix::InnerIterator it(A, i); it; ++it) std::printf(" %d:%.3g", (int)it.col(), it.value());
-        std::printf("\nB row %d:", i);
-        for (SparseMatrix::InnerIterator it(B, i); it; ++it) std::printf(" %d:%.3g", (int)it.col(), it.value());
-        std::printf("\n");
-      }
-    }
-    if (std::getenv("GF_DIAG")) {  // where does damped Jacobi diverge?
-      const SparseMatrix A = I - dt_mcf * K;
-      const Eigen::VectorXd d = A.diagonal();
-      Eigen::VectorXd e(nv), ae;
-      for (int i = 0; i < nv; ++i) e(i) = std::sin(12.9898 * i) * 43758.5453 - std::floor(std::sin(12.9898 * i) * 43758.5453);
-      double growth = 0;
-      for (int it = 0; it < 200; ++it) {
-        MultiplySerial(A, e, &ae);
-        e -= 0.4 * ae.cwiseQuotient(d);
-        growth = e.norm();
-        e /= growth;
-      }
-      int imax;
-      e.cwiseAbs().maxCoeff(&imax);
-      std::printf("jacobi growth per sweep %.4f, peak at vertex %d (|e| %.3f), valence-ish row nnz %d, diag %.4g\n", growth, imax,
-                  std::abs(e(imax)), (int)(A.outerIndexPtr()[imax + 1] - A.outerIndexPtr()[imax]), d(imax));
-      std::vector<std::pair<double, int>> top;
-      for (int i = 0; i < nv; ++i) top.push_back({-std::abs(e(i)), i});
-      std::sort(top.begin(), top.end());
-      for (int k = 0; k < 8; ++k) std::printf("  v%d %.3f pos (%.3f %.3f %.3f)\n", top[k].second, -top[k].first,
-                                              mesh.positions(top[k].second, 0), mesh.positions(top[k].second, 1), mesh.positions(top[k].second, 2));
-      const int r = imax;
-      std::printf("row %d:", r);
-      for (SparseMatrix::InnerIterator it(A, r); it; ++it) std::printf(" %d:%.3g", (int)it.col(), it.value());
-      std::printf("\n");
-    }
     {  // MCF
       SparseMatrix A = I - dt_mcf * K;
       if (std::getenv("GF_COTAN")) {
