@@ -4,11 +4,16 @@
 //                      levels, beside the cotan (Dziuk) implicit MCF with lumped mass.
 //   flow_study steps [sizes] [threads] [solver] [mcf|surface_diffusion] [scheme]
 //                      semi-implicit MCF and SD step times split into fit / assemble /
-//                      solve (median of steps 2..4), and a degree-4 fit of the same mesh.
+//                      solve (median of steps 2..4), and a degree-4 fit of the same mesh;
+//                      solver: auto (default), auto-jacobi, auto-amg, sparselu, ...
+//   flow_study amg [sizes] [dt_mcf] [dt_sd]
+//                      AMG on the flows' systems outside the stepper: hierarchy, V-cycle
+//                      convergence factor and cost, BiCGSTAB iterations against Jacobi.
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <ctime>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -16,6 +21,8 @@
 #include <Eigen/SparseCholesky>
 
 #include "core/flow/flow.h"
+#include "core/linalg/amg.h"
+#include "core/operators/operators.h"
 #include "core/integration/integrate.h"
 #include "core/reconstruction/surface.h"
 #include "core/surfaces/analytic.h"
@@ -134,19 +141,21 @@ double Median(std::vector<double> v) {
 void Steps(const std::vector<int>& sizes, int threads, const std::string& solver, const std::string& only,
            const std::string& only_scheme) {
   std::printf("step times (ms, median of steps 2..4), threads %d, solver %s\n", threads, solver.c_str());
-  std::printf("  flow  scheme          verts     fit4    fit  assemble   solve   total  iters  total/fit4  step1\n");
+  std::printf("  flow  scheme          verts     fit4    fit  assemble   solve   total  iters  total/fit4  step1  step-cpu  cpu/fit4-cpu\n");
   for (int target : sizes) {
     const int n = static_cast<int>(std::lround(std::sqrt((target - 2) / 6.0)));
     const Mesh mesh = Sphere(n);
     const Topology topo = BuildTopology(mesh).value();
     FitOptions fo = DefaultFlowFitOptions();
-    std::vector<double> fit_times;
+    std::vector<double> fit_times, fit_cpu;
     for (int i = 0; i < 3; ++i) {
       const Stopwatch w;
+      const std::clock_t c0 = std::clock();
       (void)FitSurface(mesh, topo, fo, nullptr, {}, RunContext(nullptr, threads)).value();
       fit_times.push_back(w.Millis());
+      fit_cpu.push_back(1e3 * static_cast<double>(std::clock() - c0) / CLOCKS_PER_SEC);
     }
-    const double fit4 = Median(fit_times);
+    const double fit4 = Median(fit_times), fit4_cpu = Median(fit_cpu);
     for (FlowKind kind : {FlowKind::kMeanCurvature, FlowKind::kSurfaceDiffusion}) {
       if (!only.empty() && only != FlowKindName(kind)) continue;
       for (FlowScheme scheme : {FlowScheme::kSemiImplicit, FlowScheme::kBdf2}) {
@@ -155,11 +164,17 @@ void Steps(const std::vector<int>& sizes, int threads, const std::string& solver
         o.kind = kind;
         o.scheme = scheme;
         o.dt = kind == FlowKind::kMeanCurvature ? 1e-3 : 1e-6;
-        // "bicgstab-ilut" selects BiCGSTAB with the ILUT preconditioner.
-        const bool ilut = solver == "bicgstab-ilut";
-        o.solver.kind = ParseSolverKind(ilut ? "bicgstab" : solver).value();
+        // "bicgstab-ilut" selects BiCGSTAB with the ILUT preconditioner; "auto-jacobi" and
+        // "auto-amg" the flows' default solver (MCF's system, SD's reduced one) with Jacobi
+        // or AMG from the start instead of the adaptive choice.
+        const bool ilut = solver == "bicgstab-ilut", jacobi = solver == "auto-jacobi", amg = solver == "auto-amg";
+        o.solver.kind = ParseSolverKind(ilut ? "bicgstab" : jacobi || amg ? "auto" : solver).value();
         if (ilut) o.solver.preconditioner = Preconditioner::kIlut;
+        if (jacobi) o.solver.preconditioner = Preconditioner::kDiagonal;
+        if (amg) o.solver.preconditioner = Preconditioner::kAmg;
         if (const char* f = std::getenv("GF_ILUT_FILL")) o.solver.ilut_fill = std::atoi(f);
+        if (std::getenv("GF_AMG_PLAIN")) o.solver.amg.smooth_prolongator = false;
+        if (const char* v = std::getenv("GF_AMG_THETA")) o.solver.amg.strength = std::atof(v);
         if (const char* d = std::getenv("GF_ILUT_DROP")) o.solver.ilut_drop = std::atof(d);
         const RunContext ctx = RunContext().WithThreads(threads);
         auto stepper = FlowStepper::Create(mesh, o, ctx);
@@ -167,12 +182,14 @@ void Steps(const std::vector<int>& sizes, int threads, const std::string& solver
           std::printf("error: %s\n", stepper.status().ToString().c_str());
           return;
         }
-        std::vector<double> f, a, s, tot;
+        std::vector<double> f, a, s, tot, cpu;
         int iters = 0;
         double first = 0;  // step 1: symbolic analyses, the SD preconditioner's factorization
         for (int i = 0; i < 4; ++i) {
           const Stopwatch w;
+          const std::clock_t c0 = std::clock();
           auto st = (*stepper)->Step(ctx);
+          const double cpu_ms = 1e3 * static_cast<double>(std::clock() - c0) / CLOCKS_PER_SEC;
           if (!st.ok()) {
             std::printf("error: %s\n", st.status().ToString().c_str());
             return;
@@ -182,13 +199,134 @@ void Steps(const std::vector<int>& sizes, int threads, const std::string& solver
             continue;
           }
           f.push_back(st->fit_ms), a.push_back(st->assemble_ms), s.push_back(st->solve_ms), tot.push_back(w.Millis());
+          cpu.push_back(cpu_ms);
           iters = st->solver_iterations;
         }
-        std::printf("  %-4s  %-13s %8d %8.1f %6.1f %8.1f %8.1f %7.1f %5d  %6.2f  %7.1f\n",
+        std::printf("  %-4s  %-13s %8d %8.1f %6.1f %8.1f %8.1f %7.1f %5d  %6.2f  %7.1f  %8.1f  %.2f\n",
                     kind == FlowKind::kMeanCurvature ? "mcf" : "sd", FlowSchemeName(scheme), mesh.NumVertices(), fit4,
-                    Median(f), Median(a), Median(s), Median(tot), iters, Median(tot) / fit4, first);
+                    Median(f), Median(a), Median(s), Median(tot), iters, Median(tot) / fit4, first, Median(cpu),
+                    Median(cpu) / fit4_cpu);
         std::fflush(stdout);
       }
+    }
+  }
+}
+
+
+// AMG on the flows' systems, outside the stepper: MCF's I - dt K and surface diffusion's
+// I + dt B K (matrix-free) with its factored preconditioners, against Jacobi. Environment:
+// GF_AMG_THETA, GF_AMG_JACOBI (weight: Jacobi smoother), GF_AMG_PLAIN, GF_AMG_SWEEPS (AMG
+// options); GF_NO_JACOBI; GF_COTAN (the cotan matrix M - dt/2 S instead of I - dt K);
+// GF_EXACT (SD with exact inner solves); GF_DELAUNAY (Fibonacci hulls, not cubed spheres).
+void AmgProbe(const std::vector<int>& sizes, double dt_mcf, double dt_sd, const AmgOptions& ao) {
+  for (int target : sizes) {
+    const int n = static_cast<int>(std::lround(std::sqrt((target - 2) / 6.0)));
+    const Mesh mesh = std::getenv("GF_DELAUNAY") ? GenerateDelaunaySphereMesh(target) : Sphere(n);
+    const int nv = mesh.NumVertices();
+    FlowOptions fo;
+    auto stepper = FlowStepper::Create(mesh, fo).value();
+    const SparseMatrix K = stepper->CurvatureJacobian().value();
+    const Topology topo = BuildTopology(mesh).value();
+    const auto fits = FitForOperators(mesh, topo, DefaultFlowFitOptions(), nullptr, RunContext()).value();
+    const SparseMatrix B = LaplaceBeltramiMatrix(*fits).value();
+    SparseMatrix I(nv, nv);
+    I.setIdentity();
+    Eigen::VectorXd rhs(nv);
+    for (int i = 0; i < nv; ++i) rhs(i) = std::sin(3 * mesh.positions(i, 0)) + mesh.positions(i, 2);
+    auto report = [&](const char* what, const LinearMap& A, const LinearMap& P, double setup_ms) {
+      Eigen::VectorXd x;
+      const Stopwatch w;
+      auto it = SolveBicgstab(A, P, rhs, &x, 1e-12, 3000);
+      std::printf("  %-28s n %8d  setup %8.1f ms  solve %9.1f ms  iterations %s\n", what, nv, setup_ms, w.Millis(),
+                  it.ok() ? std::to_string(*it).c_str() : it.status().ToString().c_str());
+      std::fflush(stdout);
+    };
+    auto jacobi_of = [](const SparseMatrix& A) {
+      Eigen::VectorXd d = A.diagonal().cwiseInverse();
+      return LinearMap([d](const Eigen::VectorXd& x, Eigen::VectorXd* y) { *y = d.cwiseProduct(x); });
+    };
+    {  // MCF
+      SparseMatrix A = I - dt_mcf * K;
+      if (std::getenv("GF_COTAN")) {
+        const CotanLaplacian cot = BuildCotanLaplacian(mesh);
+        Eigen::SparseMatrix<double> C = -0.5 * dt_mcf * cot.stiffness;
+        for (int i = 0; i < nv; ++i) C.coeffRef(i, i) += cot.mass(i);
+        A = C;
+      }
+      const LinearMap op = [&](const Eigen::VectorXd& x, Eigen::VectorXd* y) { MultiplySerial(A, x, y); };
+      if (!std::getenv("GF_NO_JACOBI")) report("mcf jacobi", op, jacobi_of(A), 0);
+      Amg amg;
+      const Stopwatch w;
+      if (absl::Status s = amg.Build(A, ao); !s.ok()) std::printf("amg: %s\n", s.ToString().c_str());
+      const double setup = w.Millis();
+      std::printf("  levels %d:", amg.num_levels());
+      for (int l = 0; l < amg.num_levels(); ++l) std::printf(" %d", amg.rows(l));
+      std::printf("  complexity %.2f\n", amg.operator_complexity());
+      {
+        Eigen::VectorXd x = Eigen::VectorXd::Zero(nv), r = rhs, e, ax;
+        double r0 = r.norm(), factor = 0;
+        for (int it = 0; it < 12; ++it) {
+          amg.Apply(r, &e);
+          x += e;
+          MultiplySerial(A, x, &ax);
+          r = rhs - ax;
+          if (it == 11) factor = std::pow(r.norm() / r0, 1.0 / 12);
+        }
+        const std::clock_t c0 = std::clock();
+        for (int it = 0; it < 10; ++it) amg.Apply(rhs, &e);
+        const std::clock_t c1 = std::clock();
+        for (int it = 0; it < 10; ++it) MultiplySerial(A, rhs, &e);
+        const std::clock_t c2 = std::clock();
+        std::printf("  stationary V-cycle factor %.3f; V-cycle %.2f ms, product %.2f ms (CPU)\n", factor,
+                    100.0 * (c1 - c0) / CLOCKS_PER_SEC, 100.0 * (c2 - c1) / CLOCKS_PER_SEC);
+      }
+      report("mcf amg", op, [&](const Eigen::VectorXd& x, Eigen::VectorXd* y) { amg.Apply(x, y); }, setup);
+    }
+    if (dt_sd > 0) {  // SD: (I + a B K), preconditioned by (I - c B)(I - 2 c K~), c = sqrt(a/2)
+      Eigen::VectorXd tmp;
+      const LinearMap op = [&](const Eigen::VectorXd& x, Eigen::VectorXd* y) {
+        MultiplySerial(K, x, &tmp);
+        MultiplySerial(B, tmp, y);
+        *y = x + dt_sd * *y;
+      };
+      const double c = std::sqrt(dt_sd / 2);
+      SparseMatrix Kt = K;
+      const Eigen::VectorXd row_sums = K * Eigen::VectorXd::Ones(nv);
+      for (int i = 0; i < nv; ++i) Kt.coeffRef(i, i) -= row_sums(i);
+      const SparseMatrix PB = I - c * B, PK = I - 2 * c * Kt, PB2 = I - c * B;
+      Amg ab, ak;
+      const Stopwatch w;
+      (void)ab.Build(PB, ao);
+      (void)ak.Build(PK, ao);
+      const double setup = w.Millis();
+      Eigen::VectorXd half;
+      report("sd amg (I-cB)(I-2cK~)", op, [&](const Eigen::VectorXd& x, Eigen::VectorXd* y) {
+        ab.Apply(x, &half);
+        ak.Apply(half, y);
+      }, setup);
+      report("sd amg (I-cB)^2", op, [&](const Eigen::VectorXd& x, Eigen::VectorXd* y) {
+        ab.Apply(x, &half);
+        ab.Apply(half, y);
+      }, setup / 2);
+      if (std::getenv("GF_EXACT")) {
+        auto inner = [&](const SparseMatrix& M, const Amg& amg, const Eigen::VectorXd& b, Eigen::VectorXd* x) {
+          x->resize(0);
+          (void)SolveBicgstab([&](const Eigen::VectorXd& u, Eigen::VectorXd* v) { MultiplySerial(M, u, v); },
+                              [&](const Eigen::VectorXd& u, Eigen::VectorXd* v) { amg.Apply(u, v); }, b, x, 1e-11, 500);
+        };
+        report("sd exact (I-cB)(I-2cK~)", op, [&](const Eigen::VectorXd& x, Eigen::VectorXd* y) {
+          inner(PB, ab, x, &half);
+          inner(PK, ak, half, y);
+        }, setup);
+        report("sd exact (I-cB)^2", op, [&](const Eigen::VectorXd& x, Eigen::VectorXd* y) {
+          inner(PB, ab, x, &half);
+          inner(PB, ab, half, y);
+        }, setup);
+      }
+      Eigen::VectorXd d(nv);
+      const SparseMatrix Ktr = K.transpose();
+      for (int i = 0; i < nv; ++i) d(i) = 1 / (1 + dt_sd * B.row(i).dot(Ktr.row(i)));
+      report("sd jacobi", op, [&](const Eigen::VectorXd& x, Eigen::VectorXd* y) { *y = d.cwiseProduct(x); }, 0);
     }
   }
 }
@@ -205,6 +343,16 @@ int main(int argc, char** argv) {
     for (std::string item; std::getline(ss, item, ',');) sizes.push_back(std::atoi(item.c_str()));
     Steps(sizes, argc > 3 ? std::atoi(argv[3]) : 1, argc > 4 ? argv[4] : "auto", argc > 5 ? argv[5] : "",
           argc > 6 ? argv[6] : "");
+  } else if (what == "amg") {
+    std::vector<int> sizes;
+    std::stringstream ss(argc > 2 ? argv[2] : "10000,40000");
+    for (std::string item; std::getline(ss, item, ',');) sizes.push_back(std::atoi(item.c_str()));
+    AmgOptions ao;
+    if (const char* v = std::getenv("GF_AMG_THETA")) ao.strength = std::atof(v);
+    if (const char* v = std::getenv("GF_AMG_JACOBI")) ao.smoother = AmgSmoother::kJacobi, ao.jacobi_weight = std::atof(v);
+    if (std::getenv("GF_AMG_PLAIN")) ao.smooth_prolongator = false;
+    if (const char* v = std::getenv("GF_AMG_SWEEPS")) ao.sweeps = std::atoi(v);
+    AmgProbe(sizes, argc > 3 ? std::atof(argv[3]) : 1e-3, argc > 4 ? std::atof(argv[4]) : 1e-6, ao);
   } else {
     std::fprintf(stderr, "usage: flow_study table [cubed|delaunay|jittered] | steps [sizes] [threads] [solver] [mcf|surface_diffusion] [scheme]\n");
     return 2;

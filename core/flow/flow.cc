@@ -39,15 +39,7 @@ void ForEachTriangle(const Mesh& m, Fn&& fn) {
 // threads meet 4 times per BiCGSTAB iteration, which on a loaded machine cost 40-50x
 // (SD at 10k vertices: 7.4-8.3 s against 0.17 s per solve).
 void Multiply(const SparseMatrix& A, const Eigen::VectorXd& x, Eigen::VectorXd* y, const RunContext& ctx) {
-  y->resize(A.rows());
-  const int* outer = A.outerIndexPtr();
-  const int* inner = A.innerIndexPtr();
-  const double* values = A.valuePtr();
-  for (Eigen::Index i = 0; i < A.rows(); ++i) {
-    double acc = 0;
-    for (int p = outer[i]; p < outer[i + 1]; ++p) acc += values[p] * x(inner[p]);
-    (*y)(i) = acc;
-  }
+  MultiplySerial(A, x, y);
   if (ctx.cancelled()) y->setConstant(std::nan(""));
 }
 
@@ -162,19 +154,37 @@ absl::Status FlowStepper::Linearize(const Mesh& fit_mesh, const Positions& base,
 
 // Surface diffusion's reduced system (I + a B K) s = -a B M (eliminating mu = M + K s
 // from [[I, a B], [-K, I]]), solved matrix-free by BiCGSTAB warm-started from the last
-// step, first with Jacobi (the diagonal of I + a B K): no set-up, parallel, the fastest
-// while a |B K| is moderate (bench/README.md: 27 iterations at 10k vertices, dt = 1e-6).
-// When Jacobi does not converge within max_iterations, the flow switches for good to the cotan
+// step. Default preconditioner P = (I - c B)^2, c = sqrt(a / 2), built from the GFD
+// operators themselves: B ~ Laplace-Beltrami (eigenvalues -lambda) and K ~ its half plus
+// the curvature term, so on a mode lambda, I + a B K ~ 1 + c^2 lambda^2 (up to the
+// curvature term) while P ~ (1 + c lambda)^2: a ratio within [1, 2] at every frequency the
+// stencils see, whatever n and a (the cotan square below lacks this: its 1-ring operator
+// is not the wide stencils'). P^{-1} is two V-cycles of one AMG hierarchy of I - c B,
+// kept from step to step (only the finest matrix is refreshed) until the iterations
+// exceed 1.5x + 2 those after its build. Iterations: 7 at 386 vertices for a = 1e-4 and
+// a = 1e4 alike (tests/flow SolversAgree); 12 / 25 at 10k / 40k (a = 1e-6), against
+// Jacobi's 59 / 252 (bench/README.md, "Flows").
+// With Preconditioner::kDiagonal: Jacobi (the diagonal of I + a B K), no set-up, fine
+// while a |B K| is moderate (27 iterations at 10k vertices, dt = 1e-6, wide stencils).
+// When AMG or Jacobi does not converge within max_iterations, the flow switches for good to the cotan
 // square P = (I - c M^{-1} S)^2: with B ~ Laplace-Beltrami and K ~ Laplace-Beltrami / 2,
 // a B K ~ (a/2) Laplace-Beltrami^2, and P^{-1} = ((M - c S)^{-1} M)^2 costs one sparse
 // Cholesky factorization of the 1-ring matrix M - c S, kept while the iterations stay
 // within twice those of its first solve. c = sqrt(a/2) / 2: the 1-ring cotan operator's
 // top eigenvalues are ~3x the wide GFD stencils' (630 vs 190 at 386 vertices); halving c
 // balances the spectrum of P^{-1} (I + a B K) to [0.15, 3] (a = 1e-2) .. [0.68, 1]
-// (a = 1e-6), against [0.04, 1] .. [0.48, 1] with c = sqrt(a/2). Neither is spectrally
+// (a = 1e-6), against [0.04, 1] .. [0.48, 1] with c = sqrt(a/2). It is not spectrally
 // equivalent to the GFD system (wide stencils barely see the mesh's highest
 // frequencies): iterations grow with n (bench/README.md, "Flows").
 struct FlowStepper::Schur {
+  // AMG: P = (I - c B)^2, c = sqrt(a / 2), P^{-1} ~ two V-cycles of one hierarchy.
+  bool amg = false;               // from the start (kAmg), or once Jacobi needs > jacobi_limit (kAuto)
+  Amg hierarchy;
+  SparseMatrix shifted;           // I - c B
+  double amg_c = -1;              // the hierarchy's c
+  bool amg_stale = true;
+  int amg_iterations_at_build = -1;
+  int amg_builds = 0;
   bool cotan = false;             // switched from Jacobi
   Eigen::SimplicialLDLT<Eigen::SparseMatrix<double>> ldlt;
   Eigen::VectorXd mass;
@@ -205,6 +215,9 @@ FlowStepper::FlowStepper() = default;
 FlowStepper::~FlowStepper() = default;
 
 int FlowStepper::preconditioner_factorizations() const { return schur_ ? schur_->factorizations : 0; }
+int FlowStepper::preconditioner_builds() const {
+  return schur_ ? schur_->amg_builds : solver_.preconditioner_builds();
+}
 
 absl::StatusOr<int> FlowStepper::SolveSchur(const Mesh& geometry, const Eigen::VectorXd& mean, double adt,
                                             const RunContext& ctx, Eigen::VectorXd* s) {
@@ -220,7 +233,10 @@ absl::StatusOr<int> FlowStepper::SolveSchur(const Mesh& geometry, const Eigen::V
   rhs *= -adt;
   const double tolerance = options_.solver.tolerance;
   const int max_iterations = options_.solver.max_iterations;
-  if (!z.cotan) {
+  const bool adaptive = options_.solver.preconditioner == Preconditioner::kAuto;
+  *s = solution_;  // warm start
+  int jacobi_iterations = 0;
+  if (!z.amg && !z.cotan) {
     const SparseMatrix Kt = K_.transpose();
     Eigen::VectorXd inverse_diagonal(K_.rows());
     GF_RETURN_IF_ERROR(ParallelFor(K_.rows(), ctx, [&](int64_t i) {
@@ -229,15 +245,56 @@ absl::StatusOr<int> FlowStepper::SolveSchur(const Mesh& geometry, const Eigen::V
     const LinearMap jacobi = [&](const Eigen::VectorXd& x, Eigen::VectorXd* y) {
       *y = inverse_diagonal.cwiseProduct(x);
     };
-    *s = solution_;  // warm start
-    const absl::StatusOr<int> iterations =
-        SolveBicgstab(apply, jacobi, rhs, s, tolerance, max_iterations);
+    const int limit = adaptive ? std::min(options_.solver.jacobi_limit, max_iterations) : max_iterations;
+    const absl::StatusOr<int> iterations = SolveBicgstab(apply, jacobi, rhs, s, tolerance, limit);
     GF_RETURN_IF_ERROR(ctx.Check());
     if (iterations.ok()) {
       solution_ = *s;
       return iterations;
     }
+    jacobi_iterations = limit;
+    if (!s->allFinite()) *s = solution_;
+    if (adaptive) {
+      z.amg = true;  // Jacobi is too slow for this system: AMG from now on, from Jacobi's iterate
+    } else {
+      z.cotan = true;
+    }
+  }
+  if (z.amg) {
+    const double c = std::sqrt(adt / 2);  // see Schur
+    if (z.shifted.rows() != B_.rows()) z.shifted = B_;
+    const int nv = static_cast<int>(B_.rows());
+    for (Eigen::Index p = 0; p < B_.nonZeros(); ++p) z.shifted.valuePtr()[p] = -c * B_.valuePtr()[p];
+    for (int i = 0; i < nv; ++i) z.shifted.valuePtr()[z.shifted.outerIndexPtr()[i] + assembler_->Slot(i, 0)] += 1;
+    if (z.amg_stale || c != z.amg_c || !z.hierarchy.built()) {
+      GF_RETURN_IF_ERROR(z.hierarchy.Build(z.shifted, options_.solver.amg, ctx));
+      z.amg_c = c;
+      z.amg_stale = false;
+      z.amg_iterations_at_build = -1;
+      ++z.amg_builds;
+    } else {
+      GF_RETURN_IF_ERROR(z.hierarchy.UpdateFinest(z.shifted));
+    }
+    Eigen::VectorXd half;
+    const LinearMap vcycles = [&](const Eigen::VectorXd& x, Eigen::VectorXd* y) {
+      z.hierarchy.Apply(x, &half);
+      z.hierarchy.Apply(half, y);
+    };
+    const absl::StatusOr<int> iterations = SolveBicgstab(apply, vcycles, rhs, s, tolerance, max_iterations);
+    GF_RETURN_IF_ERROR(ctx.Check());
+    if (iterations.ok()) {
+      // A solve that went on from Jacobi's iterate is no baseline for the hierarchy.
+      if (jacobi_iterations == 0 && z.amg_iterations_at_build < 0) {
+        z.amg_iterations_at_build = *iterations;
+      } else if (AmgHierarchyStale(*iterations, z.amg_iterations_at_build)) {
+        z.amg_stale = true;  // rebuild at the next step
+      }
+      solution_ = *s;
+      return jacobi_iterations + *iterations;
+    }
+    z.amg = false;
     z.cotan = true;
+    *s = solution_;
   }
   const double c = 0.5 * std::sqrt(adt / 2);  // see Schur
   if (z.refactor || c != z.c) GF_RETURN_IF_ERROR(z.Factorize(geometry, c));
@@ -279,9 +336,12 @@ absl::StatusOr<std::unique_ptr<FlowStepper>> FlowStepper::Create(const Mesh& mes
   SolverOptions so = options.solver;
   if (so.kind == SolverKind::kAuto) {  // see SolverOptions::kind
     so.kind = SolverKind::kBiCGSTAB;
-    so.preconditioner = options.kind == FlowKind::kMeanCurvature ? Preconditioner::kDiagonal : Preconditioner::kIlut;
-    if (options.kind == FlowKind::kSurfaceDiffusion && options.scheme != FlowScheme::kExplicit)
+    if (options.kind == FlowKind::kSurfaceDiffusion) so.preconditioner = Preconditioner::kIlut;
+    if (options.kind == FlowKind::kSurfaceDiffusion && options.scheme != FlowScheme::kExplicit) {
       s->schur_ = std::make_unique<Schur>();
+      s->schur_->amg = options.solver.preconditioner == Preconditioner::kAmg ||
+                       options.solver.preconditioner == Preconditioner::kIlut;
+    }
   }
   s->solver_ = SparseSolver(so);
   return s;

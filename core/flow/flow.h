@@ -8,7 +8,8 @@
 // Schemes: explicit Euler (5.2.6); semi-implicit (5.3.2)-(5.3.7) with motion along the
 // step-n normals, solved in the normal offsets s (x^{n+1} = x^n + s n^n): MCF
 // (I - dt K) s = dt M^n, SD [[I, dt B], [-K, I]] [s; mu] = [0; M^n] (by default reduced
-// to (I + dt B K) s = -dt B M^n, matrix-free BiCGSTAB with a cotan preconditioner); and linearly
+// to (I + dt B K) s = -dt B M^n, matrix-free BiCGSTAB preconditioned by AMG V-cycles on
+// (I - c B)^2, c = sqrt(dt / 2)); and linearly
 // implicit BDF2 (frames, first derivatives and normals from 2x^n - x^{n-1}, one
 // semi-implicit start step). K_ij = L_ij (n_j . m_i) with L the second-derivative stencil
 // of eq. (5.3.6) / (2 l^3), B the Laplace-Beltrami matrix (5.1.18).
@@ -99,8 +100,11 @@ class FlowStepper {
   int steps_taken() const { return steps_; }
   const SparseSolver& solver() const { return solver_; }
   /// Surface diffusion with the default solver: cotan preconditioner factorizations so
-  /// far (0 while Jacobi suffices; 1 for a run whose geometry changes slowly).
+  /// far (0 while AMG or Jacobi suffices; 1 for a run whose geometry changes slowly).
   int preconditioner_factorizations() const;
+  /// AMG hierarchies built so far (MCF's system or SD's reduced one; 1 for a run whose
+  /// geometry changes slowly).
+  int preconditioner_builds() const;
 
   ~FlowStepper();
 

@@ -11,6 +11,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "core/util/status_macros.h"
 
 namespace geomfit {
 
@@ -55,11 +56,23 @@ absl::Status ValidateSolverOptions(const SolverOptions& o) {
   if (!(o.ilut_drop >= 0) || o.ilut_fill < 1)
     return absl::InvalidArgumentError("solver.ilut_drop must be >= 0 and solver.ilut_fill >= 1");
   if (o.umfpack_refinement < 0) return absl::InvalidArgumentError("solver.umfpack_refinement must be >= 0");
+  if (o.jacobi_limit < 1) return absl::InvalidArgumentError("solver.jacobi_limit must be >= 1");
+  if (o.preconditioner == Preconditioner::kAmg || o.preconditioner == Preconditioner::kAuto) {
+    if (absl::Status s = ValidateAmgOptions(o.amg); !s.ok())
+      return absl::InvalidArgumentError(absl::StrCat("solver.", s.message()));
+  }
   return absl::OkStatus();
 }
 
 struct SparseSolver::Impl {
   ColMatrix A;
+  // Jacobi and AMG: our BiCGSTAB on the row-major matrix with a serial product.
+  SparseSolver::Matrix rows;
+  Eigen::VectorXd inverse_diagonal;
+  Amg amg;
+  bool use_amg = false;  // kAmg, or kAuto once Jacobi needed more than jacobi_limit
+  bool amg_stale = true;
+  int iterations_at_build = -1;
   std::vector<int> outer, inner;  // pattern of the last analysis
   Eigen::SparseLU<ColMatrix, Eigen::COLAMDOrdering<int>> lu;
   Eigen::BiCGSTAB<ColMatrix, Eigen::IncompleteLUT<double, int>> bicgstab_ilut;
@@ -68,6 +81,9 @@ struct SparseSolver::Impl {
   template <typename Fn>
   auto WithBicgstab(const SolverOptions& o, Fn&& fn) {
     return o.preconditioner == Preconditioner::kIlut ? fn(bicgstab_ilut) : fn(bicgstab_diag);
+  }
+  bool OwnBicgstab(const SolverOptions& o) const {
+    return o.kind == SolverKind::kBiCGSTAB && o.preconditioner != Preconditioner::kIlut;
   }
 #ifdef GEOMFIT_HAVE_SUITESPARSE
   Eigen::UmfPackLU<ColMatrix> umfpack;
@@ -91,6 +107,20 @@ SparseSolver& SparseSolver::operator=(SparseSolver&&) noexcept = default;
 absl::Status SparseSolver::Factorize(const Matrix& A) {
   if (A.rows() != A.cols()) return absl::InvalidArgumentError("the system matrix is not square");
   Impl& m = *impl_;
+  if (m.OwnBicgstab(options_)) {
+    const bool analyze = m.rows.rows() != A.rows() || m.rows.nonZeros() != A.nonZeros() ||
+                         std::memcmp(m.rows.outerIndexPtr(), A.outerIndexPtr(), (A.rows() + 1) * sizeof(int)) != 0 ||
+                         std::memcmp(m.rows.innerIndexPtr(), A.innerIndexPtr(), A.nonZeros() * sizeof(int)) != 0;
+    m.rows = A;
+    m.rows.makeCompressed();
+    if (analyze) ++analyses_;
+    m.inverse_diagonal = m.rows.diagonal();
+    for (Eigen::Index i = 0; i < m.inverse_diagonal.size(); ++i)
+      m.inverse_diagonal(i) = m.inverse_diagonal(i) != 0 ? 1 / m.inverse_diagonal(i) : 1;  // Eigen's rule
+    if (options_.preconditioner == Preconditioner::kAmg) m.use_amg = true;
+    if (m.use_amg) return RefreshAmg(analyze);
+    return absl::OkStatus();
+  }
   m.A = A;
   m.A.makeCompressed();
   const bool analyze = !m.SamePattern();
@@ -145,8 +175,59 @@ absl::Status SparseSolver::Factorize(const Matrix& A) {
   return absl::OkStatus();
 }
 
+absl::Status SparseSolver::RefreshAmg(bool rebuild) {
+  Impl& m = *impl_;
+  if (rebuild || m.amg_stale || !m.amg.built()) {
+    GF_RETURN_IF_ERROR(m.amg.Build(m.rows, options_.amg));
+    m.amg_stale = false;
+    m.iterations_at_build = -1;
+    ++builds_;
+    return absl::OkStatus();
+  }
+  return m.amg.UpdateFinest(m.rows);
+}
+
 absl::Status SparseSolver::Solve(const Eigen::VectorXd& b, Eigen::VectorXd* x) {
   Impl& m = *impl_;
+  if (m.OwnBicgstab(options_)) {
+    if (b.size() != m.rows.rows()) return absl::InvalidArgumentError("right-hand side size does not match the system");
+    const LinearMap product = [&](const Eigen::VectorXd& u, Eigen::VectorXd* v) { MultiplySerial(m.rows, u, v); };
+    const LinearMap jacobi = [&](const Eigen::VectorXd& u, Eigen::VectorXd* v) {
+      *v = m.inverse_diagonal.cwiseProduct(u);
+    };
+    iterations_ = 0;
+    if (!m.use_amg) {
+      const bool adaptive = options_.preconditioner == Preconditioner::kAuto;
+      const Eigen::VectorXd start = *x;
+      const absl::StatusOr<int> it =
+          SolveBicgstab(product, jacobi, b, x, options_.tolerance,
+                        adaptive ? std::min(options_.jacobi_limit, options_.max_iterations) : options_.max_iterations);
+      if (it.ok() || !adaptive) {
+        if (it.ok()) iterations_ = *it;
+        return it.status();
+      }
+      iterations_ = std::min(options_.jacobi_limit, options_.max_iterations);
+      if (!x->allFinite()) *x = start;
+      m.use_amg = true;  // Jacobi is too slow for these systems: AMG from now on
+      GF_RETURN_IF_ERROR(RefreshAmg(true));
+    }
+    const absl::StatusOr<int> it =
+        SolveBicgstab(product, [&](const Eigen::VectorXd& u, Eigen::VectorXd* v) { m.amg.Apply(u, v); }, b, x,
+                      options_.tolerance, options_.max_iterations);
+    if (!it.ok()) {
+      m.amg_stale = true;
+      return it.status();
+    }
+    // A solve that went on from Jacobi's iterate is no baseline for the hierarchy.
+    const bool baseline = iterations_ == 0;
+    iterations_ += *it;
+    if (baseline && m.iterations_at_build < 0) {
+      m.iterations_at_build = *it;
+    } else if (AmgHierarchyStale(*it, m.iterations_at_build)) {
+      m.amg_stale = true;
+    }
+    return absl::OkStatus();
+  }
   if (b.size() != m.A.rows()) return absl::InvalidArgumentError("right-hand side size does not match the system");
   iterations_ = 1;
   Eigen::ComputationInfo info = Eigen::Success;

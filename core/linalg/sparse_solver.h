@@ -11,6 +11,7 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "core/linalg/amg.h"
 
 namespace geomfit {
 
@@ -21,10 +22,23 @@ enum class SolverKind {
   kKlu,       ///< SuiteSparse KLU through Eigen's KLU (libsuitesparse-dev)
   kBiCGSTAB,  ///< BiCGSTAB, warm-started from the previous solution (see Preconditioner)
 };
-/// BiCGSTAB's preconditioner.
+/// BiCGSTAB's preconditioner. kDiagonal and kAmg run SolveBicgstab below (serial
+/// products); kIlut Eigen's BiCGSTAB.
 enum class Preconditioner {
   kDiagonal,  ///< Jacobi: cheapest; enough for (I - dt K) at moderate dt |K|
   kIlut,      ///< incomplete LU with thresholding (ilut_drop, ilut_fill)
+  /// One V-cycle of smoothed-aggregation AMG (amg.h, SolverOptions::amg): iterations
+  /// nearly independent of n where Jacobi's grow like 1/h. The hierarchy is built once
+  /// and kept across Factorize calls (only the finest operator is replaced) until a
+  /// solve takes more than 1.5 x + 2 the iterations of the first solve after the build.
+  kAmg,
+  /// Jacobi while a solve converges within SolverOptions::jacobi_limit iterations; from
+  /// the first solve that needs more, AMG for good (that solve goes on from Jacobi's
+  /// iterate). Jacobi's iterations are cheap (~1/5 of an AMG one) but grow like 1/h:
+  /// this keeps Jacobi where it is as fast (MCF at 10k / 100k vertices: 12 / 42
+  /// iterations; SD's reduced system at 10k: 59) and AMG where it wins (MCF at 1M: 143;
+  /// SD at 100k: 626) (bench/README.md, "Flows").
+  kAuto,
 };
 const char* SolverKindName(SolverKind kind);
 /// Parses "auto", "sparselu", "umfpack", "klu", "bicgstab".
@@ -33,12 +47,14 @@ absl::StatusOr<SolverKind> ParseSolverKind(const std::string& name);
 bool SolverAvailable(SolverKind kind);
 
 struct SolverOptions {
-  /// kAuto lets the caller choose. Flows take BiCGSTAB, warm-started: with Jacobi for
-  /// MCF; for surface diffusion, on the system reduced to the normal offsets,
-  /// (I + dt B K) s = -dt B M, matrix-free, with Jacobi, or once Jacobi does not
-  /// converge within max_iterations with the cotan square (I - c Lc)^2, c = sqrt(dt / 2) / 2, whose
-  /// factorization is reused while it works (FlowStepper::Schur in flow.cc). Any other
-  /// kind solves SD's 2n block system (ILUT for BiCGSTAB: Jacobi stalls there).
+  /// kAuto lets the caller choose. Flows take BiCGSTAB, warm-started, with `preconditioner`
+  /// (AMG by default; Jacobi with kDiagonal): for MCF on (I - dt K); for surface
+  /// diffusion on the system reduced to the normal offsets, (I + dt B K) s = -dt B M,
+  /// matrix-free, preconditioned by (I - c B)^2, c = sqrt(dt / 2) (AMG V-cycles), or
+  /// with kDiagonal by Jacobi; when those do not converge within max_iterations, by the
+  /// cotan square (I - c Lc)^2, c = sqrt(dt / 2) / 2, whose factorization is reused while
+  /// it works (FlowStepper::Schur in flow.cc). Any other kind solves SD's 2n block system
+  /// (ILUT for BiCGSTAB: Jacobi stalls there).
   /// GFD stencils of 25-40 points per row fill direct factorizations badly: MCF at 5768
   /// vertices solves in ~10 ms against ~1 s for SparseLU, UMFPACK or KLU; SD's block
   /// system at 10k vertices in ~0.7 s (ILUT) against 5 s for UMFPACK, the best direct
@@ -46,7 +62,10 @@ struct SolverOptions {
   SolverKind kind = SolverKind::kAuto;
   double tolerance = 1e-12;   ///< BiCGSTAB relative residual
   int max_iterations = 1000;  ///< BiCGSTAB
-  Preconditioner preconditioner = Preconditioner::kDiagonal;
+  Preconditioner preconditioner = Preconditioner::kAuto;
+  /// Preconditioner::kAuto: a Jacobi iteration costs ~1/5 of an AMG one, and AMG needs
+  /// ~10-12 on the flows' systems: Jacobi pays while it needs up to ~60.
+  int jacobi_limit = 60;
   double ilut_drop = 1e-3;    ///< ILUT drop tolerance
   int ilut_fill = 5;          ///< ILUT fill factor (5, 1e-3: 1.5x faster SD steps than 20, 1e-4)
   /// UMFPACK's iterative refinement steps per solve (its default 2); 0 for a
@@ -55,6 +74,7 @@ struct SolverOptions {
   /// UMFPACK's fill-reducing ordering: METIS nested dissection instead of its default
   /// (AMD / COLAMD); less fill on large surface meshes (bench/README.md, "Membranes").
   bool umfpack_metis = false;
+  AmgOptions amg;  ///< Preconditioner::kAmg
 };
 absl::Status ValidateSolverOptions(const SolverOptions& o);
 
@@ -82,13 +102,18 @@ class SparseSolver {
   int analyses() const { return analyses_; }
   /// Iterations of the last solve (1 for direct solvers).
   int iterations() const { return iterations_; }
+  /// AMG hierarchies built so far (Preconditioner::kAmg).
+  int preconditioner_builds() const { return builds_; }
 
  private:
   struct Impl;
+  /// Builds the AMG hierarchy of the current matrix, or refreshes its finest level.
+  absl::Status RefreshAmg(bool rebuild);
   SolverOptions options_;
   std::unique_ptr<Impl> impl_;
   int analyses_ = 0;
   int iterations_ = 0;
+  int builds_ = 0;
 };
 
 /// y = A x for an operator given only by its action (matrix-free); `*y` is resized.

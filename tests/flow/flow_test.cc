@@ -333,7 +333,7 @@ TEST(FlowStepper, CancelledStopsAtOnceAndKeepsTheLastGoodState) {
 }
 
 // Every solver gives the same semi-implicit step; for surface diffusion, the default
-// (the reduced system (I + dt B K) s = -dt B M, cotan-preconditioned BiCGSTAB) gives
+// (the reduced system (I + dt B K) s = -dt B M, AMG-preconditioned BiCGSTAB) gives
 // the same steps as the 2n block system, semi-implicit and BDF2.
 TEST(FlowStepper, SolversAgree) {
   const Mesh mesh = Sphere(6);
@@ -343,43 +343,102 @@ TEST(FlowStepper, SolversAgree) {
       for (SolverKind k : {SolverKind::kSparseLU, SolverKind::kUmfpack, SolverKind::kKlu, SolverKind::kBiCGSTAB,
                            SolverKind::kAuto}) {
         if (!SolverAvailable(k)) continue;
-        FlowOptions o = Options(kind, scheme, kind == FlowKind::kMeanCurvature ? 1e-3 : 1e-4, 3);
-        o.solver.kind = k;
-        o.solver.preconditioner = kind == FlowKind::kMeanCurvature ? Preconditioner::kDiagonal : Preconditioner::kIlut;
-        const FlowResult r = RunOk(mesh, o);
-        if (first.rows() == 0) first = r.mesh.positions;
-        const double moved = (r.mesh.positions - mesh.positions).cwiseAbs().maxCoeff();
-        EXPECT_GT(moved, 1e-5);
-        EXPECT_LT((r.mesh.positions - first).cwiseAbs().maxCoeff(), 1e-7 * moved)
-            << FlowKindName(kind) << " " << FlowSchemeName(scheme) << " " << SolverKindName(k);
+        for (Preconditioner p : {Preconditioner::kDiagonal, Preconditioner::kAmg, Preconditioner::kIlut,
+                                 Preconditioner::kAuto}) {
+          if (k != SolverKind::kBiCGSTAB && k != SolverKind::kAuto && p != Preconditioner::kAmg) continue;
+          // SD's block system needs ILUT; Jacobi and AMG apply to its reduced system (kAuto).
+          if (kind == FlowKind::kSurfaceDiffusion && k == SolverKind::kBiCGSTAB && p != Preconditioner::kIlut) continue;
+          FlowOptions o = Options(kind, scheme, kind == FlowKind::kMeanCurvature ? 1e-3 : 1e-4, 3);
+          o.solver.kind = k;
+          o.solver.preconditioner = p;
+          const FlowResult r = RunOk(mesh, o);
+          if (first.rows() == 0) first = r.mesh.positions;
+          const double moved = (r.mesh.positions - mesh.positions).cwiseAbs().maxCoeff();
+          EXPECT_GT(moved, 1e-5);
+          EXPECT_LT((r.mesh.positions - first).cwiseAbs().maxCoeff(), 1e-7 * moved)
+              << FlowKindName(kind) << " " << FlowSchemeName(scheme) << " " << SolverKindName(k) << " "
+              << static_cast<int>(p);
+        }
       }
     }
   }
-  // The reduced SD solve: Jacobi at moderate dt |B K| (no factorization); at large dt
-  // the cotan square (one factorization while the surface moves little). Both give the
-  // block system's steps.
+  // The reduced SD solve. AMG: a handful of iterations at any dt, one hierarchy for the
+  // run. Jacobi at moderate dt |B K|; at large dt the cotan square takes over (one
+  // factorization while the surface moves little). The default (kAuto): Jacobi while it
+  // needs <= 60 iterations (dt = 1e-4), else AMG from the first step on (dt = 1e4). All
+  // give the block system's steps.
   Mesh bumpy = Sphere(8);
   for (int i = 0; i < bumpy.NumVertices(); ++i)
     bumpy.positions.row(i) *= 1 + 1e-2 * Legendre(4, bumpy.positions(i, 2) / bumpy.positions.row(i).norm());
-  for (double dt : {1e-4, 1e4}) {
-    FlowOptions o = Options(FlowKind::kSurfaceDiffusion, FlowScheme::kSemiImplicit, dt, 0);
-    o.solver.max_iterations = 200;  // Jacobi needs ~300 at dt = 1e4: the cotan square takes over
-    auto stepper = FlowStepper::Create(bumpy, o).value();
-    FlowOptions direct = o;
-    direct.solver = SolverOptions();
-    direct.solver.kind = SolverKind::kSparseLU;
-    auto reference = FlowStepper::Create(bumpy, direct).value();
-    for (int i = 0; i < 3; ++i) {
-      const StepStats st = stepper->Step().value();
-      ASSERT_TRUE(reference->Step().ok());
-      const double moved = (reference->mesh().positions - bumpy.positions).cwiseAbs().maxCoeff();
-      std::printf("SD dt=%g step %d: %d iterations, %d cotan factorizations, moved %.2e, off the block solve %.1e\n",
-                  dt, st.step, st.solver_iterations, stepper->preconditioner_factorizations(), moved,
-                  (stepper->mesh().positions - reference->mesh().positions).cwiseAbs().maxCoeff());
-      EXPECT_LT((stepper->mesh().positions - reference->mesh().positions).cwiseAbs().maxCoeff(), 1e-7 * moved);
-      EXPECT_LE(st.solver_iterations, dt < 1 ? 40 : 200) << st.step;
+  for (Preconditioner p : {Preconditioner::kAmg, Preconditioner::kDiagonal, Preconditioner::kAuto}) {
+    const bool amg = p == Preconditioner::kAmg, adaptive = p == Preconditioner::kAuto;
+    for (double dt : {1e-4, 1e4}) {
+      FlowOptions o = Options(FlowKind::kSurfaceDiffusion, FlowScheme::kSemiImplicit, dt, 0);
+      o.solver.preconditioner = p;
+      o.solver.max_iterations = 200;  // Jacobi needs ~300 at dt = 1e4: the cotan square takes over
+      auto stepper = FlowStepper::Create(bumpy, o).value();
+      FlowOptions direct = o;
+      direct.solver = SolverOptions();
+      direct.solver.kind = SolverKind::kSparseLU;
+      auto reference = FlowStepper::Create(bumpy, direct).value();
+      for (int i = 0; i < 3; ++i) {
+        const StepStats st = stepper->Step().value();
+        ASSERT_TRUE(reference->Step().ok());
+        const double moved = (reference->mesh().positions - bumpy.positions).cwiseAbs().maxCoeff();
+        std::printf("SD %s dt=%g step %d: %d iterations, %d cotan factorizations, %d AMG builds, moved %.2e, "
+                    "off the block solve %.1e\n", amg ? "amg" : adaptive ? "auto" : "jacobi", dt, st.step, st.solver_iterations,
+                    stepper->preconditioner_factorizations(), stepper->preconditioner_builds(), moved,
+                    (stepper->mesh().positions - reference->mesh().positions).cwiseAbs().maxCoeff());
+        EXPECT_LT((stepper->mesh().positions - reference->mesh().positions).cwiseAbs().maxCoeff(), 1e-7 * moved);
+        const int bound = amg ? 12 : dt < 1 ? 40 : adaptive ? (i == 0 ? 60 + 12 : 12) : 200;
+        EXPECT_LE(st.solver_iterations, bound) << st.step;
+      }
+      EXPECT_EQ(stepper->preconditioner_factorizations(), amg || adaptive || dt < 1 ? 0 : 1);
+      EXPECT_EQ(stepper->preconditioner_builds(), amg || (adaptive && dt > 1) ? 1 : 0);
     }
-    EXPECT_EQ(stepper->preconditioner_factorizations(), dt < 1 ? 0 : 1);
+  }
+}
+
+}  // namespace
+}  // namespace geomfit
+
+namespace geomfit {
+namespace {
+
+// AMG on MCF's system I - dt K: BiCGSTAB iterations (from zero, to 1e-12) stay bounded
+// when the sphere is refined 4x (cubed spheres, whose valence-3 corners give the GFD
+// stencils near-zero diagonals, and Fibonacci hulls); Jacobi's grow like 1/h. dt |K| is
+// large here, as it is for dt = 1e-3 at 100k-1M vertices (dt / h^2 is what counts).
+TEST(FlowStepper, AmgIterationsBoundedUnderRefinement) {
+  for (bool cubed : {true, false}) {
+    for (double dt : {1e-1, 1.0}) {
+      std::vector<int> amg, jacobi;
+      for (int level = 0; level < 2; ++level) {
+        const Mesh mesh = cubed ? Sphere(level == 0 ? 20 : 40) : GenerateDelaunaySphereMesh(level == 0 ? 2500 : 10000);
+        auto stepper = FlowStepper::Create(mesh, Options(FlowKind::kMeanCurvature, FlowScheme::kSemiImplicit, dt, 0)).value();
+        const SparseMatrix K = stepper->CurvatureJacobian().value();
+        SparseMatrix A = -dt * K;
+        for (int i = 0; i < A.rows(); ++i) A.coeffRef(i, i) += 1;
+        Eigen::VectorXd b(A.rows());
+        for (int i = 0; i < A.rows(); ++i) b(i) = std::sin(3 * mesh.positions(i, 0)) + mesh.positions(i, 2);
+        for (Preconditioner p : {Preconditioner::kAmg, Preconditioner::kDiagonal}) {
+          SolverOptions o;
+          o.kind = SolverKind::kBiCGSTAB;
+          o.preconditioner = p;
+          o.max_iterations = 5000;
+          SparseSolver solver(o);
+          ASSERT_TRUE(solver.Factorize(A).ok());
+          Eigen::VectorXd x;
+          ASSERT_TRUE(solver.Solve(b, &x).ok());
+          EXPECT_LT((A * x - b).norm(), 1e-11 * b.norm());
+          (p == Preconditioner::kAmg ? amg : jacobi).push_back(solver.iterations());
+        }
+        std::printf("%s, %d vertices, dt %g: AMG %d iterations, Jacobi %d\n", cubed ? "cubed" : "Fibonacci",
+                    mesh.NumVertices(), dt, amg.back(), jacobi.back());
+      }
+      EXPECT_LE(amg[1], 1.5 * amg[0]) << cubed << " " << dt;
+      EXPECT_LT(4 * amg[1], jacobi[1]) << cubed << " " << dt;
+    }
   }
 }
 

@@ -3,6 +3,8 @@
 // are validated.
 #include <gtest/gtest.h>
 
+#include <cstdio>
+
 #include "core/linalg/sparse_solver.h"
 
 namespace geomfit {
@@ -32,10 +34,12 @@ TEST(SparseSolver, EveryKindSolvesAndDirectOnesAnalyseOnce) {
   const Eigen::VectorXd x_true = Eigen::VectorXd::LinSpaced(400, -1, 1);
   for (SolverKind k : {SolverKind::kAuto, SolverKind::kSparseLU, SolverKind::kUmfpack, SolverKind::kKlu,
                        SolverKind::kBiCGSTAB}) {
-    for (Preconditioner p : {Preconditioner::kDiagonal, Preconditioner::kIlut}) {
+    for (Preconditioner p : {Preconditioner::kDiagonal, Preconditioner::kIlut, Preconditioner::kAmg,
+                             Preconditioner::kAuto}) {
       SolverOptions o;
       o.kind = k;
       o.preconditioner = p;
+      o.amg.coarse_size = 40;  // several levels on 400 rows
       if (!SolverAvailable(k)) {
         EXPECT_EQ(ValidateSolverOptions(o).code(), absl::StatusCode::kInvalidArgument);
         continue;
@@ -71,6 +75,75 @@ TEST(SparseSolver, UmfpackWithMetisOrderingSolves) {
     EXPECT_LT((x - x_true).lpNorm<Eigen::Infinity>(), 1e-10);
   }
   EXPECT_EQ(s.analyses(), 1);
+}
+
+// Iterations of BiCGSTAB from zero to 1e-12 on System(m, c).
+int Iterations(const Matrix& A, Preconditioner p, Eigen::VectorXd* x) {
+  SolverOptions o;
+  o.kind = SolverKind::kBiCGSTAB;
+  o.preconditioner = p;
+  SparseSolver s(o);
+  EXPECT_TRUE(s.Factorize(A).ok());
+  x->resize(0);
+  const Eigen::VectorXd b = Eigen::VectorXd::LinSpaced(A.rows(), -1, 2).array().sin();
+  EXPECT_TRUE(s.Solve(b, x).ok());
+  return s.iterations();
+}
+
+// AMG: the same solution as a direct solver; iterations bounded as the grid is refined
+// (diffusion-dominated I - c K, c = 10 m^2 / 32^2: Jacobi's grow like 1/h).
+TEST(Amg, SolvesLikeADirectSolverWithBoundedIterations) {
+  std::vector<int> amg, jacobi;
+  for (int m : {32, 64, 128}) {
+    const Matrix A = System(m, 10.0 * m * m / (32 * 32));
+    Eigen::VectorXd x, xj;
+    amg.push_back(Iterations(A, Preconditioner::kAmg, &x));
+    jacobi.push_back(Iterations(A, Preconditioner::kDiagonal, &xj));
+    SolverOptions direct;
+    direct.kind = SolverKind::kSparseLU;
+    SparseSolver lu(direct);
+    ASSERT_TRUE(lu.Factorize(A).ok());
+    Eigen::VectorXd xd;
+    ASSERT_TRUE(lu.Solve(Eigen::VectorXd::LinSpaced(A.rows(), -1, 2).array().sin(), &xd).ok());
+    EXPECT_LT((x - xd).norm(), 1e-10 * xd.norm()) << m;
+    std::printf("m %d: AMG %d iterations, Jacobi %d\n", m, amg.back(), jacobi.back());
+  }
+  for (int l = 1; l < 3; ++l) {
+    EXPECT_LE(amg[l], 1.5 * amg[l - 1]) << l;
+    EXPECT_GE(jacobi[l], 1.6 * jacobi[l - 1]) << l;
+  }
+  EXPECT_LE(amg[2], 12);
+  Amg h;
+  ASSERT_TRUE(h.Build(System(128, 160)).ok());
+  EXPECT_GE(h.num_levels(), 3);
+  EXPECT_LE(h.rows(h.num_levels() - 1), AmgOptions().coarse_size);
+  EXPECT_LT(h.operator_complexity(), 1.6);
+  // Deterministic: the same hierarchy and the same V-cycle, bit for bit.
+  Amg again;
+  ASSERT_TRUE(again.Build(System(128, 160)).ok());
+  const Eigen::VectorXd b = Eigen::VectorXd::LinSpaced(128 * 128, 0, 1);
+  Eigen::VectorXd y1, y2;
+  h.Apply(b, &y1);
+  again.Apply(b, &y2);
+  EXPECT_EQ(y1, y2);
+}
+
+TEST(Amg, RejectsBadInput) {
+  Amg h;
+  Matrix rect(3, 4);
+  EXPECT_EQ(h.Build(rect).code(), absl::StatusCode::kInvalidArgument);
+  Matrix zero_row = System(4, 1);
+  zero_row.row(2) *= 0;
+  EXPECT_EQ(h.Build(zero_row).code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_EQ(h.UpdateFinest(System(4, 1)).code(), absl::StatusCode::kFailedPrecondition);
+  ASSERT_TRUE(h.Build(System(8, 1)).ok());
+  EXPECT_EQ(h.UpdateFinest(System(4, 1)).code(), absl::StatusCode::kInvalidArgument);
+  AmgOptions o;
+  o.strength = 1;
+  EXPECT_EQ(h.Build(System(8, 1), o).code(), absl::StatusCode::kInvalidArgument);
+  SolverOptions so;
+  so.amg.sweeps = 0;
+  EXPECT_EQ(ValidateSolverOptions(so).code(), absl::StatusCode::kInvalidArgument);
 }
 
 TEST(SparseSolver, ParsesNamesAndRejectsBadOptions) {
