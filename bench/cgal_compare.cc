@@ -86,11 +86,17 @@ int main(int argc, char** argv) {
         FitOptions o;
         o.degree = d;
         auto nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, mesh, RingSpecFor(o)));
+        FitOptions ours_o = o;  // experiment overrides (CGAL keeps the default stencils)
+        if (const char* e = std::getenv("GF_RINGS")) ours_o.rings = std::atof(e);
+        if (const char* e = std::getenv("GF_MPF")) ours_o.min_points_factor = std::atof(e);
+        if (const char* e = std::getenv("GF_EPS")) ours_o.weight_epsilon = std::atof(e);
+        if (const char* e = std::getenv("GF_ND")) ours_o.normal_degree = std::atoi(e);
+        auto ours_nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, mesh, RingSpecFor(ours_o)));
         Row r;
         r.surface = name, r.n = n, r.degree = d, r.nv = mesh.NumVertices();
         r.stencil = double(nb->indices.size()) / mesh.NumVertices();
         Stopwatch t;
-        auto fits = FitSurface(mesh, topo, o, nb).value();
+        auto fits = FitSurface(mesh, topo, ours_o, ours_nb).value();
         Differentials ours = ComputeDifferentials(*fits);
         r.ours_s = t.Seconds();
         r.downgraded = 0;
