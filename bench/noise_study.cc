@@ -96,6 +96,7 @@ int main(int argc, char** argv) {
             if (const char* e = std::getenv("NOISE_EPS")) on.weight_epsilon = std::atof(e);
             if (const char* e = std::getenv("NOISE_MPF")) on.min_points_factor = std::atof(e);
             if (const char* e = std::getenv("NOISE_RINGS")) on.rings = std::atof(e);
+            if (const char* e = std::getenv("NOISE_ND")) on.normal_degree = std::atoi(e);
             series[1 + i].errors.push_back(MeasureErrors(clean, *surface, ComputeDifferentials(*FitSurface(mesh, topo, on).value())));
           }
           FitOptions on = o;
