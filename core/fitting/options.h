@@ -77,13 +77,13 @@ struct FitOptions {
   /// final fit is solved in the frame of that normal and keeps it (c10 = c01 = 0), so a
   /// degree-2 fit reports O(h^3) normals while its Hessian stays the degree-2 fit's
   /// (normal refinement, §3.2). 0 = automatic: 3 for interpolating (clean-input) degree-2
-  /// LHF fits with the QR solver, else off;
+  /// LHF fits, else off;
   /// a value equal to `degree` turns it off.
   int normal_degree = 0;
 
   /// The normal pre-fit's degree actually used; equal to `degree` when there is none.
   int NormalDegree() const {
-    if (method != FitMethod::kLHF || solver != WlsSolver::kQR) return degree;  // comparison methods as the text's
+    if (method != FitMethod::kLHF) return degree;
     if (normal_degree > 0) return normal_degree;
     return degree == 2 && Interpolates() ? 3 : degree;
   }
