@@ -5,6 +5,11 @@
 //
 // Usage: cgal_compare [dmin=2] [dmax=4] [surfaces=torus,bump] [n list=16,32,64]
 //
+// A surface may also name external meshes: `torus@/dir/gmsh_L%d.obj` reads one mesh per
+// entry of the n list (printf pattern), errors against the named exact surface at each
+// vertex; `torus@/dir/mc%d_raw.obj@/dir/mc%d_proj.obj` fits the first (noisy) meshes and
+// measures at the second's vertices (the same numbering, positions on the surface).
+//
 // CGAL's results are converted to the project's conventions in bench/cgal_jet.h.
 #include <algorithm>
 #include <cstdio>
@@ -19,6 +24,7 @@
 #include "bench/cgal_jet.h"
 #include "core/fitting/fit.h"
 #include "core/fitting/neighborhood.h"
+#include "core/mesh/io.h"
 #include "core/mesh/topology.h"
 #include "core/quantities/differentials.h"
 #include "core/surfaces/analytic.h"
@@ -73,7 +79,17 @@ int main(int argc, char** argv) {
               omp_get_max_threads());
   std::vector<Row> rows;
   for (const std::string& name : surfaces) {
-    auto surface = NamedSurface(name).value();
+    std::vector<std::string> parts;  // surface[@fit pattern[@measure pattern]]
+    {
+      std::stringstream ss(name);
+      for (std::string s; std::getline(ss, s, '@');) parts.push_back(s);
+    }
+    auto surface = NamedSurface(parts[0]).value();
+    auto load = [&](const std::string& pattern, int n) {
+      char path[1024];
+      std::snprintf(path, sizeof path, pattern.c_str(), n);
+      return ReadMesh(path).value();
+    };
     for (int d = dmin; d <= dmax; ++d) {
       std::printf("%s, degree %d\n    n     #V   stencil  h         downgr  CGAL<ncoef\n", name.c_str(), d);
       std::printf("  %-7s %9s %9s %9s %9s %9s %9s %8s\n", "", "nrmL2", "nrmLinf", "HL2", "HLinf", "KL2",
@@ -81,16 +97,24 @@ int main(int argc, char** argv) {
       for (int n : ns) {
         GeneratorOptions g;
         g.n = n;
-        Mesh mesh = GenerateNamedMesh(name, g).value();
+        Mesh mesh = parts.size() > 1 ? load(parts[1], n) : GenerateNamedMesh(name, g).value();
+        const Mesh at = parts.size() > 2 ? load(parts[2], n) : mesh;  // where errors are measured
         Topology topo = BuildTopology(mesh).value();
         FitOptions o;
         o.degree = d;
+        if (std::getenv("GF_NOISE")) o.noise = NoiseMode::kOn;  // both: the noise mode's stencils
         auto nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, mesh, RingSpecFor(o)));
+        FitOptions ours_o = o;  // experiment overrides (CGAL keeps the default stencils)
+        if (const char* e = std::getenv("GF_RINGS")) ours_o.rings = std::atof(e);
+        if (const char* e = std::getenv("GF_MPF")) ours_o.min_points_factor = std::atof(e);
+        if (const char* e = std::getenv("GF_EPS")) ours_o.weight_epsilon = std::atof(e);
+        if (const char* e = std::getenv("GF_ND")) ours_o.normal_degree = std::atoi(e);
+        auto ours_nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, mesh, RingSpecFor(ours_o)));
         Row r;
         r.surface = name, r.n = n, r.degree = d, r.nv = mesh.NumVertices();
         r.stencil = double(nb->indices.size()) / mesh.NumVertices();
         Stopwatch t;
-        auto fits = FitSurface(mesh, topo, o, nb).value();
+        auto fits = FitSurface(mesh, topo, ours_o, ours_nb).value();
         Differentials ours = ComputeDifferentials(*fits);
         r.ours_s = t.Seconds();
         r.downgraded = 0;
@@ -98,8 +122,8 @@ int main(int argc, char** argv) {
         Stopwatch tc;
         Differentials cgal = CgalDifferentials(mesh, *nb, d, ours.normals, &r.cgal_too_few);
         r.cgal_s = tc.Seconds();
-        r.ours = MeasureErrors(mesh, *surface, ours);
-        r.cgal = MeasureErrors(mesh, *surface, cgal);
+        r.ours = MeasureErrors(at, *surface, ours);
+        r.cgal = MeasureErrors(at, *surface, cgal);
         r.h = r.ours.h;
         std::printf("  %4d %7d %6.1f  %.3e  %6d  %6d\n", n, r.nv, r.stencil, r.h, r.downgraded, r.cgal_too_few);
         PrintErr("geomfit", r.ours, r.ours_s);
@@ -112,8 +136,8 @@ int main(int argc, char** argv) {
         for (int v = 0; v < mesh.NumVertices(); ++v) interior[v] = !topo.is_boundary[v];
         std::printf("  interior vertices only (%d boundary vertices excluded):\n",
                     mesh.NumVertices() - static_cast<int>(std::count(interior.begin(), interior.end(), 1)));
-        PrintErr("geomfit", MeasureErrors(mesh, *surface, ours, interior), -1);
-        PrintErr("CGAL", MeasureErrors(mesh, *surface, cgal, interior), -1);
+        PrintErr("geomfit", MeasureErrors(at, *surface, ours, interior), -1);
+        PrintErr("CGAL", MeasureErrors(at, *surface, cgal, interior), -1);
         rows.push_back(r);
       }
       // Observed orders over the three meshes (least-squares slope of log err vs log h).

@@ -7,6 +7,8 @@
 //
 // Usage: noise_study [surfaces=torus,bump] [powers=2,3] [degrees=2,3,4] [n list=16,32,64]
 //                    [alpha=0.1] [smoothing passes list=-1]
+// Overrides of the noise mode's fit (experiments): NOISE_EPS (weight eps), NOISE_MPF
+// (min points factor), NOISE_RINGS, NOISE_ND (normal_degree: a normal pre-fit after smoothing).
 #include <cstdio>
 #include <cstdlib>
 #include <memory>
@@ -96,6 +98,7 @@ int main(int argc, char** argv) {
             if (const char* e = std::getenv("NOISE_EPS")) on.weight_epsilon = std::atof(e);
             if (const char* e = std::getenv("NOISE_MPF")) on.min_points_factor = std::atof(e);
             if (const char* e = std::getenv("NOISE_RINGS")) on.rings = std::atof(e);
+            if (const char* e = std::getenv("NOISE_ND")) on.normal_degree = std::atoi(e);
             series[1 + i].errors.push_back(MeasureErrors(clean, *surface, ComputeDifferentials(*FitSurface(mesh, topo, on).value())));
           }
           FitOptions on = o;

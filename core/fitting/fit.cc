@@ -28,6 +28,7 @@ struct FitInput {
   // as mesh.positions and normals, so the same results).
   const double* xyzn;
   const int32_t* rank;  // slot of each vertex; null: the vertex's own index
+  const uint8_t* fixed_tangent;  // per vertex: keep the frame's tangent plane (or null)
   int Slot(int p) const { return rank ? rank[p] : p; }
 };
 
@@ -111,6 +112,8 @@ void FinishVertex(int v, const FitInput& in, const FitOutput& out, const WlsProb
   diag.condition = static_cast<float>(sol.condition);
   if (sol.condition_downgraded || sol.degree_used < 1) diag.flags |= kFlagDowngraded;
   if (sol.oscillation_downgraded) diag.flags |= kFlagOscillation;
+  if (in.fixed_tangent && in.fixed_tangent[v] && sol.degree_used >= 1)  // normal refinement
+    out.coefficients[TaylorIndex(1, 0)] = out.coefficients[TaylorIndex(0, 1)] = 0;
 
   if (out.stencil) {  // operator rows over the stencil points (centre first)
     const int n_pts = in.nb.Size(v), first = in.o.interpolate ? 1 : 0;
@@ -243,16 +246,21 @@ class SurfaceFitter {
     Mesh smoothed;  // positions after the smoothing passes (faces unused)
     const Mesh* input = &mesh;
     auto fits = std::make_shared<SurfaceFits>();
+    // Frames and safeguard weights from fitted normals; `adopted` marks the vertices set.
+    auto adopt_normals = [&](const SurfaceFits& from, std::vector<uint8_t>* adopted) {
+      ParallelFor(mesh.NumVertices(), ctx.threads(), [&](int64_t v) {
+        if (from.diagnostics_[v].degree_used < 1) return;
+        const SurfaceJet jet = from.Jet(static_cast<int>(v));
+        Eigen::Vector3d n = jet.J.col(0).cross(jet.J.col(1));
+        if (n.dot(normals.row(v)) < 0) n = -n;
+        if (n.norm() == 0) return;
+        normals.row(v) = n.normalized();
+        if (adopted) (*adopted)[v] = 1;
+      });
+    };
+    std::vector<uint8_t> fixed_tangent;  // normal refinement (FitOptions::normal_degree)
     for (int pass = 0; pass < passes; ++pass) {
-      if (pass > 0) {  // frames and safeguard weights from the previous pass's fitted normals
-        ParallelFor(mesh.NumVertices(), ctx.threads(), [&](int64_t v) {
-          if (fits->diagnostics_[v].degree_used < 1) return;
-          const SurfaceJet jet = fits->Jet(static_cast<int>(v));
-          Eigen::Vector3d n = jet.J.col(0).cross(jet.J.col(1));
-          if (n.dot(normals.row(v)) < 0) n = -n;
-          if (n.norm() > 0) normals.row(v) = n.normalized();
-        });
-      }
+      if (pass > 0) adopt_normals(*fits, nullptr);
       if (pass > 0 && pass <= smoothing) {
         smoothed.positions = ProjectOntoFits(*fits, input->positions, ctx.threads());
         smoothed.faces = mesh.faces;
@@ -260,9 +268,20 @@ class SurfaceFitter {
       }
       FitOptions pass_options = eff;
       if (pass < smoothing) pass_options.interpolate = false;  // smoothing fits approximate
-      fits = std::make_shared<SurfaceFits>();
       const bool last = pass == passes - 1;
-      if (absl::Status s = FitAll(*input, topo, pass_options, nb, normals, req, ctx, last ? &on_fitted : nullptr, *fits); !s.ok()) return s;
+      if (last && eff.NormalDegree() > eff.degree) {  // the final frames from a higher-degree fit
+        FitOptions pre = eff;
+        pre.degree = pre.normal_degree = eff.NormalDegree();
+        pre.rings = pre.min_points_factor = 0;
+        const auto pre_nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, *input, RingSpecFor(pre), ctx.threads()));
+        SurfaceFits pre_fits;
+        if (absl::Status s = FitAll(*input, topo, pre, pre_nb, normals, FitRequest{}, ctx, nullptr, nullptr, pre_fits); !s.ok()) return s;
+        fixed_tangent.assign(mesh.NumVertices(), 0);
+        adopt_normals(pre_fits, &fixed_tangent);
+      }
+      fits = std::make_shared<SurfaceFits>();
+      if (absl::Status s = FitAll(*input, topo, pass_options, nb, normals, req, ctx, last ? &on_fitted : nullptr,
+                                  fixed_tangent.empty() ? nullptr : fixed_tangent.data(), *fits); !s.ok()) return s;
     }
     return std::shared_ptr<const SurfaceFits>(std::move(fits));
   }
@@ -271,7 +290,7 @@ class SurfaceFitter {
   static absl::Status FitAll(const Mesh& mesh, const Topology& topo, const FitOptions& o,
                              const std::shared_ptr<const Neighborhoods>& nb, const Positions& normals,
                              const FitRequest& req, const RunContext& ctx, const FittedBlockFn* on_fitted,
-                             SurfaceFits& f) {
+                             const uint8_t* fixed_tangent, SurfaceFits& f) {
     const int nv = mesh.NumVertices();
     f.options_ = o;
     f.neighborhoods_ = nb;
@@ -300,7 +319,7 @@ class SurfaceFitter {
       for (int c = 0; c < 3; ++c) dst[c] = mesh.positions(v, c), dst[3 + c] = normals(v, c);
     }, 4096);
     const FitInput in{mesh, *nb, normals, o, std::cos(o.safeguard_angle_deg * M_PI / 180.0), topo,
-                      xyzn.data(), local_order ? rank.data() : nullptr};
+                      xyzn.data(), local_order ? rank.data() : nullptr, fixed_tangent};
     const WlsSettings settings = SettingsFor(o, f.stencil_rows_);
     constexpr int64_t kGrain = 512;
     return ParallelFor((nv + kGrain - 1) / kGrain, ctx, [&](int64_t chunk) {

@@ -51,6 +51,9 @@ absl::Status ValidateFitOptions(const FitOptions& o) {
       return bad("fit option cond_threshold[", d, "] = ", o.cond_threshold[d], " must be >= 1");
   if (o.smoothing_passes < -1 || o.smoothing_passes > 5)
     return bad("fit option smoothing_passes = ", o.smoothing_passes, " must be -1 (automatic) or in [0, 5]");
+  if (o.normal_degree != 0 && (o.normal_degree < o.degree || o.normal_degree > kMaxDegree))
+    return bad("fit option normal_degree = ", o.normal_degree, " must be 0 (off) or in [degree, ",
+               kMaxDegree, "]");
   return absl::OkStatus();
 }
 
@@ -81,6 +84,7 @@ FitOptionsBits FitOptionsIdentity(const FitOptions& o) {
   b[14 + kMaxDegree] = static_cast<uint64_t>(o.noise);
   b[15 + kMaxDegree] = static_cast<uint64_t>(o.SmoothingPasses());
   b[16 + kMaxDegree] = static_cast<uint64_t>(o.solver);
+  b[17 + kMaxDegree] = static_cast<uint64_t>(o.NormalDegree());
   return b;
 }
 
@@ -91,7 +95,8 @@ std::string FitOptionsKey(const FitOptions& o) {
       FitMethodName(o.method), o.safeguard_angle_deg, o.Interpolates(), o.two_pass,
       static_cast<int>(o.frame_normals), o.weight_epsilon, o.oscillation_safeguard);
   for (int d = 1; d <= kMaxDegree; ++d) absl::StrAppendFormat(&key, " c%g", o.cond_threshold[d]);
-  absl::StrAppendFormat(&key, " n%s sp%d %s", NoiseModeName(o.noise), o.SmoothingPasses(), WlsSolverName(o.solver));
+  absl::StrAppendFormat(&key, " n%s sp%d %s nd%d", NoiseModeName(o.noise), o.SmoothingPasses(),
+                        WlsSolverName(o.solver), o.NormalDegree());
   return key;
 }
 

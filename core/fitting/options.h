@@ -73,6 +73,19 @@ struct FitOptions {
   /// its own approximating fit, then all are refitted); -1 = automatic: 0, or 2 with noise.
   int smoothing_passes = -1;
   WlsSolver solver = WlsSolver::kQR;
+  /// Degree of a first LHF fit whose normals fix the final fit's tangent planes: the
+  /// final fit is solved in the frame of that normal and keeps it (c10 = c01 = 0), so a
+  /// degree-2 fit reports O(h^3) normals while its Hessian stays the degree-2 fit's
+  /// (normal refinement, §3.2). 0 (default) or a value <= `degree`: off. Opt-in because
+  /// it costs ~3.5x a plain degree-2 fit (a second neighbourhood build and a degree-3
+  /// fit); normals 0.03-0.43x CGAL's at degree 2 with it (bench/README.md).
+  int normal_degree = 0;
+
+  /// The normal pre-fit's degree actually used; equal to `degree` when there is none.
+  int NormalDegree() const {
+    if (method != FitMethod::kLHF || solver != WlsSolver::kQR) return degree;
+    return normal_degree > degree ? normal_degree : degree;
+  }
 
   /// The ring size actually used as the starting ring: (d+1)/2 for clean input, d/2+1
   /// with noise (2.1).
@@ -102,7 +115,7 @@ std::string FitOptionsKey(const FitOptions& options);
 /// as exact bit patterns: two option sets give identical fits iff their bits are equal.
 /// Cache keys are built from these, never from formatted text (`%g` aliases 1.5 and
 /// 1.5000001).
-using FitOptionsBits = std::array<uint64_t, 17 + kMaxDegree>;
+using FitOptionsBits = std::array<uint64_t, 18 + kMaxDegree>;
 FitOptionsBits FitOptionsIdentity(const FitOptions& options);
 
 const char* FitMethodName(FitMethod m);

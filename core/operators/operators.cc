@@ -77,7 +77,9 @@ absl::StatusOr<std::shared_ptr<const SurfaceFits>> FitForOperators(
   FitRequest req;
   req.stencils = true;
   req.stencil_order = 2;
-  return FitSurface(mesh, topo, options, std::move(neighborhoods), req, ctx);
+  FitOptions o = options;  // the operators' function stencils share the fits' own tangent planes
+  o.normal_degree = 0;  // no normal refinement: it would break the operators' orders
+  return FitSurface(mesh, topo, o, std::move(neighborhoods), req, ctx);
 }
 
 OperatorAssembler::OperatorAssembler(std::shared_ptr<const Neighborhoods> nb) : nb_(std::move(nb)) {
