@@ -11,6 +11,11 @@
 //
 // Counters: MB/s of file text (parse and read), verts. See bench/README.md.
 //
+// `--mesh=FILE` adds two variants to BM_Topology and BM_Neighborhoods: shuffled:2, read
+// from FILE (e.g. the gmsh torus of bench/external_meshes.py), and shuffled:3, the same
+// mesh renumbered in its Topology::locality_order. `--stats` prints each
+// variant's mean stencil size and ring per degree instead of timing.
+//
 // `cold_path_bench --dump=FILE` writes every output (topologies, neighbourhoods at
 // degrees 1-6, parsed meshes; then, for 20,000 mutations of each reader fuzz seed file
 // read as every format, the reader's status or mesh and BuildTopology's status) to
@@ -35,6 +40,7 @@
 #include "core/surfaces/analytic.h"
 #include "tests/mesh/make_mesh.h"
 #include "tests/mesh/reader_fuzz.h"
+
 
 namespace {
 
@@ -65,8 +71,11 @@ struct Variant {
   std::string obj_path;
 };
 
+std::string g_mesh_path;  // --mesh
+
 struct Fixture {
-  Variant v[2];
+  Variant v[5];
+  int count = 2;
   Fixture() {
     GeneratorOptions g;
     g.n = kTorusN;
@@ -81,9 +90,28 @@ struct Fixture {
       x.obj_path = absl::StrFormat("/tmp/geomfit_cold_path_bench_%d_%d.obj", getpid(), s);
       if (!WriteMesh(x.mesh, x.obj_path).ok()) std::abort();
     }
+    if (!g_mesh_path.empty()) {
+      Variant& x = v[count++];
+      x.mesh = ReadMesh(g_mesh_path).value();
+      x.topo = BuildTopology(x.mesh).value();
+      // shuffled:3, the same mesh renumbered in its locality order.
+      Renumber(x, v[count++]);
+      Renumber(v[0], v[count++]);
+    }
+  }
+  static void Renumber(const Variant& x, Variant& y) {
+      const int nv = x.mesh.NumVertices();
+      std::vector<int32_t> position(nv);
+      for (int i = 0; i < nv; ++i) position[x.topo.locality_order[i]] = i;
+      y.mesh.positions.resize(nv, 3);
+      for (int u = 0; u < nv; ++u) y.mesh.positions.row(position[u]) = x.mesh.positions.row(u);
+      y.mesh.faces = x.mesh.faces;
+      for (int f = 0; f < x.mesh.NumFaces(); ++f)
+        for (int c = 0; c < x.mesh.FaceSize(f); ++c) y.mesh.faces.Mutable()(f, c) = position[x.mesh.faces(f, c)];
+      y.topo = BuildTopology(y.mesh).value();
   }
   ~Fixture() {
-    for (const Variant& x : v) std::remove(x.obj_path.c_str());
+    for (int s = 0; s < 2; ++s) std::remove(v[s].obj_path.c_str());
   }
 };
 
@@ -167,7 +195,8 @@ void PutMesh(FILE* out, const Mesh& m) {
 void Dump(const char* path) {
   FILE* out = std::fopen(path, "wb");
   if (!out) std::abort();
-  for (const Variant& x : F().v) {
+  for (int s = 0; s < F().count; ++s) {
+    const Variant& x = F().v[s];
     const Topology& t = x.topo;
     Put(out, t.vf_offsets), Put(out, t.vf_faces), Put(out, t.vv_offsets), Put(out, t.vv);
     Put(out, t.is_boundary), Put(out, t.is_isolated);
@@ -180,6 +209,7 @@ void Dump(const char* path) {
         Put(out, nb.offsets), Put(out, nb.indices), Put(out, nb.rings);
       }
     }
+    if (s >= 2) continue;  // --mesh: no texts
     const MeshFormat format[] = {MeshFormat::kObj, MeshFormat::kOff, MeshFormat::kPly};
     for (int fmt = 0; fmt < 3; ++fmt) PutMesh(out, ParseMesh(x.text[fmt], format[fmt]).value());
     PutMesh(out, ReadMesh(x.obj_path).value());
@@ -204,11 +234,56 @@ void Dump(const char* path) {
   std::fclose(out);
 }
 
+// Mean stencil size and ring per variant and degree (what BM_Neighborhoods grows).
+void Stats() {
+  for (int s = 0; s < F().count; ++s) {
+    const Variant& x = F().v[s];
+    const Topology& t = x.topo;
+    std::vector<int32_t> position(t.num_vertices);
+    for (int i = 0; i < t.num_vertices; ++i) position[t.locality_order[i]] = i;
+    double gap = 0, gap_order = 0;
+    for (int v = 0; v < t.num_vertices; ++v)
+      for (int j = 0; j < t.NumNeighbors(v); ++j) {
+        gap += std::abs(v - t.Neighbors(v)[j]);
+        gap_order += std::abs(position[v] - position[t.Neighbors(v)[j]]);
+      }
+    std::printf("variant %d: mean index gap over edges %.1f (in locality order %.1f)\n", s,
+                gap / t.vv.size(), gap_order / t.vv.size());
+    for (int d = 1; d <= kMaxDegree; ++d) {
+      FitOptions o;
+      o.degree = d;
+      const Neighborhoods nb = BuildNeighborhoods(x.topo, x.mesh, RingSpecFor(o), 1);
+      double rings = 0;
+      for (float r : nb.rings) rings += r;
+      const int nv = x.mesh.NumVertices();
+      std::printf("variant %d (%d vertices) degree %d: mean points %.3f, mean ring %.3f\n", s, nv, d,
+                  static_cast<double>(nb.indices.size()) / nv, rings / nv);
+    }
+  }
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
   for (int i = 1; i < argc; ++i)
-    if (std::strncmp(argv[i], "--dump=", 7) == 0) {
+    if (std::strncmp(argv[i], "--mesh=", 7) == 0) g_mesh_path = argv[i] + 7;
+  if (!g_mesh_path.empty()) {
+    benchmark::RegisterBenchmark("BM_Topology", BM_Topology)
+        ->ArgName("shuffled")
+        ->DenseRange(2, 3)
+        ->Unit(benchmark::kMillisecond)
+        ->UseRealTime();
+    benchmark::RegisterBenchmark("BM_Neighborhoods", BM_Neighborhoods)
+        ->ArgNames({"shuffled", "deg", "threads"})
+        ->ArgsProduct({{2, 3, 4}, {2, 4}, {1, 2}})
+        ->Unit(benchmark::kMillisecond)
+        ->UseRealTime();
+  }
+  for (int i = 1; i < argc; ++i)
+    if (std::strcmp(argv[i], "--stats") == 0) {
+      Stats();
+      return 0;
+    } else if (std::strncmp(argv[i], "--dump=", 7) == 0) {
       Dump(argv[i] + 7);
       return 0;
     } else if (std::strncmp(argv[i], "--write=", 8) == 0) {
@@ -217,6 +292,11 @@ int main(int argc, char** argv) {
                       WriteMesh(F().v[1].mesh, dir + "/torus_shuffled.obj").ok();
       return ok ? 0 : 1;
     }
+  // Drop --mesh before Google Benchmark parses the rest.
+  int kept = 1;
+  for (int i = 1; i < argc; ++i)
+    if (std::strncmp(argv[i], "--mesh=", 7) != 0) argv[kept++] = argv[i];
+  argc = kept;
   benchmark::Initialize(&argc, argv);
   if (benchmark::ReportUnrecognizedArguments(argc, argv)) return 1;
   const Fixture& f = F();  // build meshes and files before any timing

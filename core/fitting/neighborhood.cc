@@ -64,10 +64,13 @@ std::vector<int32_t> GrowthOrder(const Topology& t) {
 }
 
 // Each vertex's adjacency gathered in one span, built once per call: its edge
-// neighbours (topo.Neighbors order), then the corner rows (4 slots, -1 for triangles)
-// of its faces (topo.VertexFaces order). A stencil point's ring step then reads one
-// span instead of a face row per incident face, which on a mesh in external (random)
-// vertex order was a cache miss each.
+// neighbours (topo.Neighbors order), then one 4-int record per incident face
+// (topo.VertexFaces order): the face's other corners in the face's row order (the
+// vertex itself left out), -1 padding a triangle's, then which of the three is opposite
+// the vertex in a quad (-1 for a triangle). A stencil point's ring step then reads one
+// span instead of a face row per incident face (on an external numbering a cache miss
+// each) and needs no search for the vertex in the row (a branch the predictor misses on
+// an irregular mesh, whose rows start at any corner).
 class Spans {
  public:
   /// Spans laid out in `order` (a permutation of the vertices).
@@ -89,8 +92,15 @@ class Spans {
         *out++ = nn;
         *out++ = nf;
         out = std::copy(t.Neighbors(v), t.Neighbors(v) + nn, out);
-        for (int j = 0; j < nf; ++j)
-          out = std::copy_n(m.faces.data() + 4 * static_cast<int64_t>(t.VertexFaces(v)[j]), 4, out);
+        for (int j = 0; j < nf; ++j, out += 4) {
+          const int32_t* row = m.faces.data() + 4 * static_cast<int64_t>(t.VertexFaces(v)[j]);
+          const int n = row[3] < 0 ? 3 : 4;
+          int c = 0;
+          while (row[c] != v) ++c;
+          for (int q = 0, k = 0; q < 4; ++q)
+            if (q != c) out[k++] = row[q];  // row[3] = -1 lands in out[2] for a triangle
+          out[3] = n == 4 ? (c + 2) % 4 - ((c + 2) % 4 > c) : -1;
+        }
       }
     });
   }
@@ -187,16 +197,18 @@ class RingGrower {
       // 0 -> 0.5: no edge has both ends in the 0-ring; nothing to add.
     } else if (half_steps_ % 2 == 0) {
       // k -> k + 0.5: faces on an edge (a, b) with a in layer k and b in the k-ring.
+      // Adding a face's corners in row order, a (already in) left out.
       for (size_t i = layer_begin_; i < layer_end_; ++i) {
-        const int32_t a = out[i];
-        const int32_t* span = spans_.Of(a);
+        const int32_t* span = spans_.Of(out[i]);
         const int32_t* face = span + 2 + span[0];
         for (int j = 0; j < span[1]; ++j, face += 4) {
-          const int n = face[3] < 0 ? 3 : 4;
-          int c = 0;
-          while (face[c] != a) ++c;
-          if (!In(face[c + 1 < n ? c + 1 : 0], k2) && !In(face[c > 0 ? c - 1 : n - 1], k2)) continue;
-          for (int q = 0; q < n; ++q) Add(face[q], k2 + 1);
+          const int opposite = face[3];
+          if (!(In(face[0], k2) && opposite != 0) && !(In(face[1], k2) && opposite != 1) &&
+              !(opposite >= 0 && opposite != 2 && In(face[2], k2)))
+            continue;
+          Add(face[0], k2 + 1);
+          Add(face[1], k2 + 1);
+          if (face[2] >= 0) Add(face[2], k2 + 1);
         }
       }
     } else {

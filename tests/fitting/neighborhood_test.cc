@@ -1,7 +1,11 @@
 // k-rings and half rings (2.1, Table 2.1, Fig 2.2) and adaptive growth.
 #include <algorithm>
+#include <array>
+#include <cmath>
 #include <cstdlib>
+#include <map>
 #include <set>
+#include <vector>
 
 #include <gtest/gtest.h>
 
@@ -161,6 +165,107 @@ TEST(NeighborhoodTest, ShuffledNumberingGivesTheRelabelledStencils) {
       mismatches += got != want;
     }
     EXPECT_EQ(mismatches, 0) << "degree " << degree;
+  }
+}
+
+// The ring rule (2.1) stated plainly on the mesh's face rows, as a reference for the
+// stencil order: the k -> k + 0.5 step adds, for each layer-k point a in stencil order
+// and each face of a (topo.VertexFaces order), the face's corners in row order when
+// the corner after or before a in the row is in the k-ring; the k + 0.5 -> k + 1 step
+// adds the edge neighbours of layer k. Growth stops as BuildNeighborhoods documents.
+std::vector<int32_t> PlainStencil(const Topology& t, const Mesh& m, int v, const RingSpec& spec,
+                                  float* ring) {
+  std::vector<int32_t> out{v};
+  std::map<int32_t, int> level{{v, 0}};
+  const auto add = [&](int32_t x, int l) {
+    if (level.emplace(x, l).second) out.push_back(x);
+  };
+  const auto in = [&](int32_t x, int l) { return level.count(x) && level[x] <= l; };
+  size_t layer_begin = 0, layer_end = 1;
+  int steps = 0;
+  const int start = static_cast<int>(std::lround(2 * spec.rings));
+  const int max_steps = std::max(start, static_cast<int>(std::lround(2 * spec.max_rings)));
+  const size_t want = t.is_boundary[v] ? spec.min_points_boundary : spec.min_points;
+  while (steps < max_steps) {
+    const bool required = steps < start;
+    if (!required && (!spec.adaptive || out.size() >= want)) break;
+    const size_t before = out.size();
+    const int k2 = steps - steps % 2;
+    if (steps % 2 == 0 && steps > 0) {
+      for (size_t i = layer_begin; i < layer_end; ++i) {
+        const int32_t a = out[i];
+        for (int j = 0; j < t.NumVertexFaces(a); ++j) {
+          const int f = t.VertexFaces(a)[j], n = m.FaceSize(f);
+          int c = 0;
+          while (m.faces(f, c) != a) ++c;
+          if (in(m.faces(f, (c + 1) % n), k2) || in(m.faces(f, (c + n - 1) % n), k2))
+            for (int q = 0; q < n; ++q) add(m.faces(f, q), k2 + 1);
+        }
+      }
+    } else if (steps % 2 == 1) {
+      for (size_t i = layer_begin; i < layer_end; ++i)
+        for (int j = 0; j < t.NumNeighbors(out[i]); ++j) add(t.Neighbors(out[i])[j], k2 + 2);
+      layer_begin = layer_end;
+      layer_end = out.size();
+    }
+    ++steps;
+    if (out.size() > static_cast<size_t>(spec.max_points)) {
+      if (required && before == 1) {
+        out.resize(spec.max_points);
+      } else {
+        out.resize(before);
+        --steps;
+      }
+      break;
+    }
+    if (out.size() == before && steps % 2 == 0) break;
+  }
+  *ring = 0.5f * steps;
+  return out;
+}
+
+// Point order included, on a mixed mesh: quads and triangles, face rows starting at
+// every corner, boundary, numbered at random (the breadth-first growth order).
+TEST(NeighborhoodTest, StencilsEqualThePlainRingRuleInOrderOnAMixedMesh) {
+  const Mesh grid = PlanarGrid(40, true);
+  Mesh mixed;
+  mixed.positions = grid.positions;
+  std::vector<std::array<int32_t, 4>> rows;
+  for (int f = 0; f < grid.NumFaces(); ++f) {
+    const int32_t a = grid.faces(f, 0), b = grid.faces(f, 1), c = grid.faces(f, 2), d = grid.faces(f, 3);
+    if (f % 3 == 0) {
+      rows.push_back({a, b, c, -1});
+      rows.push_back({a, c, d, -1});
+    } else {
+      rows.push_back({a, b, c, d});
+    }
+  }
+  mixed.faces.Mutable().resize(rows.size(), 4);
+  for (size_t f = 0; f < rows.size(); ++f) {
+    const int n = rows[f][3] < 0 ? 3 : 4, r = static_cast<int>(f % n);  // rotate the row
+    for (int q = 0; q < 4; ++q) mixed.faces.Mutable()(f, q) = q < n ? rows[f][(q + r) % n] : -1;
+  }
+  const Mesh m = testing_util::ShuffleVertices(mixed, 7);
+  const Topology t = BuildTopology(m).value();
+  ASSERT_TRUE(t.has_quads);
+  std::vector<RingSpec> specs;
+  for (int degree : {1, 2, 4, 6}) {
+    FitOptions o;
+    o.degree = degree;
+    specs.push_back(RingSpecFor(o));
+  }
+  RingSpec capped = specs.back();
+  capped.max_points = 30;
+  specs.push_back(capped);
+  for (size_t k = 0; k < specs.size(); ++k) {
+    const Neighborhoods nb = BuildNeighborhoods(t, m, specs[k], 2);
+    int mismatches = 0;
+    for (int v = 0; v < m.NumVertices(); ++v) {
+      float ring = 0;
+      const std::vector<int32_t> want = PlainStencil(t, m, v, specs[k], &ring);
+      mismatches += std::vector<int32_t>(nb.Points(v), nb.Points(v) + nb.Size(v)) != want || nb.rings[v] != ring;
+    }
+    EXPECT_EQ(mismatches, 0) << "spec " << k;
   }
 }
 
