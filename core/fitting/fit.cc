@@ -2,6 +2,8 @@
 
 #include <atomic>
 #include <cmath>
+#include <string>
+#include <string_view>
 
 
 #include "absl/strings/str_format.h"
@@ -262,7 +264,14 @@ class SurfaceFitter {
       if (pass < smoothing) pass_options.interpolate = false;  // smoothing fits approximate
       fits = std::make_shared<SurfaceFits>();
       const bool last = pass == passes - 1;
-      if (absl::Status s = FitAll(*input, topo, pass_options, nb, normals, req, ctx, last ? &on_fitted : nullptr, *fits); !s.ok()) return s;
+      // Progress phases: "smooth i/S" per smoothing pass, "frames" (two_pass's first fit), "fit".
+      const std::string phase = pass < smoothing ? absl::StrFormat("smooth %d/%d", pass + 1, smoothing)
+                                : last           ? std::string("fit")
+                                                 : std::string("frames");
+      if (absl::Status s = FitAll(*input, topo, pass_options, nb, normals, req, ctx, last ? &on_fitted : nullptr,
+                                  phase, *fits);
+          !s.ok())
+        return s;
     }
     return std::shared_ptr<const SurfaceFits>(std::move(fits));
   }
@@ -271,7 +280,7 @@ class SurfaceFitter {
   static absl::Status FitAll(const Mesh& mesh, const Topology& topo, const FitOptions& o,
                              const std::shared_ptr<const Neighborhoods>& nb, const Positions& normals,
                              const FitRequest& req, const RunContext& ctx, const FittedBlockFn* on_fitted,
-                             SurfaceFits& f) {
+                             std::string_view phase, SurfaceFits& f) {
     const int nv = mesh.NumVertices();
     f.options_ = o;
     f.neighborhoods_ = nb;
@@ -320,7 +329,7 @@ class SurfaceFitter {
       }
       batch->Flush(in, settings, req.batched_kernel);
       if (on_fitted && *on_fitted) (*on_fitted)(f, chunk * kGrain, end);
-    }, 1, "fit");
+    }, 1, phase);
   }
 };
 
