@@ -2,6 +2,8 @@
 
 #include <atomic>
 #include <cmath>
+#include <string>
+#include <string_view>
 
 
 #include "absl/strings/str_format.h"
@@ -269,19 +271,29 @@ class SurfaceFitter {
       FitOptions pass_options = eff;
       if (pass < smoothing) pass_options.interpolate = false;  // smoothing fits approximate
       const bool last = pass == passes - 1;
+      // Progress phases: "smooth i/S" per smoothing pass, "frames" (two_pass's first fit),
+      // "normals" (the normal refinement's pre-fit), "fit".
+      const std::string phase = pass < smoothing ? absl::StrFormat("smooth %d/%d", pass + 1, smoothing)
+                                : last           ? std::string("fit")
+                                                 : std::string("frames");
       if (last && eff.NormalDegree() > eff.degree) {  // the final frames from a higher-degree fit
         FitOptions pre = eff;
         pre.degree = pre.normal_degree = eff.NormalDegree();
         pre.rings = pre.min_points_factor = 0;
         const auto pre_nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, *input, RingSpecFor(pre), ctx.threads()));
         SurfaceFits pre_fits;
-        if (absl::Status s = FitAll(*input, topo, pre, pre_nb, normals, FitRequest{}, ctx, nullptr, nullptr, pre_fits); !s.ok()) return s;
+        if (absl::Status s = FitAll(*input, topo, pre, pre_nb, normals, FitRequest{}, ctx, nullptr, nullptr, "normals",
+                                    pre_fits);
+            !s.ok())
+          return s;
         fixed_tangent.assign(mesh.NumVertices(), 0);
         adopt_normals(pre_fits, &fixed_tangent);
       }
       fits = std::make_shared<SurfaceFits>();
       if (absl::Status s = FitAll(*input, topo, pass_options, nb, normals, req, ctx, last ? &on_fitted : nullptr,
-                                  fixed_tangent.empty() ? nullptr : fixed_tangent.data(), *fits); !s.ok()) return s;
+                                  fixed_tangent.empty() ? nullptr : fixed_tangent.data(), phase, *fits);
+          !s.ok())
+        return s;
     }
     return std::shared_ptr<const SurfaceFits>(std::move(fits));
   }
@@ -290,7 +302,7 @@ class SurfaceFitter {
   static absl::Status FitAll(const Mesh& mesh, const Topology& topo, const FitOptions& o,
                              const std::shared_ptr<const Neighborhoods>& nb, const Positions& normals,
                              const FitRequest& req, const RunContext& ctx, const FittedBlockFn* on_fitted,
-                             const uint8_t* fixed_tangent, SurfaceFits& f) {
+                             const uint8_t* fixed_tangent, std::string_view phase, SurfaceFits& f) {
     const int nv = mesh.NumVertices();
     f.options_ = o;
     f.neighborhoods_ = nb;
@@ -339,7 +351,7 @@ class SurfaceFitter {
       }
       batch->Flush(in, settings, req.batched_kernel);
       if (on_fitted && *on_fitted) (*on_fitted)(f, chunk * kGrain, end);
-    }, 1, "fit");
+    }, 1, phase);
   }
 };
 

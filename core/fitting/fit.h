@@ -114,7 +114,9 @@ using FittedBlockFn = std::function<void(const SurfaceFits& fits, int64_t begin,
 
 /// Fits every vertex. `neighborhoods` may be shared with other fits of the same
 /// topology (pass the one built for RingSpecFor(options)); null builds it.
-/// `ctx` gives the threads and is polled between blocks of vertices; progress phase "fit".
+/// `ctx` gives the threads and is polled between blocks of vertices; progress phases (units:
+/// blocks of 512 vertices) "noise test" (NoiseMode::kAuto; samples), "smooth i/S" per
+/// smoothing pass, "frames" (two_pass's first fit), "normals" (FitOptions::normal_degree's pre-fit), then "fit" (the final pass).
 /// Errors: INVALID_ARGUMENT for bad options or a mesh/topology mismatch,
 /// CANCELLED / DEADLINE_EXCEEDED from the context.
 absl::StatusOr<std::shared_ptr<const SurfaceFits>> FitSurface(

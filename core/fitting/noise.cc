@@ -76,7 +76,7 @@ absl::StatusOr<NoiseEstimate> EstimateNoise(const Mesh& mesh, const Topology& to
     if (P.rows < 30) return;
     const double r2 = ResidualRms(P, 2), r4 = ResidualRms(P, 4);
     if (r2 > 0) ratio[i] = r4 / r2, level[i] = r4 / h;
-  }, 64);
+  }, 64, "noise test");
   if (!s.ok()) return s;
   NoiseEstimate est;
   auto median = [](std::vector<double> x) {

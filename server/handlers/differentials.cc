@@ -10,6 +10,7 @@
 #include "core/util/status_macros.h"
 #include "proto/wire.h"
 #include "server/handlers/handlers.h"
+#include "server/handlers/progress.h"
 
 namespace geomfit::server {
 namespace {
@@ -206,7 +207,9 @@ absl::Status Handlers::ComputeDifferentials(const v1::ComputeDifferentialsReques
   GF_ASSIGN_OR_RETURN(const uint32_t mask, wire::QuantityMask(request.quantities()));
   // Held to the end: an update may replace the revision in the cache meanwhile.
   GF_ASSIGN_OR_RETURN(const Snapshot snap, ws_->Acquire(id, request.revision()));
-  const RunContext ctx = ws_->Context(&cancel);
+  // Progress messages of the fit's passes: before the result chunks, among those of the last.
+  ProgressThrottle throttle(ProgressMessages(sink));
+  const RunContext ctx = Context(cancel, request.progress() ? throttle.Callback() : nullptr);
   const int64_t revision = snap.revision, n = snap.mesh->NumVertices();
   DifferentialsStream stream(mask, request.diagnostics(), n,
                              ChunkRows(request.chunk_rows(), RowBytes(mask, request.diagnostics())),

@@ -12,6 +12,7 @@
 #include "proto/wire.h"
 #include "server/handlers/handlers.h"
 #include "server/handlers/membrane_job.h"
+#include "server/handlers/progress.h"
 
 namespace geomfit::server {
 namespace {
@@ -91,7 +92,9 @@ absl::Status Handlers::ComputeMembrane(const v1::ComputeMembraneRequest& request
     y = def.mesh->positions;
     deformed_revision = def.revision;
   }
-  const RunContext ctx = ws_->Context(&cancel);
+  // Progress messages (the reference fit's phases, "membrane") before the result chunks.
+  ProgressThrottle throttle(ProgressMessages(sink));
+  const RunContext ctx = Context(cancel, request.progress() ? throttle.Callback() : nullptr);
   double fit_ms = 0, evaluate_ms = 0;
   MembraneFields f;
   if (reference_positions) {  // a reference of its own: fitted here, not cached

@@ -67,6 +67,17 @@ inline void ToProto(const Progress& p, v1::Progress* out) {
   out->set_total(p.total);
 }
 
+/// A throttle's emit function that sends each report into `sink` as a message with only
+/// `progress` set (before or among the result chunks, which it leaves unchanged).
+template <typename Response>
+ProgressThrottle::EmitFn ProgressMessages(ChunkSink<Response>* sink) {
+  return [sink](const Progress& p) {
+    Response message;
+    ToProto(p, message.mutable_progress());
+    sink->Push(std::move(message), false);
+  };
+}
+
 /// A server-streaming work function (WriteReactor's) for the streaming variant of a
 /// unary call: `fn`'s progress as messages with only `progress` set, then its response
 /// as the last message.
@@ -74,11 +85,7 @@ template <typename Response>
 std::function<absl::Status(const CancellationToken&, ChunkSink<Response>*)> StreamWithProgress(
     std::function<absl::StatusOr<Response>(const CancellationToken&, const RunContext::ProgressFn&)> fn) {
   return [fn = std::move(fn)](const CancellationToken& cancel, ChunkSink<Response>* sink) -> absl::Status {
-    ProgressThrottle throttle([sink](const Progress& p) {
-      Response message;
-      ToProto(p, message.mutable_progress());
-      sink->Push(std::move(message), false);
-    });
+    ProgressThrottle throttle(ProgressMessages(sink));
     absl::StatusOr<Response> out = fn(cancel, throttle.Callback());
     if (!out.ok()) return out.status();
     sink->Push(*std::move(out), true);

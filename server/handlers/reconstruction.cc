@@ -40,11 +40,7 @@ absl::Status Handlers::ProjectPoints(const v1::ProjectPointsRequest& request, co
     return absl::InvalidArgumentError("give either points (#P x 3) or faces (#P) with natural (#P x 2)");
   std::vector<ProjectedPoint> out;
   // Progress messages go out while the work runs, before any result chunk.
-  ProgressThrottle throttle([sink](const Progress& p) {
-    v1::ProjectPointsResponse message;
-    ToProto(p, message.mutable_progress());
-    sink->Push(std::move(message), false);
-  });
+  ProgressThrottle throttle(ProgressMessages(sink));
   const RunContext ctx = Context(cancel, request.progress() ? throttle.Callback() : nullptr);
   GF_ASSIGN_OR_RETURN(auto r, Reconstruct(request.mesh_id(), request.revision(), request.options(), false, ctx));
   if (xyz) {

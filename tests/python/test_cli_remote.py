@@ -139,8 +139,8 @@ def test_health_reports_serving_and_fails_when_nothing_listens(server):
 
 
 def test_remote_progress_comes_from_the_server(server, tmp_path):
-    """--progress draws the server's phases (fit, project, evaluate points, integrate) for
-    the remote chapter-4 commands and curvature; --no-progress (and a non-terminal
+    """--progress draws the server's phases (fit, project, evaluate points, integrate;
+    smooth i/S with --noise on) for the remote chapter-4 commands and curvature; --no-progress (and a non-terminal
     stderr) draws nothing; outputs are the same either way."""
     address = server.address
     torus = str(tmp_path / "t.obj")
@@ -152,7 +152,9 @@ def test_remote_progress_comes_from_the_server(server, tmp_path):
         ("nodes", torus, "--order", "2", "--output", str(tmp_path / "n"), "--degree", "4"): ["evaluate points"],
         ("integrate", torus, "--degree", "4"): ["integrate"],
         ("refine", torus, "--output", str(tmp_path / "r.obj"), "--degree", "4"): ["evaluate points"],
-        ("curvature", torus, "--degree", "3"): ["compute"],
+        ("curvature", torus, "--degree", "3"): ["fit", "compute"],
+        # every pass of the noise-aware fit, from the server
+        ("curvature", torus, "--degree", "4", "--noise", "on"): ["smooth 1/2", "smooth 2/2", "fit"],
     }
     for args, phases in commands.items():
         shown = run(*args, "--server", address, "--progress")

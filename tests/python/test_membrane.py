@@ -122,7 +122,10 @@ def test_cli_solve_and_pressure_local_and_remote(server, sphere_obj, data_dir):
     for mode in (["--local"], ["--server", server.address]):
         table = os.path.join(data_dir, "pressure.tsv")
         r = cli("membrane", "pressure", sphere_obj, "--deformed", local_obj, *mode, *material,
-                "--quantities", "pressure,von_mises", "--output", table)
+                "--quantities", "pressure,von_mises", "--output", table, "--progress")
+        lines = r.stderr.replace("\r", "\n").split("\n")
+        for phase in ("fit", "membrane"):  # the library's phases, or the server's in its stream
+            assert any(line.startswith(phase + " ") and "100%" in line for line in lines), (mode, r.stderr)
         p = np.loadtxt(table)
         assert p.shape == (len(points), 2)
         assert np.abs(p[:, 0] - 2).max() < 1e-2, mode

@@ -37,7 +37,7 @@ def test_long_methods_report_progress_and_match_the_plain_calls(server, transpor
     with geomfit.Client(server.address, transport=transport) as c:
         mesh_id = c.upload(positions, faces).mesh_id
         d = c.curvature(mesh_id, degree=4, progress=seen)
-        assert seen.phases() == ["compute"]
+        assert seen.phases() == ["fit", "compute"]  # the last rows come after the fit's end
         plain_d = c.curvature(mesh_id, degree=4)
         np.testing.assert_array_equal(d.mean, plain_d.mean)
 
@@ -64,6 +64,27 @@ def test_long_methods_report_progress_and_match_the_plain_calls(server, transpor
         assert seen.phases() == ["evaluate points"]
         assert refined.num_faces == 4 * len(faces)
         assert refined.content_hash == c.refine(mesh_id, degree=4).content_hash
+
+
+def test_noise_passes_and_membrane_report_their_phases(server, transport):
+    positions, faces = torus(64, 30)
+    seen = Recorder()
+    with geomfit.Client(server.address, transport=transport) as c:
+        mesh_id = c.upload(positions, faces).mesh_id
+        d = c.curvature(mesh_id, degree=4, noise="on", diagnostics=True, progress=seen)
+        assert seen.phases() == ["smooth 1/2", "smooth 2/2", "fit", "compute"]
+        plain = c.curvature(mesh_id, degree=4, noise="on", diagnostics=True)  # cached; native if available
+        for key in ("normals", "mean", "gaussian", "k1", "k2"):
+            np.testing.assert_array_equal(getattr(d, key), getattr(plain, key))
+        np.testing.assert_array_equal(d.diagnostics["degree_used"], plain.diagnostics["degree_used"])
+
+        deformed = 1.05 * positions
+        p = c.membrane_pressure(mesh_id, deformed, young_modulus=1.0, poisson_ratio=0.3, progress=seen)
+        assert seen.phases() == ["fit", "membrane"]
+        again = c.membrane_pressure(mesh_id, deformed, young_modulus=1.0, poisson_ratio=0.3, progress=seen)
+        assert seen.phases() == ["membrane"]  # the reference fits are cached
+        np.testing.assert_array_equal(p, again)
+        np.testing.assert_array_equal(p, c.membrane_pressure(mesh_id, deformed, young_modulus=1.0, poisson_ratio=0.3))
 
 
 def test_flow_and_membrane_solve_report_their_job_events(server, data_dir):

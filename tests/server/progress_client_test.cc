@@ -8,6 +8,7 @@
 #include <gtest/gtest.h>
 
 #include "clients/cpp/client/client.h"
+#include "proto/wire.h"
 #include "tests/server/test_util.h"
 
 namespace geomfit {
@@ -97,9 +98,38 @@ TEST_F(ProgressClientTest, ChapterFourCallsReportTheServersPhases) {
   EXPECT_EQ(Phases(), (std::vector<std::string>{"evaluate points"}));
   EXPECT_EQ(refined->num_faces, 9 * mesh_.NumFaces());
 
+  // The server's fit passes; the rows received once the last pass has ended.
   auto d = reporting_->ComputeDifferentials(id_, FitOptions{});
   ASSERT_TRUE(d.ok()) << d.status();
-  EXPECT_EQ(Phases(), (std::vector<std::string>{"compute"}));
+  EXPECT_EQ(Phases(), (std::vector<std::string>{"fit", "compute"}));
+  FitOptions noisy;
+  noisy.degree = 4;
+  noisy.noise = NoiseMode::kOn;
+  auto smoothed = reporting_->ComputeDifferentials(id_, noisy);
+  ASSERT_TRUE(smoothed.ok()) << smoothed.status();
+  EXPECT_EQ(Phases(), (std::vector<std::string>{"smooth 1/2", "smooth 2/2", "fit", "compute"}));
+  auto plain_smoothed = plain_->ComputeDifferentials(id_, noisy);  // cached
+  ASSERT_TRUE(plain_smoothed.ok());
+  EXPECT_EQ(smoothed->values.mean, plain_smoothed->values.mean);
+  EXPECT_EQ(smoothed->values.normals, plain_smoothed->values.normals);
+  auto cached = reporting_->ComputeDifferentials(id_, noisy);
+  ASSERT_TRUE(cached.ok());
+  EXPECT_EQ(Phases(), (std::vector<std::string>{"compute"}));  // no pass runs
+
+  v1::ComputeMembraneRequest membrane;
+  membrane.set_mesh_id(id_);
+  membrane.set_young_modulus(1.0);
+  membrane.set_poisson_ratio(0.3);
+  const Positions deformed = mesh_.positions * 1.05;
+  wire::EncodeDoubles(deformed.data(), deformed.rows(), 3, membrane.mutable_deformed_positions());
+  auto m = reporting_->ComputeMembrane(membrane);
+  ASSERT_TRUE(m.ok()) << m.status();
+  EXPECT_EQ(Phases(), (std::vector<std::string>{"fit", "membrane"}));
+  auto plain_m = plain_->ComputeMembrane(membrane);
+  ASSERT_TRUE(plain_m.ok());
+  EXPECT_TRUE(m->values.pressure == plain_m->values.pressure);  // bit for bit (no NaN on a torus)
+  EXPECT_TRUE(m->values.stretches == plain_m->values.stretches);
+  EXPECT_EQ(m->values.pressure.size(), mesh_.NumVertices());
 }
 
 TEST_F(ProgressClientTest, StatisticsCountTheStreamingVariants) {

@@ -1,5 +1,5 @@
-// Progress in response streams: the throttle, ProjectPoints with `progress`, and the
-// streaming variants HighOrderNodesStream, IntegrateStream, RefineMeshStream.
+// Progress in response streams: the throttle, ProjectPoints, ComputeDifferentials and
+// ComputeMembrane with `progress`, and the streaming variants HighOrderNodesStream, IntegrateStream, RefineMeshStream.
 #include "server/handlers/progress.h"
 
 #include <string>
@@ -59,11 +59,12 @@ TEST(ProgressThrottleTest, UnknownTotalsAreThrottledButNeverEnd) {
 }
 
 /// Checks a stream's progress messages and returns its other messages: every progress
-/// message comes before the first result, phases come in the order `phases` (each once),
-/// and within a phase done increases strictly up to total.
+/// message comes before the first result (except those of phase `among`, which may come
+/// among the results), phases come in the order `phases` (each once), and within a phase
+/// done increases strictly up to total.
 template <typename Response>
 std::vector<Response> ResultsAfterProgress(const std::vector<Response>& messages,
-                                           const std::vector<std::string>& phases) {
+                                           const std::vector<std::string>& phases, const std::string& among = "") {
   std::vector<Response> results;
   std::vector<std::string> seen;
   int64_t last_done = -1, last_total = 0;
@@ -72,7 +73,7 @@ std::vector<Response> ResultsAfterProgress(const std::vector<Response>& messages
       results.push_back(m);
       continue;
     }
-    EXPECT_TRUE(results.empty()) << "a progress message after a result";
+    if (m.progress().phase() != among) EXPECT_TRUE(results.empty()) << "a progress message after a result";
     const v1::Progress& p = m.progress();
     if (seen.empty() || seen.back() != p.phase()) {
       if (!seen.empty()) EXPECT_EQ(last_done, last_total) << seen.back() << " ended before done = total";
@@ -204,6 +205,90 @@ TEST_F(ProgressStreamTest, RefineMeshStreamStoresTheSameMesh) {
   ASSERT_TRUE(server_.stub().RefineMesh(&once, request, &unary).ok());
   EXPECT_EQ(results[0].mesh().content_hash(), unary.content_hash());
   EXPECT_EQ(results[0].mesh().num_faces(), 4 * mesh_.NumFaces());
+}
+
+/// A ComputeDifferentials response without what depends on timing.
+std::vector<std::string> Untimed(std::vector<v1::ComputeDifferentialsResponse> chunks) {
+  std::vector<std::string> out;
+  for (v1::ComputeDifferentialsResponse& c : chunks) {
+    c.mutable_summary()->clear_fit_ms();
+    c.mutable_summary()->clear_evaluate_ms();
+    out.push_back(c.SerializeAsString());
+  }
+  return out;
+}
+
+TEST_F(ProgressStreamTest, DifferentialsReportEachSmoothingPassThenTheSameRows) {
+  v1::ComputeDifferentialsRequest request;
+  request.set_mesh_id(id_);
+  request.mutable_options()->set_degree(4);
+  request.mutable_options()->set_noise(v1::NOISE_MODE_ON);  // two smoothing passes, then the fit
+  request.set_diagnostics(true);
+  request.set_chunk_rows(250);
+  request.set_progress(true);
+  grpc::ClientContext ctx;
+  // The smoothing passes' progress before any row; the last pass's among the rows.
+  const std::vector<v1::ComputeDifferentialsResponse> with = ResultsAfterProgress(
+      ReadAll(server_.stub().ComputeDifferentials(&ctx, request)), {"smooth 1/2", "smooth 2/2", "fit"}, "fit");
+  ASSERT_EQ(with.size(), static_cast<size_t>((mesh_.NumVertices() + 249) / 250));
+  EXPECT_FALSE(with.back().summary().fit_cache_hit());
+  // The same computation on a server of its own (not cached), without progress.
+  InProcessServer other;
+  ASSERT_TRUE(testing::UploadMesh(other.stub(), mesh_).ok());
+  request.set_progress(false);
+  grpc::ClientContext again;
+  const std::vector<v1::ComputeDifferentialsResponse> without = ReadAll(other.stub().ComputeDifferentials(&again, request));
+  for (const auto& c : without) EXPECT_FALSE(c.has_progress());
+  EXPECT_FALSE(without.back().summary().fit_cache_hit());
+  EXPECT_EQ(Untimed(with), Untimed(without));
+  // Cached: no pass runs, so no progress message; the rows are the same.
+  grpc::ClientContext cached;
+  request.set_progress(true);
+  const auto hit = ReadAll(server_.stub().ComputeDifferentials(&cached, request));
+  for (const auto& c : hit) EXPECT_FALSE(c.has_progress());
+  ASSERT_EQ(hit.size(), with.size());
+  EXPECT_TRUE(hit.back().summary().fit_cache_hit());
+  for (size_t i = 0; i < hit.size(); ++i) EXPECT_EQ(hit[i].normals().data(), with[i].normals().data()) << i;
+}
+
+TEST_F(ProgressStreamTest, NoiseAutoAndTwoPassNameTheirPasses) {
+  v1::ComputeDifferentialsRequest request;
+  request.set_mesh_id(id_);
+  request.mutable_options()->set_degree(3);
+  request.mutable_options()->set_noise(v1::NOISE_MODE_AUTO);  // a clean torus: the test, then one fit
+  request.mutable_options()->set_two_pass(true);
+  request.set_progress(true);
+  grpc::ClientContext ctx;
+  const auto rows = ResultsAfterProgress(ReadAll(server_.stub().ComputeDifferentials(&ctx, request)),
+                                         {"noise test", "frames", "fit"}, "fit");
+  EXPECT_FALSE(rows.empty());
+}
+
+TEST_F(ProgressStreamTest, MembraneReportsTheFitAndTheEvaluationBeforeTheSameRows) {
+  v1::ComputeMembraneRequest request;
+  request.set_mesh_id(id_);
+  request.set_young_modulus(1.0);
+  request.set_poisson_ratio(0.3);
+  request.add_quantities(v1::MEMBRANE_QUANTITY_PRESSURE);
+  request.add_quantities(v1::MEMBRANE_QUANTITY_STRESS);
+  const Positions deformed = mesh_.positions * 1.05;
+  wire::EncodeDoubles(deformed.data(), deformed.rows(), 3, request.mutable_deformed_positions());
+  request.set_chunk_rows(400);
+  request.set_progress(true);
+  grpc::ClientContext ctx;
+  std::vector<v1::ComputeMembraneResponse> with =
+      ResultsAfterProgress(ReadAll(server_.stub().ComputeMembrane(&ctx, request)), {"fit", "membrane"});
+  ASSERT_EQ(with.size(), static_cast<size_t>((mesh_.NumVertices() + 399) / 400));
+  EXPECT_GT(with[0].fit_ms(), 0);  // fitted by this request
+  request.set_progress(false);
+  grpc::ClientContext again;
+  std::vector<v1::ComputeMembraneResponse> without = ReadAll(server_.stub().ComputeMembrane(&again, request));
+  ASSERT_EQ(with.size(), without.size());
+  for (auto* r : {&with, &without}) (*r)[0].clear_fit_ms(), (*r)[0].clear_evaluate_ms();
+  for (size_t i = 0; i < with.size(); ++i) {
+    EXPECT_FALSE(without[i].has_progress());
+    EXPECT_EQ(with[i].SerializeAsString(), without[i].SerializeAsString()) << "chunk " << i;
+  }
 }
 
 TEST_F(ProgressStreamTest, StreamingVariantsReportErrorsLikeTheUnaryCalls) {

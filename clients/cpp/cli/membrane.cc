@@ -17,6 +17,7 @@
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_split.h"
 #include "clients/cpp/cli/cli.h"
+#include "clients/cpp/cli/progress.h"
 #include "core/mechanics/membrane.h"
 #include "core/mechanics/pressure_solve.h"
 #include "core/mesh/io.h"
@@ -176,7 +177,7 @@ absl::Status PressureLocal(const PressureArgs& a, const std::vector<v1::Membrane
   FitOptions fit;
   fit.degree = a.degree;
   GF_ASSIGN_OR_RETURN(MembraneFields f,
-                      ComputeMembrane(ref, topo, def.positions, Material(a), fit, RunContext(nullptr, a.threads)));
+                      ComputeMembrane(ref, topo, def.positions, Material(a), fit, ProgressBar::Get().Context(a.threads)));
   Keep(qs, &f);
   PrintPressureSummary(f.pressure);
   return WriteFields(a.output, def, MembraneFieldsOf(f), "Pressure", a.ascii);

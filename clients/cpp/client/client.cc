@@ -384,6 +384,7 @@ absl::StatusOr<RemoteDifferentials> Client::ComputeDifferentials(v1::ComputeDiff
   const std::string mesh_id = request.mesh_id();
   return WithMesh<RemoteDifferentials>(mesh_id, [&](const std::string& id) -> absl::StatusOr<RemoteDifferentials> {
     request.set_mesh_id(id);
+    request.set_progress(impl_->options.progress != nullptr);
     std::optional<wire::DifferentialsReader> reader;
     absl::Status decode;
     GF_RETURN_IF_ERROR(impl_->Call([&](grpc::ClientContext& ctx) {
@@ -392,10 +393,16 @@ absl::StatusOr<RemoteDifferentials> Client::ComputeDifferentials(v1::ComputeDiff
       auto stream = impl_->stub->ComputeDifferentials(&ctx, request);
       v1::ComputeDifferentialsResponse chunk;
       int64_t total = 0;
+      bool fitting = false;  // a server phase is under way (its last message has done < total)
       while (stream->Read(&chunk)) {
+        if (chunk.has_progress()) {  // the fit's passes (the last one's among the rows)
+          fitting = chunk.progress().done() < chunk.progress().total();
+          impl_->Report(chunk.progress());
+          continue;
+        }
         if (decode.ok()) decode = reader->Add(chunk);
         if (chunk.has_summary() && total == 0) total = chunk.summary().num_vertices();
-        if (impl_->options.progress)  // the rows come as they are fitted
+        if (impl_->options.progress && !fitting)  // the rows received, when the server reports no pass
           impl_->options.progress(Progress{"compute", chunk.vertex_offset() + chunk.num_vertices(), total});
       }
       return stream->Finish();
@@ -734,6 +741,7 @@ absl::StatusOr<Eigen::MatrixXd> Client::ApplyOperator(const std::string& mesh_id
 absl::StatusOr<RemoteMembrane> Client::ComputeMembrane(v1::ComputeMembraneRequest request) {
   return WithMesh<RemoteMembrane>(request.mesh_id(), [&](const std::string& id) -> absl::StatusOr<RemoteMembrane> {
     request.set_mesh_id(id);
+    request.set_progress(impl_->options.progress != nullptr);
     RemoteMembrane out;
     absl::Status decode;
     GF_RETURN_IF_ERROR(impl_->Call([&](grpc::ClientContext& ctx) {
@@ -760,6 +768,10 @@ absl::StatusOr<RemoteMembrane> Client::ComputeMembrane(v1::ComputeMembraneReques
           for (int64_t k = 0; k < m->cols(); ++k) (*dst)(c.vertex_offset() + r, k) = (*m)(r, k);
       };
       while (stream->Read(&c)) {
+        if (c.has_progress()) {  // the reference fit's phases, "membrane"
+          impl_->Report(c.progress());
+          continue;
+        }
         if (n == 0) {  // the first chunk
           n = c.total_vertices();
           out.revision = c.revision();

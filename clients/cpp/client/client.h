@@ -47,9 +47,11 @@ struct ClientOptions {
   /// Bearer token (server --auth-tokens): sent as `authorization: Bearer TOKEN`.
   std::string token;
   /// Progress of long calls, called on the calling thread as the server reports it:
-  /// ProjectPoints and EvaluateFacePoints ask for progress messages; HighOrderNodes,
-  /// Integrate and RefineMesh use their streaming variants (the unary calls on a server
-  /// without them); ComputeDifferentials reports the rows received (phase "compute").
+  /// ProjectPoints, EvaluateFacePoints, ComputeDifferentials and ComputeMembrane ask for
+  /// progress messages (the fit's passes "noise test", "smooth i/S", "frames", "fit";
+  /// "membrane"); HighOrderNodes, Integrate and RefineMesh use their streaming variants
+  /// (the unary calls on a server without them); ComputeDifferentials also reports the
+  /// rows received (phase "compute") while no fit pass is under way (cached results, old servers).
   /// Null: no progress (and the plain calls).
   std::function<void(const Progress&)> progress;
 };

@@ -279,9 +279,14 @@ def _set_positions_request(header: "pb.UpdateHeader", positions: np.ndarray) -> 
 
 
 def _parse_chunk(raw: bytes) -> dict:
-    out = {"summary": None, "vertex_offset": 0, "num_vertices": 0, "arrays": {}, "diagnostics": {}}
+    out = {"summary": None, "vertex_offset": 0, "num_vertices": 0, "arrays": {}, "diagnostics": {},
+           "progress": None}
     for number, value in _fields(raw, 0, len(raw)):
-        if number == 1:
+        if number == 13:  # a progress message (phase, done, total), nothing else set
+            p = {1: (0, 0), 2: 0, 3: 0}
+            p.update(_fields(raw, *value))
+            out["progress"] = (raw[p[1][0]:p[1][1]].decode(), p[2], p[3])
+        elif number == 1:
             out["summary"] = raw[value[0]:value[1]]
         elif number == 2:
             out["vertex_offset"] = value
@@ -567,21 +572,31 @@ class Client:
         (rings, adaptive, safeguard_angle_deg, interpolate, two_pass, noise="off"|"on"|"auto",
         smoothing_passes, solver="qr"|"svd", ...); unset ones take the server defaults
         (degree 0 = 2). method: "lhf", "lop", or the comparison methods "xu", "lscm".
-        `progress`: callable(phase, done, total) or True (geomfit.progress), called with
-        ("compute", rows received, #V) as the rows stream in while they are fitted (over
-        grpcio, also with the native transport)."""
+        `progress`: callable(phase, done, total) or True (geomfit.progress), called with the
+        server's phases of the fit ("noise test", "smooth 1/2", "smooth 2/2", "frames",
+        "fit": see the user guide), and ("compute", rows received, #V) while no fit pass
+        is under way (a cached result). With `progress` the call goes over grpcio, also
+        with the native transport (same results, bit for bit)."""
         request = self._compute_request(mesh_id, revision, degree, method, tuple(quantities), diagnostics, options)
         if self._native is not None and not progress:
             summary, arrays, diag = self._call_native(lambda: self._native.compute(request))
             return Differentials(summary=pb.FitSummary.FromString(summary), diagnostics=diag, **arrays)
         with reporting(progress) as report:
+            if report is not None:
+                request += b"\x38\x01"  # progress = 7: true
             return self._call(lambda: self._compute_stream(mesh_id, request, report))
 
     def _compute_stream(self, mesh_id: str, request: bytes, report) -> Differentials:
         """ComputeDifferentials over grpcio, the arrays viewed in place."""
         out = None
+        fitting = False  # a server phase is under way (its last message had done < total)
         for raw in self._compute(request, timeout=self.timeout, metadata=_route(mesh_id)):
             chunk = _parse_chunk(raw)
+            if chunk["progress"] is not None:
+                phase, done, total_units = chunk["progress"]
+                fitting = done < total_units
+                report(phase, done, total_units)
+                continue
             if out is None:
                 out = Differentials(summary=pb.FitSummary.FromString(chunk["summary"]))
                 total = out.summary.num_vertices
@@ -598,7 +613,7 @@ class Client:
                                        for k, a in chunk["diagnostics"].items()}
                 for k, a in chunk["diagnostics"].items():
                     out.diagnostics[k][lo:lo + len(a)] = a
-            if report is not None:
+            if report is not None and not fitting:
                 report("compute", lo + chunk["num_vertices"], total)
         return out
 
@@ -916,7 +931,7 @@ class Client:
     def membrane(self, mesh_id: str, deformed=None, young_modulus: float = float("nan"),
                  poisson_ratio: float = float("nan"), quantities: Iterable[str] = ("pressure", "stretches", "von_mises"),
                  revision: int = 0, deformed_revision: int = 0, reference=None, degree: int = 0,
-                 **fit_options) -> Dict[str, np.ndarray]:
+                 progress: ProgressArg = None, **fit_options) -> Dict[str, np.ndarray]:
         """Membrane quantities (6.1-6.2) of a deformed configuration against the reference
         `mesh_id` (at `revision`; 0 = latest): `deformed` is an n x 3 array of positions,
         or the id of a stored mesh of the same topology (with `deformed_revision`), or
@@ -926,7 +941,9 @@ class Client:
         dict of numpy arrays: pressure (n; inside minus outside), stretches (n x 2),
         strain and stress (n x 3 x 3), von_mises (n), traction (n; n . div sigma, about
         -pressure). degree 0 keeps the server's default (4); `fit_options` are further
-        FitOptions fields."""
+        FitOptions fields. `progress`: callable(phase, done, total) or True
+        (geomfit.progress): the server's phases, the reference fit's ("fit", ...; none
+        when cached) then "membrane" (vertices)."""
         unknown = [q for q in quantities if q not in self.MEMBRANE_QUANTITIES]
         if unknown:
             raise ValueError("unknown quantities %s; choose from %s" % (unknown, sorted(self.MEMBRANE_QUANTITIES)))
@@ -944,10 +961,13 @@ class Client:
         if reference is not None:
             _encode(_positions_array(reference), "<f8", request.reference_positions)
 
-        def run():
+        def run(report):
             out: Dict[str, np.ndarray] = {}
             total = 0
             for chunk in self._stub.ComputeMembrane(request, timeout=self.timeout, metadata=_route(mesh_id)):
+                if chunk.HasField("progress"):
+                    report(chunk.progress.phase, chunk.progress.done, chunk.progress.total)
+                    continue
                 if chunk.total_vertices:
                     total = chunk.total_vertices
                 lo = chunk.vertex_offset
@@ -963,14 +983,18 @@ class Client:
                 if name in out:
                     out[name] = out[name].reshape(-1, 3, 3)
             return out
-        return self._call(run)
+        with reporting(progress) as report:
+            request.progress = report is not None
+            return self._call(lambda: run(report))
 
     def membrane_pressure(self, mesh_id: str, deformed=None, young_modulus: float = float("nan"),
-                          poisson_ratio: float = float("nan"), **options) -> np.ndarray:
+                          poisson_ratio: float = float("nan"), progress: ProgressArg = None,
+                          **options) -> np.ndarray:
         """The interface pressure p = tr(W tau^) (6.2.10) per vertex, inside minus
-        outside, that the membrane's stress balances (membrane()'s arguments)."""
+        outside, that the membrane's stress balances (membrane()'s arguments, `progress`
+        included)."""
         return self.membrane(mesh_id, deformed, young_modulus, poisson_ratio, quantities=("pressure",),
-                             **options)["pressure"]
+                             progress=progress, **options)["pressure"]
 
     def start_membrane_solve(self, mesh_id: str, pressure, young_modulus: float, poisson_ratio: float,
                              boundary: str = "", degree: int = 0, solver: str = "", tolerance: float = 0.0,

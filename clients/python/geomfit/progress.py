@@ -1,7 +1,7 @@
 """Progress of long calls.
 
-Every long Client method (curvature, project, high_order_nodes, integrate, refine, flow,
-membrane_solve) takes `progress=`: a callable(phase, done, total) called as the server
+Every long Client method (curvature, project, high_order_nodes, integrate, refine, membrane,
+membrane_pressure, flow, membrane_solve) takes `progress=`: a callable(phase, done, total) called as the server
 reports (done of total units of the phase; total 0: unknown; per phase, done never
 decreases), or True for a tqdm bar per phase on stderr (one text line per report when
 tqdm is not installed). watch_job / wait_job take a callable(event) (tqdm_callback(),
