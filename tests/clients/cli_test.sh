@@ -52,6 +52,16 @@ pass
 run_ok curvature --local t.obj --degree 2
 cmp -s stdout.txt out.tsv || fail "stdout TSV differs from out.tsv"
 
+# Normal refinement: a degree-3 pre-fit's normals at degree 2 (other normals, degree 2
+# still reported); a pre-fit below the degree is a usage error naming the option.
+run_ok curvature --local t.obj --degree 2 --normal-degree 3 --output nd.tsv
+[ "$(wc -l <nd.tsv)" -eq $((nv + 1)) ] || fail "nd.tsv has $(wc -l <nd.tsv) lines"
+awk -F'\t' 'NR > 1 && $14 != 2 { exit 1 }' nd.tsv || fail "--normal-degree 3: degree_used is not 2"
+paste out.tsv nd.tsv | awk -F'\t' 'NR > 1 && $1 != $17 { d++ } END { exit !(d > 0) }' ||
+  fail "--normal-degree 3 left every normal unchanged"
+pass
+expect_error 2 "normal_degree" curvature --local t.obj --degree 2 --normal-degree 1
+
 # --- VTP and NPY ------------------------------------------------------------------
 run_ok curvature --local t.obj --degree 3 --method lop --two-pass --output out.vtp --verbose
 grep -q "read t.obj" stderr.txt || fail "--verbose printed no timings"

@@ -67,6 +67,30 @@ def test_remote_commands_and_outputs_match_local(server, mesh_file, tmp_path):
     assert "not found" in missing.stderr
 
 
+def test_normal_degree_from_the_cli_and_python_client(server, tmp_path):
+    """--normal-degree / normal_degree=: the same refined normals locally, over the CLI's
+    --server and from Client.curvature, and other normals than the plain degree-2 fit."""
+    import numpy as np
+    import geomfit
+    sphere = str(tmp_path / "s.obj")
+    run("generate", "sphere", "--level", "6", "--output", sphere)
+    local, remote = str(tmp_path / "local.tsv"), str(tmp_path / "remote.tsv")
+    run("curvature", sphere, "--degree", "2", "--normal-degree", "3", "--output", local)
+    run("curvature", "--server", server.address, sphere, "--degree", "2", "--normal-degree", "3", "--output", remote)
+    assert open(remote).read() == open(local).read()
+    cli_normals = np.loadtxt(local)[:, 0:3]
+    with geomfit.Client(server.address) as client:
+        mesh_id = client.upload_file(sphere).mesh_id
+        plain = client.curvature(mesh_id, degree=2, quantities=["normals"])
+        refined = client.curvature(mesh_id, degree=2, quantities=["normals"], normal_degree=3)
+        with pytest.raises(geomfit.GeomfitError) as bad:
+            client.curvature(mesh_id, degree=2, normal_degree=1)
+        assert bad.value.code.name == "INVALID_ARGUMENT"
+        assert "normal_degree = 1" in bad.value.details
+    assert np.max(np.abs(refined.normals - cli_normals)) <= 1e-12
+    assert np.max(np.abs(refined.normals - plain.normals)) > 1e-8
+
+
 def test_remote_usage_errors():
     r = run("list", check=False)
     assert r.returncode == 2

@@ -143,6 +143,41 @@ TEST_F(HandlersTest, CurvatureMatchesInProcessBitForBit) {
   EXPECT_GT(remote->diagnostics[0].points, 6);
 }
 
+TEST_F(HandlersTest, NormalDegreeRefinesNormalsAsInProcessAndIsValidated) {
+  const Mesh mesh = TestSphere(12);
+  auto info = Upload(mesh);
+  ASSERT_TRUE(info.ok()) << info.status();
+  auto compute = [&](int normal_degree) -> absl::StatusOr<Differentials> {
+    v1::ComputeDifferentialsRequest request;
+    request.set_mesh_id(info->mesh_id());
+    request.mutable_options()->set_degree(2);
+    request.mutable_options()->set_normal_degree(normal_degree);
+    wire::AddQuantities(kAllQuantities, &request);
+    CancellationToken token;
+    GF_ASSIGN_OR_RETURN(auto chunks, handlers_.ComputeDifferentials(request, token));
+    wire::DifferentialsReader reader;
+    for (const auto& c : chunks) GF_RETURN_IF_ERROR(reader.Add(c));
+    return reader.Finish();
+  };
+  auto plain = compute(0), refined = compute(3);
+  ASSERT_TRUE(plain.ok()) << plain.status();
+  ASSERT_TRUE(refined.ok()) << refined.status();
+  FitOptions options;
+  options.normal_degree = 3;
+  auto local = ComputeDifferentials(mesh, options, kAllQuantities, RunContext(nullptr, 1));
+  ASSERT_TRUE(local.ok()) << local.status();
+  EXPECT_EQ(refined->normals, local->normals);
+  EXPECT_EQ(refined->mean, local->mean);
+  EXPECT_EQ(refined->tensor, local->tensor);
+  // Other normals than the plain degree-2 fit's (the convergence gain is in bench/README.md).
+  EXPECT_GT((refined->normals - plain->normals).cwiseAbs().maxCoeff(), 1e-6);
+  EXPECT_NE(plain->normals, local->normals);
+  auto low = compute(1);  // below the degree: named, not silently off
+  EXPECT_EQ(low.status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(low.status().message().find("options: fit option normal_degree = 1"), std::string::npos)
+      << low.status();
+}
+
 TEST_F(HandlersTest, SecondRequestHitsTheFittingCache) {
   auto info = Upload(TestTorus());
   ASSERT_TRUE(info.ok());

@@ -18,8 +18,10 @@ TEST(WireTest, FitOptionsRoundTripAndUnsetMeansDefault) {
   o.noise = NoiseMode::kAuto;
   o.smoothing_passes = 3;
   o.solver = WlsSolver::kSVD;
+  o.normal_degree = 5;
   auto back = FromProto(ToProto(o));
   ASSERT_TRUE(back.ok()) << back.status();
+  EXPECT_EQ(back->normal_degree, 5);
   EXPECT_EQ(FitOptionsKey(*back), FitOptionsKey(o));
   EXPECT_EQ(FitOptionsIdentity(*back), FitOptionsIdentity(o));
   for (FitMethod m : {FitMethod::kLHF, FitMethod::kLOP, FitMethod::kXu, FitMethod::kLSCM}) {
@@ -29,9 +31,16 @@ TEST(WireTest, FitOptionsRoundTripAndUnsetMeansDefault) {
   auto defaults = FromProto(v1::FitOptions());
   ASSERT_TRUE(defaults.ok());
   EXPECT_EQ(FitOptionsKey(*defaults), FitOptionsKey(FitOptions()));
+  EXPECT_EQ(defaults->normal_degree, 0);
   v1::FitOptions bad;
   bad.set_degree(7);
   EXPECT_EQ(FromProto(bad).status().code(), absl::StatusCode::kInvalidArgument);
+  v1::FitOptions low;  // a normal pre-fit below the fit's degree
+  low.set_degree(2);
+  low.set_normal_degree(1);
+  EXPECT_EQ(FromProto(low).status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(FromProto(low).status().message().find("normal_degree = 1"), std::string::npos)
+      << FromProto(low).status();
 }
 
 TEST(WireTest, ArraysRoundTripAndBadShapesAreNamed) {

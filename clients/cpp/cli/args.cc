@@ -202,6 +202,9 @@ void AddCurvatureOptions(ArgParser* p, CurvatureArgs* a) {
               "off|on|auto")
       .Int("smoothing-passes", &f.smoothing_passes,
            "smoothing-by-projection passes before the fit; -1 = automatic (2 with --noise on)")
+      .Int("normal-degree", &f.normal_degree,
+           "normal refinement: a first fit of this degree (> --degree) fixes the tangent "
+           "plane (--degree 2 --normal-degree 3: O(h^3) normals); 0 = off")
       .String("solver", &a->solver, "least-squares solver: qr (the default) or svd", "qr|svd")
       .Flag("two-pass", &f.two_pass, "refit in frames from the first pass's fitted normals")
       .Flag("interpolate", &a->interpolate, "the fit passes through the vertex (the default)")

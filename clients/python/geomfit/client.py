@@ -570,12 +570,15 @@ class Client:
                   **options) -> Differentials:
         """Differential quantities per vertex. `options` are further FitOptions fields
         (rings, adaptive, safeguard_angle_deg, interpolate, two_pass, noise="off"|"on"|"auto",
-        smoothing_passes, solver="qr"|"svd", ...); unset ones take the server defaults
-        (degree 0 = 2). method: "lhf", "lop", or the comparison methods "xu", "lscm".
+        smoothing_passes, solver="qr"|"svd", normal_degree, ...); unset ones take the server
+        defaults (degree 0 = 2). normal_degree: normal refinement, a first fit of that degree
+        (> degree) fixes the tangent plane, so degree=2, normal_degree=3 gives O(h^3) normals
+        with the degree-2 curvatures (0 = off, the default). method: "lhf", "lop", or the
+        comparison methods "xu", "lscm".
         `progress`: callable(phase, done, total) or True (geomfit.progress), called with the
         server's phases of the fit ("noise test", "smooth 1/2", "smooth 2/2", "frames",
-        "fit": see the user guide), and ("compute", rows received, #V) while no fit pass
-        is under way (a cached result). With `progress` the call goes over grpcio, also
+        "normals", "fit": see the user guide), and ("compute", rows received, #V) while no fit
+        pass is under way (a cached result). With `progress` the call goes over grpcio, also
         with the native transport (same results, bit for bit)."""
         request = self._compute_request(mesh_id, revision, degree, method, tuple(quantities), diagnostics, options)
         if self._native is not None and not progress:
