@@ -205,6 +205,11 @@ absl::StatusOr<JobStatus> JobManager::Start(std::string kind, std::string option
     --active_;
     return s;
   }
+  JobStatus as_queued;  // as queued: a worker may run the job to its end before Start returns
+  {
+    std::lock_guard<std::mutex> lock(job->mu);
+    as_queued = StatusOf(*job);
+  }
   bool stopping;
   {
     std::lock_guard<std::mutex> lock(mu_);
@@ -215,7 +220,8 @@ absl::StatusOr<JobStatus> JobManager::Start(std::string kind, std::string option
       ready_.notify_one();
     }
   }
-  if (stopping) Finish(job, JobState::kFailed, absl::AbortedError(kInterruptedByShutdown), {});
+  if (!stopping) return as_queued;
+  Finish(job, JobState::kFailed, absl::AbortedError(kInterruptedByShutdown), {});
   std::lock_guard<std::mutex> lock(job->mu);
   return StatusOf(*job);
 }

@@ -112,7 +112,8 @@ class JobManager {
   JobManager(const JobManager&) = delete;
   JobManager& operator=(const JobManager&) = delete;
 
-  /// Records a PENDING job (durably) and queues it; RESOURCE_EXHAUSTED beyond max_jobs,
+  /// Records a PENDING job (durably) and queues it; returns it as queued (PENDING, last_seq 1)
+  /// even if a worker has already run it; RESOURCE_EXHAUSTED beyond max_jobs,
   /// UNAVAILABLE after Shutdown.
   absl::StatusOr<JobStatus> Start(std::string kind, std::string options, JobRunFn run);
   /// A pending job ends CANCELLED at once; a running one once its run function sees its
