@@ -11,6 +11,7 @@
 #include <memory>
 #include <mutex>
 #include <optional>
+#include <string>
 #include <utility>
 #include <vector>
 
@@ -72,6 +73,43 @@ inline void EndIdle(grpc::CallbackServerContext* ctx, const absl::Status& status
   grpc_call_cancel_with_status(ctx->c_call(), static_cast<grpc_status_code>(status.code()), message.c_str(),
                                nullptr);
 }
+
+/// What the server-streaming reactors (WriteReactor, PullReactor) share: the call's
+/// record, its tenant, its share of StreamLimits and its idle watch, and the prologue
+/// that sets them up (Open) and the watch's end (CloseWatch).
+class ServerStreamBase {
+ protected:
+  ServerStreamBase(Service* service, grpc::CallbackServerContext* ctx, Service::Call call)
+      : service_(service), ctx_(ctx), call_(std::move(call)), share_(service->stream_limits()) {}
+
+  /// Counts the call (Service::Begin), admits it and scopes `request`'s mesh ids to the
+  /// caller's tenant (AdmitStream), then, with an idle timeout, watches it: the
+  /// watchdog calls `stalled(idle)` with the watch's mutex held. An error: the call is
+  /// to end with it at once.
+  absl::Status Open(const google::protobuf::Message* request, std::function<bool(std::chrono::milliseconds)> stalled) {
+    service_->Begin();
+    absl::StatusOr<std::string> tenant = AdmitStream(service_, ctx_, request);
+    if (!tenant.ok()) return tenant.status();
+    tenant_ = *std::move(tenant);
+    if (StreamLimits* limits = service_->stream_limits(); limits != nullptr) {
+      watch_ = limits->Watch([stalled = std::move(stalled), idle = limits->idle()] { return stalled(idle); });
+    }
+    return absl::OkStatus();
+  }
+  /// From OnDone: the watchdog is not inside `stalled` and never calls it again.
+  void CloseWatch() {
+    if (watch_ == nullptr) return;
+    std::lock_guard<std::recursive_mutex> lock(watch_->mu);
+    watch_->closed = true;
+  }
+
+  Service* service_;
+  grpc::CallbackServerContext* ctx_;
+  Service::Call call_;
+  std::string tenant_;
+  StreamShare share_;
+  std::shared_ptr<StreamWatch> watch_;
+};
 
 /// Client-streaming call, read as raw bytes so that a message that does not parse ends
 /// the call with INVALID_ARGUMENT (the typed API reports it like the end of the stream).
@@ -270,7 +308,9 @@ class ReadReactor final : public grpc::ServerReadReactor<grpc::ByteBuffer> {
 /// even while the work is still returning. The reactor is deleted once both gRPC is
 /// done with it (OnDone) and the work has returned.
 template <typename Response>
-class WriteReactor final : public grpc::ServerWriteReactor<Response>, private ChunkSink<Response> {
+class WriteReactor final : public grpc::ServerWriteReactor<Response>,
+                           private ChunkSink<Response>,
+                           private ServerStreamBase {
  public:
   using WorkFn = std::function<absl::Status(const CancellationToken&, ChunkSink<Response>*)>;
   /// Encoded chunks held at most: the one being written and one eager chunk queued.
@@ -280,17 +320,11 @@ class WriteReactor final : public grpc::ServerWriteReactor<Response>, private Ch
   /// hands the request over for the call's lifetime); the chunks' are unscoped.
   WriteReactor(Service* service, grpc::CallbackServerContext* ctx, ThreadPool* pool, Service::Call call,
                const google::protobuf::Message* request, WorkFn work)
-      : service_(service), ctx_(ctx), token_(TokenFor(ctx)), work_(std::move(work)), call_(std::move(call)),
-        share_(service->stream_limits()) {
-    service_->Begin();
-    absl::StatusOr<std::string> tenant = AdmitStream(service_, ctx, request);
-    if (!tenant.ok()) {
-      Done(tenant.status());
+      : ServerStreamBase(service, ctx, std::move(call)), token_(TokenFor(ctx)), work_(std::move(work)) {
+    if (absl::Status admitted = Open(request, [this](std::chrono::milliseconds idle) { return Stalled(idle); });
+        !admitted.ok()) {
+      Done(admitted);
       return;
-    }
-    tenant_ = *std::move(tenant);
-    if (StreamLimits* limits = service_->stream_limits(); limits != nullptr) {
-      watch_ = limits->Watch([this, idle = limits->idle()] { return Stalled(idle); });
     }
     if (pool == service->compute()) {
       if (absl::Status slot = service_->TakeComputeSlot(tenant_, &call_); !slot.ok()) {
@@ -325,10 +359,7 @@ class WriteReactor final : public grpc::ServerWriteReactor<Response>, private Ch
     room_.notify_all();
   }
   void OnDone() override {
-    if (watch_ != nullptr) {
-      std::lock_guard<std::recursive_mutex> watch(watch_->mu);  // the watchdog is not in Stalled
-      watch_->closed = true;
-    }
+    CloseWatch();
     std::unique_lock<std::mutex> lock(mu_);
     done_ = true;
     room_.notify_all();
@@ -447,17 +478,11 @@ class WriteReactor final : public grpc::ServerWriteReactor<Response>, private Ch
     return true;
   }
 
-  Service* service_;
-  grpc::CallbackServerContext* ctx_;
-  std::shared_ptr<StreamWatch> watch_;
   std::chrono::steady_clock::time_point write_started_;
   std::unique_ptr<CancellationToken> token_;
   WorkFn work_;
-  Service::Call call_;
-  std::string tenant_;
   std::mutex mu_;
   std::condition_variable room_;  ///< a held chunk was written, or the call is over
-  StreamShare share_;
   std::deque<Pending> queue_;
   int eager_ = 0;  ///< encoded chunks in queue_
   Response current_;
@@ -478,29 +503,18 @@ class WriteReactor final : public grpc::ServerWriteReactor<Response>, private Ch
 /// with an idle timeout, a reader that takes no chunk for that long is ended with
 /// DEADLINE_EXCEEDED.
 template <typename Response>
-class PullReactor final : public grpc::ServerWriteReactor<Response> {
+class PullReactor final : public grpc::ServerWriteReactor<Response>, private ServerStreamBase {
  public:
   using OpenFn = std::function<absl::StatusOr<std::unique_ptr<ChunkSource<Response>>>()>;
 
   /// `request`'s mesh ids are scoped to the caller's tenant before `open` runs.
   PullReactor(Service* service, grpc::CallbackServerContext* ctx, ThreadPool* pool, Service::Call call,
               const google::protobuf::Message* request, OpenFn open)
-      : service_(service), ctx_(ctx), open_(std::move(open)), call_(std::move(call)),
-        share_(service->stream_limits()) {
-    service_->Begin();
-    absl::StatusOr<std::string> tenant = AdmitStream(service_, ctx, request);
-    if (!tenant.ok()) {
-      Done(tenant.status());
+      : ServerStreamBase(service, ctx, std::move(call)), open_(std::move(open)) {
+    if (absl::Status admitted = Open(request, [this](std::chrono::milliseconds idle) { return Stalled(idle); });
+        !admitted.ok()) {
+      Done(admitted);
       return;
-    }
-    tenant_ = *std::move(tenant);
-    if (StreamLimits* limits = service_->stream_limits(); limits != nullptr) {
-      watch_ = limits->Watch([this, idle = limits->idle()] {
-        idle_status_ = IdleStatus(idle);
-        idle_ended_.store(true);
-        EndIdle(ctx_, idle_status_);
-        return true;
-      });
     }
     if (absl::Status queued = pool->Submit(tenant_, [this] { Start(); }); !queued.ok()) Done(queued);
   }
@@ -517,10 +531,7 @@ class PullReactor final : public grpc::ServerWriteReactor<Response> {
     WriteNext();
   }
   void OnDone() override {
-    if (watch_ != nullptr) {
-      std::lock_guard<std::recursive_mutex> lock(watch_->mu);  // the watchdog is not cancelling
-      watch_->closed = true;
-    }
+    CloseWatch();
     delete this;
   }
 
@@ -555,14 +566,16 @@ class PullReactor final : public grpc::ServerWriteReactor<Response> {
     share_.Close();
     this->Finish(service_->Finish(call_, s));
   }
+  /// The watchdog (watch mutex held): the reader took no chunk for `idle`; the call ends
+  /// (EndIdle).
+  bool Stalled(std::chrono::milliseconds idle) {
+    idle_status_ = IdleStatus(idle);
+    idle_ended_.store(true);
+    EndIdle(ctx_, idle_status_);
+    return true;
+  }
 
-  Service* service_;
-  grpc::CallbackServerContext* ctx_;
   OpenFn open_;
-  Service::Call call_;
-  std::string tenant_;
-  StreamShare share_;
-  std::shared_ptr<StreamWatch> watch_;
   std::atomic<bool> idle_ended_{false};  ///< ended by the watchdog, with idle_status_
   absl::Status idle_status_;
   std::unique_ptr<ChunkSource<Response>> source_;
