@@ -1,8 +1,6 @@
 // The engine through the service: every long RPC stops computing once the client
 // cancels (the server's CPU time, not the client's wall time), a request finishes on the
 // revision it started with, and shutdown honours the drain time.
-#include <time.h>
-
 #include <atomic>
 #include <functional>
 #include <thread>
@@ -16,13 +14,6 @@ namespace geomfit::server {
 namespace {
 
 using testing::InProcessServer;
-
-/// CPU seconds of this process (the in-process server's threads; the client only waits).
-double ProcessCpuSeconds() {
-  timespec t;
-  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
-  return static_cast<double>(t.tv_sec) + 1e-9 * static_cast<double>(t.tv_nsec);
-}
 
 int64_t StoredMeshes(v1::GeomFit::Stub& stub) {
   grpc::ClientContext ctx;
@@ -52,11 +43,7 @@ CancelOutcome CancelAfter(const LongCall& call, int run_ms) {
   CancelOutcome out;
   std::thread t([&] { out.status = call(&ctx); });
   std::this_thread::sleep_for(std::chrono::milliseconds(run_ms));
-  ctx.TryCancel();
-  std::this_thread::sleep_for(std::chrono::milliseconds(100));
-  const double cpu0 = ProcessCpuSeconds();
-  std::this_thread::sleep_for(std::chrono::milliseconds(600));
-  out.cpu_after_grace = ProcessCpuSeconds() - cpu0;
+  out.cpu_after_grace = testing::CpuSecondsAfterCancel([&] { ctx.TryCancel(); });
   t.join();
   return out;
 }
@@ -93,9 +80,7 @@ class EngineTest : public ::testing::Test {
 
 void ExpectStopped(const CancelOutcome& c, const char* rpc) {
   EXPECT_EQ(c.status.error_code(), grpc::StatusCode::CANCELLED) << rpc << ": " << c.status.error_message();
-  // A server thread still computing burns ~0.6 s per thread in this window; a stopped one
-  // a few ms. The margin absorbs a loaded machine that delays a thread's last block.
-  EXPECT_LT(c.cpu_after_grace, 0.15) << rpc << " kept computing after the client cancelled";
+  EXPECT_LT(c.cpu_after_grace, testing::kStoppedCpuSeconds) << rpc << " kept computing after the client cancelled";
 }
 
 TEST_F(EngineTest, CancelledIntegrateStopsComputing) {

@@ -3,10 +3,13 @@
 #include <arpa/inet.h>
 #include <netinet/in.h>
 #include <sys/socket.h>
+#include <time.h>
 #include <unistd.h>
 
+#include <chrono>
 #include <cstring>
 #include <future>
+#include <thread>
 
 #include <grpcpp/generic/generic_stub.h>
 #include <gtest/gtest.h>
@@ -218,6 +221,23 @@ grpc::Status WatchJob(v1::GeomFit::Stub& stub, const std::string& job_id, int64_
     }
   }
   return reader->Finish();
+}
+
+double ProcessCpuSeconds() {
+  timespec t;
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
+  return static_cast<double>(t.tv_sec) + 1e-9 * static_cast<double>(t.tv_nsec);
+}
+
+double CpuSecondsAfterCancel(const std::function<void()>& cancel) {
+  const auto start = std::chrono::steady_clock::now();
+  std::thread canceller(cancel);  // a CancelJob waits for the job's end: not in the window's start
+  std::this_thread::sleep_until(start + std::chrono::milliseconds(100));
+  const double cpu0 = ProcessCpuSeconds();
+  std::this_thread::sleep_until(start + std::chrono::milliseconds(700));
+  const double cpu = ProcessCpuSeconds() - cpu0;
+  canceller.join();
+  return cpu;
 }
 
 }  // namespace geomfit::server::testing

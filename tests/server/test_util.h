@@ -61,13 +61,25 @@ absl::StatusOr<Mesh> Download(v1::GeomFit::Stub& stub, const std::string& mesh_i
 /// StartJob with a refine spec (degree-2 fits); the error as an absl::Status.
 absl::StatusOr<v1::Job> StartRefineJob(v1::GeomFit::Stub& stub, const std::string& mesh_id, int levels,
                                        int factor = 2);
-/// Reads WatchJob(job_id, from) into *out until the stream ends, or until `stop` returns
-/// true for an event (then the call is cancelled, like a client that goes away).
 /// CancelJob(job_id).
 grpc::Status CancelJob(v1::GeomFit::Stub& stub, const std::string& job_id);
+/// Reads WatchJob(job_id, from) into *out until the stream ends, or until `stop` returns
+/// true for an event (then the call is cancelled, like a client that goes away).
 grpc::Status WatchJob(v1::GeomFit::Stub& stub, const std::string& job_id, int64_t from,
                       std::vector<v1::JobEvent>* out,
                       const std::function<bool(const v1::JobEvent&)>& stop = nullptr);
+
+/// CPU seconds of this process (an in-process server's threads; its clients only wait).
+double ProcessCpuSeconds();
+/// Starts `cancel` (a client cancelling a call or a job) on a thread of its own and
+/// returns the CPU seconds this process spends from 100 ms to 700 ms after it began.
+/// A server still computing then burns ~0.6 s per thread, one that stopped within
+/// 100 ms a few ms: CPU time, not wall time, so a loaded machine cannot fake a stop's
+/// delay (it can only hide part of a failure to stop).
+double CpuSecondsAfterCancel(const std::function<void()>& cancel);
+/// What a test allows CpuSecondsAfterCancel once the server stopped: the margin absorbs
+/// a loaded machine that delays a thread's last block.
+inline constexpr double kStoppedCpuSeconds = 0.15;
 
 /// grpc.health.v1 Check for `service` ("" = server), sent as raw bytes so it relies
 /// on nothing but the wire format: "SERVING", "NOT_SERVING", or the error.
