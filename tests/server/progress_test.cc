@@ -113,6 +113,23 @@ class ProgressStreamTest : public ::testing::Test {
     return o;
   }
 
+  /// Reads the streaming variant `stream` of the unary `call`: progress in `phases`,
+  /// then one result (*streamed); *unary: `call`'s response to the same request.
+  template <typename Request, typename Response, typename Unary>
+  void StreamAndUnary(std::unique_ptr<grpc::ClientReader<Response>> (v1::GeomFit::Stub::*stream)(
+                          grpc::ClientContext*, const Request&),
+                      grpc::Status (v1::GeomFit::Stub::*call)(grpc::ClientContext*, const Request&, Unary*),
+                      const Request& request, const std::vector<std::string>& phases, Response* streamed,
+                      Unary* unary) {
+    grpc::ClientContext ctx;
+    const std::vector<Response> results =
+        ResultsAfterProgress(ReadAll((server_.stub().*stream)(&ctx, request)), phases);
+    ASSERT_EQ(results.size(), 1u);
+    *streamed = results[0];
+    grpc::ClientContext once;
+    ASSERT_TRUE((server_.stub().*call)(&once, request, unary).ok());
+  }
+
   InProcessServer server_;
   Mesh mesh_;
   std::string id_;
@@ -164,14 +181,10 @@ TEST_F(ProgressStreamTest, HighOrderNodesStreamEndsWithTheUnaryResponse) {
   request.set_mesh_id(id_);
   request.set_order(3);
   *request.mutable_options() = Surface();
-  grpc::ClientContext ctx;
-  const auto results =
-      ResultsAfterProgress(ReadAll(server_.stub().HighOrderNodesStream(&ctx, request)), {"fit", "evaluate points"});
-  ASSERT_EQ(results.size(), 1u);
-  v1::HighOrderNodesResponse unary;
-  grpc::ClientContext once;
-  ASSERT_TRUE(server_.stub().HighOrderNodes(&once, request, &unary).ok());
-  EXPECT_EQ(results[0].SerializeAsString(), unary.SerializeAsString());
+  v1::HighOrderNodesResponse streamed, unary;
+  ASSERT_NO_FATAL_FAILURE(StreamAndUnary(&v1::GeomFit::Stub::HighOrderNodesStream, &v1::GeomFit::Stub::HighOrderNodes,
+                                         request, {"fit", "evaluate points"}, &streamed, &unary));
+  EXPECT_EQ(streamed.SerializeAsString(), unary.SerializeAsString());
   EXPECT_GT(unary.nodes().shape(0), mesh_.NumVertices());
 }
 
@@ -181,14 +194,10 @@ TEST_F(ProgressStreamTest, IntegrateStreamEndsWithTheUnaryResponse) {
   *request.mutable_options() = Surface();
   const Eigen::VectorXd ones = Eigen::VectorXd::Ones(mesh_.NumVertices());
   wire::EncodeDoubles(ones.data(), ones.size(), 0, request.mutable_scalars());
-  grpc::ClientContext ctx;
-  const auto results = ResultsAfterProgress(ReadAll(server_.stub().IntegrateStream(&ctx, request)),
-                                            {"fit", "integrate: fields", "integrate"});
-  ASSERT_EQ(results.size(), 1u);
-  v1::IntegrateResponse unary;
-  grpc::ClientContext once;
-  ASSERT_TRUE(server_.stub().Integrate(&once, request, &unary).ok());
-  EXPECT_EQ(results[0].SerializeAsString(), unary.SerializeAsString());
+  v1::IntegrateResponse streamed, unary;
+  ASSERT_NO_FATAL_FAILURE(StreamAndUnary(&v1::GeomFit::Stub::IntegrateStream, &v1::GeomFit::Stub::Integrate, request,
+                                         {"fit", "integrate: fields", "integrate"}, &streamed, &unary));
+  EXPECT_EQ(streamed.SerializeAsString(), unary.SerializeAsString());
   EXPECT_NEAR(unary.scalars(0), unary.area(), 1e-12 * unary.area());
 }
 
@@ -196,15 +205,12 @@ TEST_F(ProgressStreamTest, RefineMeshStreamStoresTheSameMesh) {
   v1::RefineMeshRequest request;
   request.set_mesh_id(id_);
   *request.mutable_options() = Surface();
-  grpc::ClientContext ctx;
-  const auto results =
-      ResultsAfterProgress(ReadAll(server_.stub().RefineMeshStream(&ctx, request)), {"fit", "evaluate points"});
-  ASSERT_EQ(results.size(), 1u);
+  v1::RefineMeshResponse streamed;
   v1::MeshInfo unary;
-  grpc::ClientContext once;
-  ASSERT_TRUE(server_.stub().RefineMesh(&once, request, &unary).ok());
-  EXPECT_EQ(results[0].mesh().content_hash(), unary.content_hash());
-  EXPECT_EQ(results[0].mesh().num_faces(), 4 * mesh_.NumFaces());
+  ASSERT_NO_FATAL_FAILURE(StreamAndUnary(&v1::GeomFit::Stub::RefineMeshStream, &v1::GeomFit::Stub::RefineMesh, request,
+                                         {"fit", "evaluate points"}, &streamed, &unary));
+  EXPECT_EQ(streamed.mesh().content_hash(), unary.content_hash());
+  EXPECT_EQ(streamed.mesh().num_faces(), 4 * mesh_.NumFaces());
 }
 
 /// A ComputeDifferentials response without what depends on timing.
