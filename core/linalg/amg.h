@@ -89,6 +89,9 @@ class Amg {
   void Cycle(int level, const Eigen::VectorXd& b, Eigen::VectorXd* x) const;
   /// One sweep; `from_zero`: x is zero (a forward Gauss-Seidel sweep then skips the upper part).
   void Smooth(const Level& l, const Eigen::VectorXd& b, Eigen::VectorXd* x, bool forward, bool from_zero) const;
+  /// Solves each patch's local problem in turn (see BuildPatches in amg.cc); `r`, when
+  /// given, is b - A x on entry and kept so.
+  void SolvePatches(const Level& l, const Eigen::VectorXd& b, Eigen::VectorXd* x, Eigen::VectorXd* r) const;
 
   AmgOptions options_;
   std::vector<std::unique_ptr<Level>> levels_;
