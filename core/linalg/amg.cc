@@ -110,14 +110,14 @@ int Aggregate(const StrengthGraph& g, std::vector<int>* aggregate) {
 }
 
 // Estimate of the spectral radius of D^{-1} A: a few power iterations from a fixed
-// start (deterministic), the largest growth factor seen.
-double SpectralRadius(const Matrix& A, const Eigen::VectorXd& inverse_diagonal) {
+// start (deterministic), the largest growth factor seen. Stops early when ctx is cancelled.
+double SpectralRadius(const Matrix& A, const Eigen::VectorXd& inverse_diagonal, const RunContext& ctx) {
   const int n = static_cast<int>(A.rows());
   Eigen::VectorXd x(n), y;
   for (int i = 0; i < n; ++i) x(i) = 1 + 0.5 * std::sin(1.7 * i + 0.3);
   x.normalize();
   double rho = 0;
-  for (int it = 0; it < 15; ++it) {
+  for (int it = 0; it < 15 && !ctx.cancelled(); ++it) {
     MultiplySerial(A, x, &y);
     y = y.cwiseProduct(inverse_diagonal);
     const double norm = y.norm();
@@ -304,35 +304,53 @@ double Amg::operator_complexity() const {
 }
 
 absl::Status Amg::Build(const Matrix& A, const AmgOptions& options, const RunContext& ctx) {
+  levels_.clear();
+  absl::Status status = BuildLevels(A, options, ctx);
+  if (!status.ok()) levels_.clear();  // no half-built hierarchy
+  return status;
+}
+
+absl::Status Amg::BuildLevels(const Matrix& A, const AmgOptions& options, const RunContext& ctx) {
   GF_RETURN_IF_ERROR(ValidateAmgOptions(options));
   if (A.rows() != A.cols() || A.rows() == 0) return absl::InvalidArgumentError("amg: the matrix is not square");
   options_ = options;
-  levels_.clear();
   auto first = std::make_unique<Level>();
   GF_RETURN_IF_ERROR(first->SetMatrix(A, true));
   levels_.push_back(std::move(first));
   std::vector<int> agg;
+  // ctx is polled between the set-up's phases (each one O(nnz) of a level; at 1M vertices
+  // the longest, the finest level's Galerkin product, takes ~0.1-0.3 s).
   while (levels_.back()->A.rows() > options_.coarse_size && num_levels() < options_.max_levels) {
     GF_RETURN_IF_ERROR(ctx.Check());
     Level& fine = *levels_.back();
     int coarse = Aggregate(Strength(fine.A, fine.diagonal, options_.strength), &agg);
     // Coarsening stalls when the diagonal dominates (weak couplings everywhere): then
     // every coupling counts.
-    if (coarse == 0 || coarse > kStall * fine.A.rows()) coarse = Aggregate(Strength(fine.A, fine.diagonal, 0), &agg);
+    if (coarse == 0 || coarse > kStall * fine.A.rows()) {
+      GF_RETURN_IF_ERROR(ctx.Check());
+      coarse = Aggregate(Strength(fine.A, fine.diagonal, 0), &agg);
+    }
     if (coarse == 0 || coarse > kStall * fine.A.rows()) break;
+    GF_RETURN_IF_ERROR(ctx.Check());
     if (options_.smooth_prolongator) {
-      const double rho = SpectralRadius(fine.A, fine.inverse_diagonal);
+      const double rho = SpectralRadius(fine.A, fine.inverse_diagonal, ctx);
+      GF_RETURN_IF_ERROR(ctx.Check());
       fine.P = SmoothedProlongator(fine.A, fine.inverse_diagonal, agg, coarse, rho > 0 ? 4 / (3 * rho) : 0);
     } else {
       fine.P = Tentative(agg, coarse);
     }
+    GF_RETURN_IF_ERROR(ctx.Check());
     fine.R = fine.P.transpose();
+    GF_RETURN_IF_ERROR(ctx.Check());
     const Matrix AP = fine.A * fine.P;
+    GF_RETURN_IF_ERROR(ctx.Check());
     Matrix Ac = fine.R * AP;
+    GF_RETURN_IF_ERROR(ctx.Check());
     auto next = std::make_unique<Level>();
     GF_RETURN_IF_ERROR(next->SetMatrix(Ac, false));
     levels_.push_back(std::move(next));
   }
+  GF_RETURN_IF_ERROR(ctx.Check());
   Level& last = *levels_.back();
   last.direct = last.A.rows() <= options_.coarse_size;
   if (last.direct) {

@@ -11,6 +11,7 @@
 #include <gtest/gtest.h>
 
 #include "core/flow/flow.h"
+#include "core/linalg/amg.h"
 #include "core/surfaces/analytic.h"
 #include "core/integration/integrate.h"
 #include "core/reconstruction/surface.h"
@@ -440,6 +441,39 @@ TEST(FlowStepper, AmgIterationsBoundedUnderRefinement) {
       EXPECT_LT(4 * amg[1], jacobi[1]) << cubed << " " << dt;
     }
   }
+}
+
+// The V-cycle as a stationary iteration on MCF's I - dt K (dt = 1e-3) of the 40k-vertex
+// cubed sphere, which has a vertex whose degree-4 stencil is far from diagonal dominance
+// (a_ii small against its couplings; at 1M vertices a_ii < 0). Pointwise relaxation left
+// its local mode almost undamped (factor 0.989 per cycle here, 1.15-1.46 at 1M: the
+// V-cycle diverged); the exact solve on that row's stencil (amg.cc, BuildPatches) makes
+// every cycle contract (0.38 here, 0.55 at 1M).
+TEST(FlowStepper, AmgVCycleContractsOnCubedSphere) {
+  const double dt = 1e-3;
+  const Mesh mesh = Sphere(82);
+  ASSERT_EQ(mesh.NumVertices(), 40346);
+  auto stepper = FlowStepper::Create(mesh, Options(FlowKind::kMeanCurvature, FlowScheme::kSemiImplicit, dt, 0)).value();
+  const SparseMatrix K = stepper->CurvatureJacobian().value();
+  SparseMatrix A = -dt * K;
+  for (int i = 0; i < A.rows(); ++i) A.coeffRef(i, i) += 1;
+  Amg amg;
+  ASSERT_TRUE(amg.Build(A).ok());
+  Eigen::VectorXd b(A.rows());
+  for (int i = 0; i < A.rows(); ++i) b(i) = std::sin(3 * mesh.positions(i, 0)) + mesh.positions(i, 2);
+  Eigen::VectorXd x = Eigen::VectorXd::Zero(A.rows()), r = b, e;
+  std::vector<double> norms;
+  for (int cycle = 0; cycle < 30; ++cycle) {
+    amg.Apply(r, &e);
+    x += e;
+    r = b - A * x;
+    norms.push_back(r.norm());
+  }
+  const double asymptotic = std::pow(norms[29] / norms[23], 1.0 / 6);
+  std::printf("stationary V-cycle: |r| %.3g -> %.3g in 30 cycles, factor over cycles 25-30 %.3f\n", b.norm(), norms[29],
+              asymptotic);
+  EXPECT_LT(asymptotic, 0.7);
+  EXPECT_LT(norms[29], 1e-8 * b.norm());
 }
 
 }  // namespace
