@@ -5,7 +5,9 @@
 //   flow_study steps [sizes] [threads] [solver] [mcf|surface_diffusion] [scheme]
 //                      semi-implicit MCF and SD step times split into fit / assemble /
 //                      solve (median of steps 2..4), and a degree-4 fit of the same mesh;
-//                      solver: auto (default), auto-jacobi, auto-amg, sparselu, ...
+//                      solver: auto (default), auto-jacobi, auto-amg, sparselu, ...;
+//                      environment GF_TOLERANCE (BiCGSTAB's relative residual),
+//                      GF_JACOBI_LIMIT (SolverOptions::jacobi_limit)
 //   flow_study amg [sizes] [dt_mcf] [dt_sd]
 //                      AMG on the flows' systems outside the stepper: hierarchy, V-cycle
 //                      convergence factor and cost, BiCGSTAB iterations against Jacobi.
@@ -176,6 +178,8 @@ void Steps(const std::vector<int>& sizes, int threads, const std::string& solver
         if (std::getenv("GF_AMG_PLAIN")) o.solver.amg.smooth_prolongator = false;
         if (const char* v = std::getenv("GF_AMG_THETA")) o.solver.amg.strength = std::atof(v);
         if (const char* d = std::getenv("GF_ILUT_DROP")) o.solver.ilut_drop = std::atof(d);
+        if (const char* v = std::getenv("GF_TOLERANCE")) o.solver.tolerance = std::atof(v);
+        if (const char* v = std::getenv("GF_JACOBI_LIMIT")) o.solver.jacobi_limit = std::atoi(v);
         const RunContext ctx = RunContext().WithThreads(threads);
         auto stepper = FlowStepper::Create(mesh, o, ctx);
         if (!stepper.ok()) {
