@@ -98,6 +98,8 @@ class SparseSolver {
   absl::Status Solve(const Eigen::VectorXd& b, Eigen::VectorXd* x);
 
   const SolverOptions& options() const { return options_; }
+  /// Iterative solvers' relative residual from the next Solve on (> 0).
+  void set_tolerance(double tolerance) { options_.tolerance = tolerance; }
   /// Symbolic analyses done so far (1 for a run with a fixed pattern).
   int analyses() const { return analyses_; }
   /// Iterations of the last solve (1 for direct solvers).
