@@ -4,7 +4,8 @@
 //                      levels, beside the cotan (Dziuk) implicit MCF with lumped mass.
 //   flow_study steps [sizes] [threads] [solver] [mcf|surface_diffusion] [scheme]
 //                      semi-implicit MCF and SD step times split into fit / assemble /
-//                      solve (median of steps 2..4), and a degree-4 fit of the same mesh;
+//                      solve (median of steps 2..4; GF_STEPS=k: of steps k-2..k), and a
+//                      degree-4 fit of the same mesh;
 //                      solver: auto (default), auto-jacobi, auto-amg, sparselu, ...;
 //                      environment GF_TOLERANCE (BiCGSTAB's relative residual),
 //                      GF_JACOBI_LIMIT (SolverOptions::jacobi_limit)
@@ -142,7 +143,9 @@ double Median(std::vector<double> v) {
 
 void Steps(const std::vector<int>& sizes, int threads, const std::string& solver, const std::string& only,
            const std::string& only_scheme) {
-  std::printf("step times (ms, median of steps 2..4), threads %d, solver %s\n", threads, solver.c_str());
+  const int last = std::max(4, std::getenv("GF_STEPS") ? std::atoi(std::getenv("GF_STEPS")) : 4);
+  std::printf("step times (ms, median of steps %d..%d), threads %d, solver %s\n", last - 2, last, threads,
+              solver.c_str());
   std::printf("  flow  scheme          verts     fit4    fit  assemble   solve   total  iters  total/fit4  step1  step-cpu  cpu/fit4-cpu\n");
   for (int target : sizes) {
     const int n = static_cast<int>(std::lround(std::sqrt((target - 2) / 6.0)));
@@ -189,7 +192,9 @@ void Steps(const std::vector<int>& sizes, int threads, const std::string& solver
         std::vector<double> f, a, s, tot, cpu;
         int iters = 0;
         double first = 0;  // step 1: symbolic analyses, the SD preconditioner's factorization
-        for (int i = 0; i < 4; ++i) {
+        // GF_STEPS (default 4): steps taken; the medians are over the last three.
+        const int steps = std::max(4, std::getenv("GF_STEPS") ? std::atoi(std::getenv("GF_STEPS")) : 4);
+        for (int i = 0; i < steps; ++i) {
           const Stopwatch w;
           const std::clock_t c0 = std::clock();
           auto st = (*stepper)->Step(ctx);
@@ -198,10 +203,8 @@ void Steps(const std::vector<int>& sizes, int threads, const std::string& solver
             std::printf("error: %s\n", st.status().ToString().c_str());
             return;
           }
-          if (i == 0) {
-            first = w.Millis();
-            continue;
-          }
+          if (i == 0) first = w.Millis();
+          if (i < steps - 3) continue;
           f.push_back(st->fit_ms), a.push_back(st->assemble_ms), s.push_back(st->solve_ms), tot.push_back(w.Millis());
           cpu.push_back(cpu_ms);
           iters = st->solver_iterations;
