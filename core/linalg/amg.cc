@@ -318,8 +318,8 @@ absl::Status Amg::BuildLevels(const Matrix& A, const AmgOptions& options, const 
   GF_RETURN_IF_ERROR(first->SetMatrix(A, true));
   levels_.push_back(std::move(first));
   std::vector<int> agg;
-  // ctx is polled between the set-up's phases (each one O(nnz) of a level; at 1M vertices
-  // the longest, the finest level's Galerkin product, takes ~0.1-0.3 s).
+  // ctx is polled between the set-up's phases (each one O(nnz) of a level; the longest
+  // stretch without a poll is one sparse product of the finest level).
   while (levels_.back()->A.rows() > options_.coarse_size && num_levels() < options_.max_levels) {
     GF_RETURN_IF_ERROR(ctx.Check());
     Level& fine = *levels_.back();
