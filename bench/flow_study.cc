@@ -4,8 +4,11 @@
 //                      levels, beside the cotan (Dziuk) implicit MCF with lumped mass.
 //   flow_study steps [sizes] [threads] [solver] [mcf|surface_diffusion] [scheme]
 //                      semi-implicit MCF and SD step times split into fit / assemble /
-//                      solve (median of steps 2..4), and a degree-4 fit of the same mesh;
-//                      solver: auto (default), auto-jacobi, auto-amg, sparselu, ...
+//                      solve (median of steps 2..4; GF_STEPS=k: of steps k-2..k), and a
+//                      degree-4 fit of the same mesh;
+//                      solver: auto (default), auto-jacobi, auto-amg, sparselu, ...;
+//                      environment GF_TOLERANCE (BiCGSTAB's relative residual),
+//                      GF_JACOBI_LIMIT (SolverOptions::jacobi_limit)
 //   flow_study amg [sizes] [dt_mcf] [dt_sd]
 //                      AMG on the flows' systems outside the stepper: hierarchy, V-cycle
 //                      convergence factor and cost, BiCGSTAB iterations against Jacobi.
@@ -140,7 +143,9 @@ double Median(std::vector<double> v) {
 
 void Steps(const std::vector<int>& sizes, int threads, const std::string& solver, const std::string& only,
            const std::string& only_scheme) {
-  std::printf("step times (ms, median of steps 2..4), threads %d, solver %s\n", threads, solver.c_str());
+  const int last = std::max(4, std::getenv("GF_STEPS") ? std::atoi(std::getenv("GF_STEPS")) : 4);
+  std::printf("step times (ms, median of steps %d..%d), threads %d, solver %s\n", last - 2, last, threads,
+              solver.c_str());
   std::printf("  flow  scheme          verts     fit4    fit  assemble   solve   total  iters  total/fit4  step1  step-cpu  cpu/fit4-cpu\n");
   for (int target : sizes) {
     const int n = static_cast<int>(std::lround(std::sqrt((target - 2) / 6.0)));
@@ -176,6 +181,8 @@ void Steps(const std::vector<int>& sizes, int threads, const std::string& solver
         if (std::getenv("GF_AMG_PLAIN")) o.solver.amg.smooth_prolongator = false;
         if (const char* v = std::getenv("GF_AMG_THETA")) o.solver.amg.strength = std::atof(v);
         if (const char* d = std::getenv("GF_ILUT_DROP")) o.solver.ilut_drop = std::atof(d);
+        if (const char* v = std::getenv("GF_TOLERANCE")) o.solver.tolerance = std::atof(v);
+        if (const char* v = std::getenv("GF_JACOBI_LIMIT")) o.solver.jacobi_limit = std::atoi(v);
         const RunContext ctx = RunContext().WithThreads(threads);
         auto stepper = FlowStepper::Create(mesh, o, ctx);
         if (!stepper.ok()) {
@@ -185,7 +192,9 @@ void Steps(const std::vector<int>& sizes, int threads, const std::string& solver
         std::vector<double> f, a, s, tot, cpu;
         int iters = 0;
         double first = 0;  // step 1: symbolic analyses, the SD preconditioner's factorization
-        for (int i = 0; i < 4; ++i) {
+        // GF_STEPS (default 4): steps taken; the medians are over the last three.
+        const int steps = std::max(4, std::getenv("GF_STEPS") ? std::atoi(std::getenv("GF_STEPS")) : 4);
+        for (int i = 0; i < steps; ++i) {
           const Stopwatch w;
           const std::clock_t c0 = std::clock();
           auto st = (*stepper)->Step(ctx);
@@ -194,10 +203,8 @@ void Steps(const std::vector<int>& sizes, int threads, const std::string& solver
             std::printf("error: %s\n", st.status().ToString().c_str());
             return;
           }
-          if (i == 0) {
-            first = w.Millis();
-            continue;
-          }
+          if (i == 0) first = w.Millis();
+          if (i < steps - 3) continue;
           f.push_back(st->fit_ms), a.push_back(st->assemble_ms), s.push_back(st->solve_ms), tot.push_back(w.Millis());
           cpu.push_back(cpu_ms);
           iters = st->solver_iterations;
@@ -217,7 +224,9 @@ void Steps(const std::vector<int>& sizes, int threads, const std::string& solver
 // I + dt B K (matrix-free) with its factored preconditioners, against Jacobi. Environment:
 // GF_AMG_THETA, GF_AMG_JACOBI (weight: Jacobi smoother), GF_AMG_PLAIN, GF_AMG_SWEEPS (AMG
 // options); GF_NO_JACOBI; GF_COTAN (the cotan matrix M - dt/2 S instead of I - dt K);
-// GF_EXACT (SD with exact inner solves); GF_DELAUNAY (Fibonacci hulls, not cubed spheres).
+// GF_EXACT (SD with exact inner solves); GF_DELAUNAY (Fibonacci hulls, not cubed spheres);
+// GF_AMG_COARSE, GF_AMG_LEVELS (coarse_size, max_levels); GF_AMG_DEBUG (the rows where the
+// residual of 30 stationary cycles concentrates).
 void AmgProbe(const std::vector<int>& sizes, double dt_mcf, double dt_sd, const AmgOptions& ao) {
   for (int target : sizes) {
     const int n = static_cast<int>(std::lround(std::sqrt((target - 2) / 6.0)));
@@ -264,20 +273,43 @@ void AmgProbe(const std::vector<int>& sizes, double dt_mcf, double dt_sd, const 
       std::printf("  complexity %.2f\n", amg.operator_complexity());
       {
         Eigen::VectorXd x = Eigen::VectorXd::Zero(nv), r = rhs, e, ax;
-        double r0 = r.norm(), factor = 0;
-        for (int it = 0; it < 12; ++it) {
+        // The mean factor over the first 12 cycles hides a slowly amplified local mode:
+        // the asymptotic one is the mean over cycles 25..30.
+        double r0 = r.norm(), factor = 0, r24 = 0, asymptotic = 0;
+        for (int it = 0; it < 30; ++it) {
           amg.Apply(r, &e);
           x += e;
           MultiplySerial(A, x, &ax);
           r = rhs - ax;
           if (it == 11) factor = std::pow(r.norm() / r0, 1.0 / 12);
+          if (it == 23) r24 = r.norm();
+          if (it == 29) asymptotic = std::pow(r.norm() / r24, 1.0 / 6);
+        }
+        if (std::getenv("GF_AMG_DEBUG")) {
+          std::vector<int> idx(nv);
+          for (int i = 0; i < nv; ++i) idx[i] = i;
+          std::partial_sort(idx.begin(), idx.begin() + 15, idx.end(), [&](int a, int b) { return std::abs(r(a)) > std::abs(r(b)); });
+          std::printf("  |r| %.3g, max %.3g\n", r.norm(), r.cwiseAbs().maxCoeff());
+          for (int q = 0; q < 15; ++q) {
+            const int i = idx[q];
+            double d = 0, off = 0;
+            for (SparseMatrix::InnerIterator it(A, i); it; ++it) {
+              if (it.col() == i) {
+                d = it.value();
+              } else {
+                off += std::abs(it.value());
+              }
+            }
+            std::printf("   row %d r %.3g a_ii %.4g sum |a_ij| %.4g at (%.4f, %.4f, %.4f)\n", i, r(i), d, off,
+                        mesh.positions(i, 0), mesh.positions(i, 1), mesh.positions(i, 2));
+          }
         }
         const std::clock_t c0 = std::clock();
         for (int it = 0; it < 10; ++it) amg.Apply(rhs, &e);
         const std::clock_t c1 = std::clock();
         for (int it = 0; it < 10; ++it) MultiplySerial(A, rhs, &e);
         const std::clock_t c2 = std::clock();
-        std::printf("  stationary V-cycle factor %.3f; V-cycle %.2f ms, product %.2f ms (CPU)\n", factor,
+        std::printf("  stationary V-cycle factor %.3f (12 cycles), %.3f (cycles 25-30); V-cycle %.2f ms, product %.2f ms (CPU)\n", factor, asymptotic,
                     100.0 * (c1 - c0) / CLOCKS_PER_SEC, 100.0 * (c2 - c1) / CLOCKS_PER_SEC);
       }
       report("mcf amg", op, [&](const Eigen::VectorXd& x, Eigen::VectorXd* y) { amg.Apply(x, y); }, setup);
@@ -352,6 +384,8 @@ int main(int argc, char** argv) {
     if (const char* v = std::getenv("GF_AMG_JACOBI")) ao.smoother = AmgSmoother::kJacobi, ao.jacobi_weight = std::atof(v);
     if (std::getenv("GF_AMG_PLAIN")) ao.smooth_prolongator = false;
     if (const char* v = std::getenv("GF_AMG_SWEEPS")) ao.sweeps = std::atoi(v);
+    if (const char* v = std::getenv("GF_AMG_COARSE")) ao.coarse_size = std::atoi(v);
+    if (const char* v = std::getenv("GF_AMG_LEVELS")) ao.max_levels = std::atoi(v);
     AmgProbe(sizes, argc > 3 ? std::atof(argv[3]) : 1e-3, argc > 4 ? std::atof(argv[4]) : 1e-6, ao);
   } else {
     std::fprintf(stderr, "usage: flow_study table [cubed|delaunay|jittered] | steps [sizes] [threads] [solver] [mcf|surface_diffusion] [scheme]\n");

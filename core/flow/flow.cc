@@ -84,6 +84,8 @@ absl::Status ValidateFlowOptions(const FlowOptions& o) {
   if (!(o.max_face_turn_deg > 0 && o.max_face_turn_deg <= 180))
     return absl::InvalidArgumentError(
         absl::StrFormat("max_face_turn_deg %g is out of range (0, 180]", o.max_face_turn_deg));
+  if (!(std::isfinite(o.time_tolerance) && o.time_tolerance >= 0))
+    return absl::InvalidArgumentError(absl::StrFormat("time_tolerance %g must be >= 0", o.time_tolerance));
   if (o.fit.method != FitMethod::kLHF) return absl::InvalidArgumentError("fit.method: flows need LHF fits");
   if (absl::Status s = ValidateFitOptions(o.fit); !s.ok())
     return absl::InvalidArgumentError(absl::StrCat("fit: ", s.message()));
@@ -219,8 +221,20 @@ int FlowStepper::preconditioner_builds() const {
   return schur_ ? schur_->amg_builds : solver_.preconditioner_builds();
 }
 
+double FlowStepper::SolveTolerance() const {
+  const double base = options_.solver.tolerance;
+  const int k = static_cast<int>(offsets_.size());
+  const bool bdf2 = options_.scheme == FlowScheme::kBdf2;
+  if (!(options_.time_tolerance > 0) || k < (bdf2 ? 3 : 2)) return base;
+  const Eigen::VectorXd& s = offsets_[k - 1];
+  const double change = bdf2 ? (s - 2 * offsets_[k - 2] + offsets_[k - 3]).norm() : (s - offsets_[k - 2]).norm();
+  const double norm = s.norm();
+  if (!(norm > 0)) return base;
+  return std::max(base, std::min(1e-4, options_.time_tolerance * change / norm));
+}
+
 absl::StatusOr<int> FlowStepper::SolveSchur(const Mesh& geometry, const Eigen::VectorXd& mean, double adt,
-                                            const RunContext& ctx, Eigen::VectorXd* s) {
+                                            double tolerance, const RunContext& ctx, Eigen::VectorXd* s) {
   Schur& z = *schur_;
   Eigen::VectorXd tmp;
   const LinearMap apply = [&](const Eigen::VectorXd& x, Eigen::VectorXd* y) {
@@ -231,7 +245,6 @@ absl::StatusOr<int> FlowStepper::SolveSchur(const Mesh& geometry, const Eigen::V
   Eigen::VectorXd rhs;
   Multiply(B_, mean, &rhs, ctx);
   rhs *= -adt;
-  const double tolerance = options_.solver.tolerance;
   const int max_iterations = options_.solver.max_iterations;
   const bool adaptive = options_.solver.preconditioner == Preconditioner::kAuto;
   *s = solution_;  // warm start
@@ -390,7 +403,7 @@ absl::StatusOr<StepStats> FlowStepper::Step(const RunContext& ctx) {
   } else if (schur_) {
     st.assemble_ms = watch.Millis() - st.fit_ms;
     const Stopwatch solve_watch;
-    const absl::StatusOr<int> iterations = SolveSchur(fit_mesh, c.mean, alpha * dt, ctx, &s);
+    const absl::StatusOr<int> iterations = SolveSchur(fit_mesh, c.mean, alpha * dt, SolveTolerance(), ctx, &s);
     GF_RETURN_IF_ERROR(AtStep(iterations.status(), step, t));
     st.solver_iterations = *iterations;
     solve_ms = solve_watch.Millis();
@@ -442,6 +455,7 @@ absl::StatusOr<StepStats> FlowStepper::Step(const RunContext& ctx) {
     st.assemble_ms = watch.Millis() - st.fit_ms;
     const Stopwatch solve_watch;
     Eigen::VectorXd sol = solution_;  // warm start for iterative solvers
+    solver_.set_tolerance(SolveTolerance());
     GF_RETURN_IF_ERROR(AtStep(solver_.Factorize(system_), step, t));
     GF_RETURN_IF_ERROR(AtStep(solver_.Solve(rhs, &sol), step, t));
     solution_ = sol;
@@ -475,6 +489,11 @@ absl::StatusOr<StepStats> FlowStepper::Step(const RunContext& ctx) {
   previous_ = std::move(mesh_.positions);
   mesh_.positions = std::move(moved.positions);
   steps_ = step;
+  // BDF2's differences are taken over BDF2 steps only (its start step has other offsets).
+  if (options_.scheme != FlowScheme::kBdf2 || bdf2) {
+    if (offsets_.size() == 3) offsets_.erase(offsets_.begin());
+    offsets_.push_back(std::move(s));
+  }
   st.area = MeshArea(mesh_);
   st.volume = MeshVolume(mesh_);
   return st;

@@ -11,8 +11,12 @@
 // coarse operators R A P, a dense LU at the coarsest level. Cycle: Gauss-Seidel (forward
 // before, backward after the coarse correction) or damped Jacobi. D is the diagonal,
 // except in rows where it is small against the couplings (|a_ii| < sum_j |a_ij| / 2: the
-// GFD stencils of valence-3 vertices have a_ii ~ 0 or < 0), which take the l1 diagonal
-// |a_ii| + sum_j |a_ij| (plain D made the V-cycle diverge there). Every loop is serial: the
+// GFD stencils of valence-3 vertices and of the odd ill-conditioned stencil have a_ii ~ 0
+// or < 0), which take the l1 diagonal |a_ii| + sum_j |a_ij| (plain D made the V-cycle
+// diverge there). At the finest level such a row's local mode needs more than that: after
+// the pre-smoothing and before the post-smoothing each is relaxed by an exact solve of A
+// on its stencil's unknowns (a multiplicative Schwarz step; without it the V-cycle
+// diverged on the 1M-vertex cubed sphere, bench/README.md). Every loop is serial: the
 // preconditioner runs inside a Krylov iteration whose products are serial too (parallel
 // loops meeting several times per iteration lose badly on a loaded machine;
 // bench/README.md, "Flows").
@@ -67,7 +71,8 @@ class Amg {
 
   /// Builds the hierarchy of A (square, nonzero diagonal). INVALID_ARGUMENT for a bad
   /// matrix or options; FAILED_PRECONDITION when the coarsest operator is singular;
-  /// polls ctx between levels.
+  /// polls ctx between the set-up's phases (CANCELLED / DEADLINE_EXCEEDED). On any
+  /// error the hierarchy is left empty (built() false).
   absl::Status Build(const Matrix& A, const AmgOptions& options = AmgOptions(),
                      const RunContext& ctx = RunContext());
   /// Replaces the finest operator (same size; e.g. the next time step's) and keeps the
@@ -86,9 +91,13 @@ class Amg {
 
  private:
   struct Level;
+  absl::Status BuildLevels(const Matrix& A, const AmgOptions& options, const RunContext& ctx);
   void Cycle(int level, const Eigen::VectorXd& b, Eigen::VectorXd* x) const;
   /// One sweep; `from_zero`: x is zero (a forward Gauss-Seidel sweep then skips the upper part).
   void Smooth(const Level& l, const Eigen::VectorXd& b, Eigen::VectorXd* x, bool forward, bool from_zero) const;
+  /// Solves each patch's local problem in turn (see BuildPatches in amg.cc); `r`, when
+  /// given, is b - A x on entry and kept so.
+  void SolvePatches(const Level& l, const Eigen::VectorXd& b, Eigen::VectorXd* x, Eigen::VectorXd* r) const;
 
   AmgOptions options_;
   std::vector<std::unique_ptr<Level>> levels_;

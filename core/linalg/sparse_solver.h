@@ -35,9 +35,9 @@ enum class Preconditioner {
   /// Jacobi while a solve converges within SolverOptions::jacobi_limit iterations; from
   /// the first solve that needs more, AMG for good (that solve goes on from Jacobi's
   /// iterate). Jacobi's iterations are cheap (~1/5 of an AMG one) but grow like 1/h:
-  /// this keeps Jacobi where it is as fast (MCF at 10k / 100k vertices: 12 / 42
-  /// iterations; SD's reduced system at 10k: 59) and AMG where it wins (MCF at 1M: 143;
-  /// SD at 100k: 626) (bench/README.md, "Flows").
+  /// this keeps Jacobi where it is as fast (MCF at 10k vertices: 12 iterations) and AMG
+  /// where it wins (MCF at 100k / 1M: Jacobi 42 / 143, AMG 6 / 7; SD at 100k: 626 / 23)
+  /// (bench/README.md, "Flows").
   kAuto,
 };
 const char* SolverKindName(SolverKind kind);
@@ -64,8 +64,8 @@ struct SolverOptions {
   int max_iterations = 1000;  ///< BiCGSTAB
   Preconditioner preconditioner = Preconditioner::kAuto;
   /// Preconditioner::kAuto: a Jacobi iteration costs ~1/5 of an AMG one, and AMG needs
-  /// ~10-12 on the flows' systems: Jacobi pays while it needs up to ~60.
-  int jacobi_limit = 60;
+  /// ~4-7 on the flows' warm-started systems: Jacobi pays while it needs up to ~30.
+  int jacobi_limit = 30;
   double ilut_drop = 1e-3;    ///< ILUT drop tolerance
   int ilut_fill = 5;          ///< ILUT fill factor (5, 1e-3: 1.5x faster SD steps than 20, 1e-4)
   /// UMFPACK's iterative refinement steps per solve (its default 2); 0 for a
@@ -98,6 +98,8 @@ class SparseSolver {
   absl::Status Solve(const Eigen::VectorXd& b, Eigen::VectorXd* x);
 
   const SolverOptions& options() const { return options_; }
+  /// Iterative solvers' relative residual from the next Solve on (> 0).
+  void set_tolerance(double tolerance) { options_.tolerance = tolerance; }
   /// Symbolic analyses done so far (1 for a run with a fixed pattern).
   int analyses() const { return analyses_; }
   /// Iterations of the last solve (1 for direct solvers).

@@ -6,6 +6,8 @@
 #include <cstdio>
 
 #include "core/linalg/sparse_solver.h"
+#include "core/util/cancel.h"
+#include "core/util/run_context.h"
 
 namespace geomfit {
 namespace {
@@ -126,6 +128,30 @@ TEST(Amg, SolvesLikeADirectSolverWithBoundedIterations) {
   h.Apply(b, &y1);
   again.Apply(b, &y2);
   EXPECT_EQ(y1, y2);
+}
+
+// The set-up polls the context between its phases, several times per level, and stops
+// with CANCELLED at whichever poll sees the cancellation, leaving no hierarchy.
+TEST(Amg, BuildStopsWhenCancelled) {
+  const Matrix A = System(128, 160);
+  int polls = 0;
+  CancellationToken counting;
+  counting.SetPoll([&polls] { return ++polls < 0; });
+  Amg h;
+  ASSERT_TRUE(h.Build(A, AmgOptions(), RunContext(&counting)).ok());
+  EXPECT_GE(polls, 5 * (h.num_levels() - 1));
+  for (int stop : {1, 2, polls / 2, polls}) {
+    int seen = 0;
+    CancellationToken token;
+    token.SetPoll([&seen, stop] { return ++seen >= stop; });
+    Amg cancelled;
+    EXPECT_EQ(cancelled.Build(A, AmgOptions(), RunContext(&token)).code(), absl::StatusCode::kCancelled) << stop;
+    EXPECT_FALSE(cancelled.built()) << stop;
+  }
+  CancellationToken token;
+  token.Cancel();
+  EXPECT_EQ(h.Build(A, AmgOptions(), RunContext(&token)).code(), absl::StatusCode::kCancelled);
+  EXPECT_FALSE(h.built());
 }
 
 TEST(Amg, RejectsBadInput) {
