@@ -23,10 +23,6 @@ RingSpec RingSpecFor(const FitOptions& o) {
 
 namespace {
 
-// Mean index distance along edges below which a numbering counts as local: the
-// stencils of consecutive vertices then lie within a few hundred kB of each other.
-constexpr int64_t kLocalIndexGap = 4096;
-
 // The order to grow stencils in. Meshes numbered with locality (edges join near
 // indices: generators, most meshers) keep their order; others (an external mesher's
 // or a shuffled numbering) are grown in breadth-first order over the edges, from each
