@@ -71,8 +71,8 @@ Positions ApproximateVertexNormals(const Mesh& mesh, const Topology& topo, Norma
       for (int64_t v = begin; v < end; ++v)
         for (int j = 0; j < topo.NumVertexFaces(static_cast<int>(v)); ++j) {
           const int32_t* idx = mesh.faces.data() + 4 * static_cast<int64_t>(topo.VertexFaces(static_cast<int>(v))[j]);
-          int c = 0;
-          while (idx[c] != v) ++c;
+          // v's corner, branch-free (rows start at any corner of an irregular mesh)
+          const int c = (idx[1] == v) + 2 * (idx[2] == v) + 3 * (idx[3] == v);
           add_corner(idx, idx[3] < 0 ? 3 : 4, c);
         }
     }

@@ -91,8 +91,7 @@ class Spans {
         for (int j = 0; j < nf; ++j, out += 4) {
           const int32_t* row = m.faces.data() + 4 * static_cast<int64_t>(t.VertexFaces(v)[j]);
           const int n = row[3] < 0 ? 3 : 4;
-          int c = 0;
-          while (row[c] != v) ++c;
+          const int c = (row[1] == v) + 2 * (row[2] == v) + 3 * (row[3] == v);  // branch-free
           for (int q = 0, k = 0; q < 4; ++q)
             if (q != c) out[k++] = row[q];  // row[3] = -1 lands in out[2] for a triangle
           out[3] = n == 4 ? (c + 2) % 4 - ((c + 2) % 4 > c) : -1;

@@ -306,23 +306,39 @@ uint32_t Spread3(uint32_t x) {
   return x;
 }
 
-// Sorts a row of distinct entries by key[entry]. Rows hold a vertex's few neighbours
-// or faces, whose keys (source indices) come in no pattern: up to 8 entries go through a
-// branch-free odd-even transposition network on (key, entry) pairs, more through std::sort.
-void SortRowByKey(int32_t* begin, int32_t* end, const std::vector<int32_t>& key) {
-  const int n = static_cast<int>(end - begin);
-  uint64_t k[8];
-  if (n > 8) {
-    std::sort(begin, end, [&](int32_t x, int32_t y) { return key[x] < key[y]; });
-    return;
-  }
-  for (int i = 0; i < n; ++i) k[i] = static_cast<uint64_t>(key[begin[i]]) << 32 | static_cast<uint32_t>(begin[i]);
-  for (int pass = 0; pass < n; ++pass)
-    for (int i = pass & 1; i + 1 < n; i += 2) {
+// Sorts N packed (key, entry) pairs: an odd-even transposition network, unrolled and
+// branch-free (min/max), for keys that come in no pattern.
+template <int N>
+void SortNetwork(uint64_t* k) {
+  for (int pass = 0; pass < N; ++pass)
+    for (int i = pass & 1; i + 1 < N; i += 2) {
       const uint64_t a = k[i], b = k[i + 1];
       k[i] = std::min(a, b);
       k[i + 1] = std::max(a, b);
     }
+}
+
+// Sorts a row of distinct entries by key[entry]. Rows hold a vertex's few neighbours
+// or faces, whose keys (source indices) come in no pattern: up to 8 entries go through
+// a sorting network, more through std::sort.
+void SortRowByKey(int32_t* begin, int32_t* end, const std::vector<int32_t>& key) {
+  const int n = static_cast<int>(end - begin);
+  if (n > 8) {
+    std::sort(begin, end, [&](int32_t x, int32_t y) { return key[x] < key[y]; });
+    return;
+  }
+  uint64_t k[8];
+  for (int i = 0; i < n; ++i) k[i] = static_cast<uint64_t>(key[begin[i]]) << 32 | static_cast<uint32_t>(begin[i]);
+  switch (n) {
+    case 8: SortNetwork<8>(k); break;
+    case 7: SortNetwork<7>(k); break;
+    case 6: SortNetwork<6>(k); break;
+    case 5: SortNetwork<5>(k); break;
+    case 4: SortNetwork<4>(k); break;
+    case 3: SortNetwork<3>(k); break;
+    case 2: SortNetwork<2>(k); break;
+    default: break;
+  }
   for (int i = 0; i < n; ++i) begin[i] = static_cast<int32_t>(k[i] & 0xffffffffu);
 }
 
