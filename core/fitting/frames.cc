@@ -27,39 +27,54 @@ Eigen::Vector3d FaceNormal(const Mesh& mesh, int f) {
   return len > 0 ? Eigen::Vector3d(n / len) : Eigen::Vector3d::Zero();
 }
 
-Positions ApproximateVertexNormals(const Mesh& mesh, const Topology& /*topo*/,
-                                   NormalWeighting weighting, int num_threads) {
+Positions ApproximateVertexNormals(const Mesh& mesh, const Topology& topo, NormalWeighting weighting,
+                                   int num_threads) {
   const int nv = mesh.NumVertices(), nf = mesh.NumFaces();
   Positions normals = Positions::Zero(nv, 3);
-  // Corner normals summed face by face (the faces are read in storage order, not
-  // through each vertex's fan: on a mesh numbered in any order that was a cache miss per
-  // face). Each vertex receives its corners in increasing face order, the order of
-  // topo.VertexFaces, so its sum is the per-vertex loop's bit for bit. A thread owns a
-  // range of vertices and scans every face for its corners.
   const double* P = mesh.positions.data();
-  ParallelForBlocks(nv, num_threads, [&](int64_t begin, int64_t end, int) {
-    for (int f = 0; f < nf; ++f) {
-      const int32_t* idx = mesh.faces.data() + 4 * static_cast<int64_t>(f);
-      const int n = idx[3] < 0 ? 3 : 4;
-      for (int c = 0; c < n; ++c) {
-        const int32_t v = idx[c];
-        if (v < begin || v >= end) continue;
-        using Vec = Eigen::Map<const Eigen::Vector3d>;
-        const Eigen::Vector3d x = Vec(P + 3 * static_cast<int64_t>(v));
-        const Eigen::Vector3d a = Vec(P + 3 * static_cast<int64_t>(idx[c + 1 < n ? c + 1 : 0])) - x;
-        const Eigen::Vector3d b = Vec(P + 3 * static_cast<int64_t>(idx[c > 0 ? c - 1 : n - 1])) - x;
-        const Eigen::Vector3d cr = a.cross(b);  // corner normal, |cr| = 2 x corner triangle area
-        double* sum = normals.data() + 3 * static_cast<int64_t>(v);
-        if (weighting == NormalWeighting::kArea) {
-          for (int k = 0; k < 3; ++k) sum[k] += cr[k];
-        } else {
-          const double len = cr.norm();
-          if (len > 0) {
-            const Eigen::Vector3d w = std::atan2(len, a.dot(b)) * cr / len;
-            for (int k = 0; k < 3; ++k) sum[k] += w[k];
-          }
-        }
+  // Adds the normal of corner c of face row idx (n corners) to its vertex's sum.
+  auto add_corner = [&](const int32_t* idx, int n, int c) {
+    using Vec = Eigen::Map<const Eigen::Vector3d>;
+    const int32_t v = idx[c];
+    const Eigen::Vector3d x = Vec(P + 3 * static_cast<int64_t>(v));
+    const Eigen::Vector3d a = Vec(P + 3 * static_cast<int64_t>(idx[c + 1 < n ? c + 1 : 0])) - x;
+    const Eigen::Vector3d b = Vec(P + 3 * static_cast<int64_t>(idx[c > 0 ? c - 1 : n - 1])) - x;
+    const Eigen::Vector3d cr = a.cross(b);  // corner normal, |cr| = 2 x corner triangle area
+    double* sum = normals.data() + 3 * static_cast<int64_t>(v);
+    if (weighting == NormalWeighting::kArea) {
+      for (int k = 0; k < 3; ++k) sum[k] += cr[k];
+    } else {
+      const double len = cr.norm();
+      if (len > 0) {
+        const Eigen::Vector3d w = std::atan2(len, a.dot(b)) * cr / len;
+        for (int k = 0; k < 3; ++k) sum[k] += w[k];
       }
+    }
+  };
+  // Each vertex sums its corner normals in the order of topo.VertexFaces. When those
+  // rows are in increasing face order (a mesh's own topology) the faces are read in
+  // storage order and each corner added to its vertex, instead of walking each vertex's
+  // fan (on a mesh numbered in any order that was a cache miss per face): the same sums
+  // bit for bit. A thread owns a range of vertices and scans every face for its corners.
+  // Otherwise (a LocalityRelabelling's topology, rows in the source's face order, faces
+  // stored near their vertices) each vertex walks its fan.
+  const bool face_order = topo.vertex_faces_ascending || topo.num_vertices != nv;
+  ParallelForBlocks(nv, num_threads, [&](int64_t begin, int64_t end, int) {
+    if (face_order) {
+      for (int f = 0; f < nf; ++f) {
+        const int32_t* idx = mesh.faces.data() + 4 * static_cast<int64_t>(f);
+        const int n = idx[3] < 0 ? 3 : 4;
+        for (int c = 0; c < n; ++c)
+          if (idx[c] >= begin && idx[c] < end) add_corner(idx, n, c);
+      }
+    } else {
+      for (int64_t v = begin; v < end; ++v)
+        for (int j = 0; j < topo.NumVertexFaces(static_cast<int>(v)); ++j) {
+          const int32_t* idx = mesh.faces.data() + 4 * static_cast<int64_t>(topo.VertexFaces(static_cast<int>(v))[j]);
+          // v's corner, branch-free (rows start at any corner of an irregular mesh)
+          const int c = (idx[1] == v) + 2 * (idx[2] == v) + 3 * (idx[3] == v);
+          add_corner(idx, idx[3] < 0 ? 3 : 4, c);
+        }
     }
     for (int64_t v = begin; v < end; ++v) {
       const Eigen::Vector3d sum = normals.row(v).transpose();

@@ -23,10 +23,6 @@ RingSpec RingSpecFor(const FitOptions& o) {
 
 namespace {
 
-// Mean index distance along edges below which a numbering counts as local: the
-// stencils of consecutive vertices then lie within a few hundred kB of each other.
-constexpr int64_t kLocalIndexGap = 4096;
-
 // The order to grow stencils in. Meshes numbered with locality (edges join near
 // indices: generators, most meshers) keep their order; others (an external mesher's
 // or a shuffled numbering) are grown in breadth-first order over the edges, from each
@@ -95,8 +91,7 @@ class Spans {
         for (int j = 0; j < nf; ++j, out += 4) {
           const int32_t* row = m.faces.data() + 4 * static_cast<int64_t>(t.VertexFaces(v)[j]);
           const int n = row[3] < 0 ? 3 : 4;
-          int c = 0;
-          while (row[c] != v) ++c;
+          const int c = (row[1] == v) + 2 * (row[2] == v) + 3 * (row[3] == v);  // branch-free
           for (int q = 0, k = 0; q < 4; ++q)
             if (q != c) out[k++] = row[q];  // row[3] = -1 lands in out[2] for a triangle
           out[3] = n == 4 ? (c + 2) % 4 - ((c + 2) % 4 > c) : -1;

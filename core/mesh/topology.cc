@@ -293,3 +293,150 @@ absl::StatusOr<Topology> ValidateMesh(const Mesh& mesh) {
 }
 
 }  // namespace geomfit
+
+namespace geomfit {
+namespace {
+
+// The 10 bits of x spread to every third bit (Morton interleaving).
+uint32_t Spread3(uint32_t x) {
+  x = (x | x << 16) & 0x030000ffu;
+  x = (x | x << 8) & 0x0300f00fu;
+  x = (x | x << 4) & 0x030c30c3u;
+  x = (x | x << 2) & 0x09249249u;
+  return x;
+}
+
+// Sorts N packed (key, entry) pairs: an odd-even transposition network, unrolled and
+// branch-free (min/max), for keys that come in no pattern.
+template <int N>
+void SortNetwork(uint64_t* k) {
+  for (int pass = 0; pass < N; ++pass)
+    for (int i = pass & 1; i + 1 < N; i += 2) {
+      const uint64_t a = k[i], b = k[i + 1];
+      k[i] = std::min(a, b);
+      k[i + 1] = std::max(a, b);
+    }
+}
+
+// Sorts a row of distinct entries by key[entry]. Rows hold a vertex's few neighbours
+// or faces, whose keys (source indices) come in no pattern: up to 8 entries go through
+// a sorting network, more through std::sort.
+void SortRowByKey(int32_t* begin, int32_t* end, const std::vector<int32_t>& key) {
+  const int n = static_cast<int>(end - begin);
+  if (n > 8) {
+    std::sort(begin, end, [&](int32_t x, int32_t y) { return key[x] < key[y]; });
+    return;
+  }
+  uint64_t k[8];
+  for (int i = 0; i < n; ++i) k[i] = static_cast<uint64_t>(key[begin[i]]) << 32 | static_cast<uint32_t>(begin[i]);
+  switch (n) {
+    case 8: SortNetwork<8>(k); break;
+    case 7: SortNetwork<7>(k); break;
+    case 6: SortNetwork<6>(k); break;
+    case 5: SortNetwork<5>(k); break;
+    case 4: SortNetwork<4>(k); break;
+    case 3: SortNetwork<3>(k); break;
+    case 2: SortNetwork<2>(k); break;
+    default: break;
+  }
+  for (int i = 0; i < n; ++i) begin[i] = static_cast<int32_t>(k[i] & 0xffffffffu);
+}
+
+}  // namespace
+
+bool HasLocalNumbering(const Mesh& mesh) {
+  int64_t gap = 0, edges = 0;
+  for (int f = 0; f < mesh.NumFaces(); ++f) {
+    const int32_t* idx = mesh.faces.data() + 4 * static_cast<int64_t>(f);
+    const int n = idx[3] < 0 ? 3 : 4;
+    for (int c = 0; c < n; ++c) gap += std::abs(static_cast<int64_t>(idx[c]) - idx[c + 1 < n ? c + 1 : 0]);
+    edges += n;
+  }
+  return gap <= kLocalIndexGap * edges;
+}
+
+absl::StatusOr<LocalityRelabelling> RelabelForLocality(const Mesh& mesh) {
+  const int nv = mesh.NumVertices(), nf = mesh.NumFaces();
+  if (nv == 0 || nf == 0) return absl::InvalidArgumentError("empty mesh");
+  // Vertices by the Morton code of their cell in a 1024^3 grid over the bounding box
+  // (non-finite coordinates in cell 0): an LSD radix sort, two passes of 15 bits, stable.
+  double lo[3], hi[3], scale[3];
+  for (int c = 0; c < 3; ++c) lo[c] = std::numeric_limits<double>::max(), hi[c] = -lo[c];
+  const double* P = mesh.positions.data();
+  for (int v = 0; v < nv; ++v)
+    for (int c = 0; c < 3; ++c) {
+      const double x = P[3 * static_cast<int64_t>(v) + c];
+      if (std::isfinite(x)) lo[c] = std::min(lo[c], x), hi[c] = std::max(hi[c], x);
+    }
+  for (int c = 0; c < 3; ++c) scale[c] = hi[c] > lo[c] ? 1024.0 / (hi[c] - lo[c]) : 0.0;
+  std::vector<uint32_t> code(nv);
+  for (int v = 0; v < nv; ++v) {
+    uint32_t key = 0;
+    for (int c = 0; c < 3; ++c) {
+      const double t = (P[3 * static_cast<int64_t>(v) + c] - lo[c]) * scale[c];
+      key |= Spread3(t >= 0 && t < 1023.0 ? static_cast<uint32_t>(t) : t >= 1023.0 ? 1023u : 0u) << c;
+    }
+    code[v] = key;
+  }
+  LocalityRelabelling r;
+  r.vertex_source.resize(nv);
+  {
+    constexpr int kBits = 15, kBuckets = 1 << kBits;
+    std::vector<int32_t> tmp(nv), count(kBuckets + 1);
+    std::iota(tmp.begin(), tmp.end(), 0);
+    for (int pass = 0; pass < 2; ++pass) {
+      const int shift = pass * kBits;
+      std::fill(count.begin(), count.end(), 0);
+      for (int v = 0; v < nv; ++v) ++count[(code[v] >> shift & (kBuckets - 1)) + 1];
+      std::partial_sum(count.begin(), count.end(), count.begin());
+      std::vector<int32_t>& out = pass == 0 ? r.vertex_source : tmp;
+      const std::vector<int32_t>& in = pass == 0 ? tmp : r.vertex_source;
+      for (int i = 0; i < nv; ++i) out[count[code[in[i]] >> shift & (kBuckets - 1)]++] = in[i];
+    }
+    r.vertex_source.swap(tmp);
+  }
+  std::vector<int32_t> relabel(nv);
+  for (int v = 0; v < nv; ++v) relabel[r.vertex_source[v]] = v;
+  r.mesh.positions.resize(nv, 3);
+  for (int v = 0; v < nv; ++v) r.mesh.positions.row(v) = mesh.positions.row(r.vertex_source[v]);
+
+  // Faces by their lowest relabelled vertex (a counting sort, stable), corners relabelled
+  // in place (rotation kept).
+  Faces rows(nf, 4);
+  std::vector<int32_t> start(nv + 1, 0);
+  for (int f = 0; f < nf; ++f) {
+    const int32_t* idx = mesh.faces.data() + 4 * static_cast<int64_t>(f);
+    int32_t* out = rows.data() + 4 * static_cast<int64_t>(f);
+    const int n = idx[3] < 0 ? 3 : 4;
+    for (int c = 0; c < n; ++c)
+      if (idx[c] < 0 || idx[c] >= nv) return absl::InvalidArgumentError("vertex index out of range");
+    out[0] = relabel[idx[0]], out[1] = relabel[idx[1]], out[2] = relabel[idx[2]];
+    out[3] = n == 3 ? -1 : relabel[idx[3]];
+    ++start[std::min({out[0], out[1], out[2], n == 3 ? out[0] : out[3]}) + 1];
+  }
+  std::partial_sum(start.begin(), start.end(), start.begin());
+  r.face_source.resize(nf);
+  Faces faces(nf, 4);
+  for (int f = 0; f < nf; ++f) {
+    const int32_t* in = rows.data() + 4 * static_cast<int64_t>(f);
+    const int32_t g = start[std::min({in[0], in[1], in[2], in[3] < 0 ? in[0] : in[3]})]++;
+    r.face_source[g] = f;
+    std::copy_n(in, 4, faces.data() + 4 * static_cast<int64_t>(g));
+  }
+  r.mesh.faces = std::move(faces);
+  return r;
+}
+
+absl::StatusOr<Topology> BuildTopology(const LocalityRelabelling& relabelled) {
+  absl::StatusOr<Topology> t = BuildTopology(relabelled.mesh);
+  if (!t.ok()) return t;
+  for (int v = 0; v < t->num_vertices; ++v) {
+    SortRowByKey(t->vv.data() + t->vv_offsets[v], t->vv.data() + t->vv_offsets[v + 1], relabelled.vertex_source);
+    SortRowByKey(t->vf_faces.data() + t->vf_offsets[v], t->vf_faces.data() + t->vf_offsets[v + 1],
+                 relabelled.face_source);
+  }
+  t->vertex_faces_ascending = false;
+  return t;
+}
+
+}  // namespace geomfit

@@ -25,6 +25,11 @@ struct Topology {
   std::vector<int32_t> locality_order;
   int num_boundary_edges = 0;
   int num_isolated = 0;
+  /// True when every vf row lists its faces in increasing face index (BuildTopology of a
+  /// mesh); false for BuildTopology of a LocalityRelabelling, whose rows follow the
+  /// source's face order. Face-by-face passes that accumulate per vertex match per-fan
+  /// passes only in the first case.
+  bool vertex_faces_ascending = true;
 
   int NumVertexFaces(int v) const { return vf_offsets[v + 1] - vf_offsets[v]; }
   const int32_t* VertexFaces(int v) const { return vf_faces.data() + vf_offsets[v]; }
@@ -46,5 +51,35 @@ absl::Status ValidateGeometry(const Mesh& mesh);
 
 /// BuildTopology + ValidateGeometry.
 absl::StatusOr<Topology> ValidateMesh(const Mesh& mesh);
+
+/// A mesh relabelled for memory locality: vertices in spatial (Morton) order, faces
+/// ordered by their lowest new vertex (ties in source order), each face row keeping its
+/// source rotation. Work over it reads nearby memory wherever the source's numbering
+/// put its vertices and faces (a mesher's output is often scattered).
+struct LocalityRelabelling {
+  Mesh mesh;                           ///< the relabelled mesh
+  std::vector<int32_t> vertex_source;  ///< relabelled vertex -> source vertex
+  std::vector<int32_t> face_source;    ///< relabelled face -> source face
+};
+
+/// Mean index distance along edges up to which a numbering counts as local: the data of
+/// neighbouring vertices then lie within a few hundred kB of each other.
+inline constexpr int64_t kLocalIndexGap = 4096;
+
+/// Whether the mean |a - b| over the edges (a, b) of the face rows is at most
+/// kLocalIndexGap (generators number locally; some meshers scatter their numbering).
+bool HasLocalNumbering(const Mesh& mesh);
+
+/// Relabels `mesh`. INVALID_ARGUMENT for an empty mesh or a vertex index out of range
+/// (no message worth showing: validate the source for that).
+absl::StatusOr<LocalityRelabelling> RelabelForLocality(const Mesh& mesh);
+
+/// Topology of a relabelled mesh with each row in the source's order: neighbours by
+/// source vertex index, incident faces by source face index. Per-vertex work over it
+/// (stencils, vertex normals) then performs the source's operations in the source's
+/// order, so its results equal the source's bit for bit (in relabelled order). Fails
+/// exactly when BuildTopology(source) fails, with a message naming relabelled indices:
+/// report BuildTopology(source)'s instead.
+absl::StatusOr<Topology> BuildTopology(const LocalityRelabelling& relabelled);
 
 }  // namespace geomfit

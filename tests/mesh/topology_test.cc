@@ -312,3 +312,99 @@ TEST(TopologyTest, LocalityOrderIsABreadthFirstPermutation) {
 
 }  // namespace
 }  // namespace geomfit
+
+namespace geomfit {
+namespace {
+
+// A mesh relabelled for locality: the same mesh under the recorded relabelling, and a
+// topology whose rows list the source's neighbours and faces in the source's order (so
+// stencils and vertex normals repeat the source's operations). Shuffled numberings,
+// quads, open and closed meshes, an isolated vertex.
+TEST(LocalityRelabellingTest, TopologyRowsFollowTheSource) {
+  GeneratorOptions g;
+  g.n = 10;
+  GeneratorOptions q = g;
+  q.quads = true;
+  Mesh with_isolated = GenerateBumpMesh(g);
+  with_isolated.positions.conservativeResize(with_isolated.NumVertices() + 1, 3);
+  with_isolated.positions.bottomRows<1>() << 0.25, 0.5, 3.0;
+  const Mesh meshes[] = {GenerateTorusMesh(g), GenerateBumpMesh(q), GenerateTorusMesh(q), GenerateSphereMesh(g),
+                         with_isolated};
+  for (const Mesh& base : meshes) {
+    const Mesh m = testing_util::ShuffleVertices(base, 11);
+    const LocalityRelabelling r = RelabelForLocality(m).value();
+    const int nv = m.NumVertices(), nf = m.NumFaces();
+    ASSERT_EQ(r.mesh.NumVertices(), nv);
+    ASSERT_EQ(r.mesh.NumFaces(), nf);
+    std::vector<int32_t> relabel(nv, -1), face_relabel(nf, -1);
+    for (int v = 0; v < nv; ++v) relabel[r.vertex_source[v]] = v;
+    for (int f = 0; f < nf; ++f) face_relabel[r.face_source[f]] = f;
+    ASSERT_EQ(std::count(relabel.begin(), relabel.end(), -1), 0) << "not a permutation";
+    ASSERT_EQ(std::count(face_relabel.begin(), face_relabel.end(), -1), 0) << "not a permutation";
+    for (int v = 0; v < nv; ++v) ASSERT_EQ(r.mesh.positions.row(v), m.positions.row(r.vertex_source[v]));
+    for (int f = 0; f < nf; ++f)
+      for (int c = 0; c < 4; ++c) {
+        const int32_t src = m.faces(r.face_source[f], c);
+        ASSERT_EQ(r.mesh.faces(f, c), src < 0 ? -1 : relabel[src]) << "face " << f;
+      }
+    // Faces in order of their lowest vertex: a face's corners are near its position.
+    for (int f = 1; f < nf; ++f) {
+      auto lowest = [&](int h) {
+        int32_t low = nv;
+        for (int c = 0; c < r.mesh.FaceSize(h); ++c) low = std::min(low, r.mesh.faces(h, c));
+        return low;
+      };
+      ASSERT_LE(lowest(f - 1), lowest(f));
+    }
+    const Topology t = BuildTopology(m).value();
+    const Topology u = BuildTopology(r).value();
+    EXPECT_FALSE(u.vertex_faces_ascending);
+    EXPECT_TRUE(t.vertex_faces_ascending);
+    EXPECT_EQ(u.num_boundary_edges, t.num_boundary_edges);
+    EXPECT_EQ(u.num_isolated, t.num_isolated);
+    EXPECT_EQ(u.has_quads, t.has_quads);
+    for (int v = 0; v < nv; ++v) {
+      const int s = r.vertex_source[v];
+      EXPECT_EQ(u.is_boundary[v], t.is_boundary[s]) << v;
+      EXPECT_EQ(u.is_isolated[v], t.is_isolated[s]) << v;
+      std::vector<int32_t> neighbors, faces;
+      for (int32_t w : Neighbors(u, v)) neighbors.push_back(r.vertex_source[w]);
+      for (int32_t f : VertexFaces(u, v)) faces.push_back(r.face_source[f]);
+      ASSERT_EQ(neighbors, Neighbors(t, s)) << v;
+      ASSERT_EQ(faces, VertexFaces(t, s)) << v;
+    }
+  }
+}
+
+// A generator's numbering is local; a shuffled one of a large mesh is not.
+TEST(LocalityRelabellingTest, LocalNumbering) {
+  GeneratorOptions g;
+  g.n = 100;
+  const Mesh m = GenerateTorusMesh(g);
+  EXPECT_TRUE(HasLocalNumbering(m));
+  EXPECT_FALSE(HasLocalNumbering(testing_util::ShuffleVertices(m, 3)));
+  EXPECT_TRUE(HasLocalNumbering(RelabelForLocality(testing_util::ShuffleVertices(m, 3)).value().mesh));
+}
+
+// Relabelling keeps every topology error: BuildTopology of the relabelled mesh fails
+// exactly when the source's does (the CLI then reports the source's message).
+TEST(LocalityRelabellingTest, FailsWhereTheSourceFails) {
+  const Mesh bad[] = {
+      testing_util::MakeMesh({{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {0, 0, 1}, {1, 1, 1}},
+                             {{0, 1, 2}, {0, 1, 3}, {0, 1, 4}}),                                  // non-manifold edge
+      testing_util::MakeMesh({{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {1, 1, 0}}, {{0, 1, 2}, {1, 2, 3}}),  // flipped
+      testing_util::MakeMesh({{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {-1, 0, 0}, {0, -1, 0}},
+                             {{0, 1, 2}, {0, 3, 4}}),  // bow tie
+  };
+  for (const Mesh& m : bad) {
+    ASSERT_FALSE(BuildTopology(m).ok());
+    const LocalityRelabelling r = RelabelForLocality(m).value();
+    EXPECT_EQ(BuildTopology(r).status().code(), absl::StatusCode::kInvalidArgument);
+  }
+  const Mesh out_of_range = testing_util::MakeMesh({{0, 0, 0}, {1, 0, 0}, {0, 1, 0}}, {{0, 1, 3}});
+  EXPECT_EQ(RelabelForLocality(out_of_range).status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_EQ(RelabelForLocality(Mesh{}).status().code(), absl::StatusCode::kInvalidArgument);
+}
+
+}  // namespace
+}  // namespace geomfit
