@@ -36,6 +36,11 @@ int SolveWlsBatch(const WlsProblem* const problems[], int count, const WlsSettin
                   double* const coefficients[], double* const ops[], WlsSolution solutions[],
                   WlsBatchWorkspace& work);
 
+/// Tests and benchmarks: whether SolveWlsBatch may solve well-conditioned lanes without
+/// operator rows by the normal equations (the default) or always by the QR (not
+/// thread-safe: call before fitting).
+void SetWlsBatchNormalEquations(bool enabled);
+
 /// The instruction set SolveWlsBatch runs with: "avx512", "avx2" or "portable" (the
 /// best this CPU has unless SetWlsBatchIsa chose another).
 const char* WlsBatchIsa();
