@@ -74,7 +74,9 @@ bool NormalEquationsEnabled() { return NormalEquationsFlag(); }
 // Lanes solved by the normal equations (SolveNormal): a condition (2.4) of the
 // column-scaled matrix up to kPlainCondition is solved directly (forward error of order
 // condition^2 eps < 1e-13 relative), up to kRefinedCondition with one step of refinement
-// on the residual (then of order condition eps, as the QR's); above, or within a factor 2
+// on the residual (then of order condition eps, as the QR's; computed for the whole group
+// when one lane needs it, applied to the lanes above kPlainCondition only, so that a
+// lane's result does not depend on its neighbours in the batch); above, or within a factor 2
 // of the degree's cut-off, the lane takes the QR. Equality with the QR's results:
 // bench/README.md, "Issue 15, fourth round".
 constexpr double kPlainCondition = 30, kRefinedCondition = 1e3;
@@ -218,10 +220,15 @@ GEOMFIT_INLINE int SolveNormal(const V* gu, const V* gv, const V* gg, const V* g
         for (int c = 0; c < kCols; ++c) g[d][c] += e * up[ea[c]] * vp[eb[c]];
       }
     }
+    // Only the lanes above kPlainCondition take the correction: a lane's result must not
+    // depend on the other lanes of its batch.
+    // (1 or 0 per lane, set lane by lane: GCC 12 fails on this vector comparison here.)
+    V refined;
+    for (int l = 0; l < W; ++l) refined[l] = condition[l] > kPlainCondition ? 1.0 : 0.0;
     for (int d = 0; d < dims; ++d) {
       for (int c = 0; c < kCols; ++c) g[d][c] *= f[c];
       SolveGram<kCols>(r, inv, g[d]);
-      for (int c = 0; c < kCols; ++c) y[d][c] += g[d][c];
+      for (int c = 0; c < kCols; ++c) y[d][c] += refined * g[d][c];  // y + 0 = y exactly
     }
   }
 
