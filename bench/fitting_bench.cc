@@ -14,7 +14,9 @@
 //
 // Rates: items_per_second and the "tri/s" counter are triangles per second of wall time.
 // `--mesh=FILE` runs every line on that mesh instead (e.g. a gmsh torus); `--isa=avx2` (or
-// avx512, portable) picks the batched kernel's instruction set. See bench/README.md.
+// avx512, portable) picks the batched kernel's instruction set; `--qr` keeps the batched
+// kernel off the normal equations; `--compare` prints their differences to the QR's
+// (CompareNormalEquations) instead of timing. See bench/README.md.
 #include <cstdio>
 #include <cstring>
 #include <memory>
@@ -45,6 +47,7 @@ using CgalPoint = Kernel::Point_3;
 using MongeVia = CGAL::Monge_via_jet_fitting<Kernel>;
 
 constexpr int kTorusN = 168;
+bool g_compare = false;  // --compare: normal equations vs QR (CompareNormalEquations)
 std::string g_mesh_path;  // --mesh=FILE: that mesh instead of the torus (e.g. a gmsh one)
 
 struct Fixture {
@@ -210,6 +213,43 @@ void BM_CgalJet(benchmark::State& state) {
   SetRates(state, degree);
 }
 
+// --compare: the batched kernel with and without the normal equations (QR only), degrees
+// 1-6, one thread: largest difference of normals, H, K, k1, k2 relative to the larger of
+// the value and the column's largest magnitude (normals: 1), and how many vertices the
+// normal equations solved (those whose condition differs from the QR run's by any bit
+// count as such; the rest are bit-equal).
+void CompareNormalEquations() {
+  const Fixture& f = F();
+  for (int degree = 1; degree <= kMaxDegree; ++degree) {
+    const FitOptions o = Options(degree);
+    const RunContext ctx(nullptr, 1);
+    SetWlsBatchNormalEquations(false);
+    const auto qr = FitSurface(f.mesh, f.topo, o, f.nb[degree], {}, ctx).value();
+    SetWlsBatchNormalEquations(true);
+    const auto ne = FitSurface(f.mesh, f.topo, o, f.nb[degree], {}, ctx).value();
+    const Differentials a = ComputeDifferentials(*qr, kAllQuantities, 1);
+    const Differentials b = ComputeDifferentials(*ne, kAllQuantities, 1);
+    auto worst = [](const Eigen::VectorXd& x, const Eigen::VectorXd& y, double scale) {
+      double e = 0;
+      for (int v = 0; v < x.size(); ++v) e = std::max(e, std::abs(x(v) - y(v)) / std::max(std::abs(x(v)), scale));
+      return e;
+    };
+    const double ks = std::max(a.k1.cwiseAbs().maxCoeff(), a.k2.cwiseAbs().maxCoeff());
+    double en = 0, cond_max = 0;
+    int differ = 0;
+    for (int v = 0; v < f.mesh.NumVertices(); ++v) {
+      for (int k = 0; k < 3; ++k) en = std::max(en, std::abs(a.normals(v, k) - b.normals(v, k)));
+      const bool d = qr->coefficients(v)[qr->num_coefficients() - 1] != ne->coefficients(v)[ne->num_coefficients() - 1];
+      differ += d;
+      if (d) cond_max = std::max(cond_max, double(qr->diagnostics(v).condition));
+    }
+    std::printf("degree %d: normal equations on %d of %d vertices (condition up to %.3g); largest relative "
+                "difference normals %.2e H %.2e K %.2e k1 %.2e k2 %.2e\n",
+                degree, differ, f.mesh.NumVertices(), cond_max, en, worst(a.mean, b.mean, ks),
+                worst(a.gaussian, b.gaussian, ks * ks), worst(a.k1, b.k1, ks), worst(a.k2, b.k2, ks));
+  }
+}
+
 void Args(benchmark::internal::Benchmark* b) {
   for (int threads : {1, 2})
     for (int d : {2, 4, 6}) b->Args({d, threads});
@@ -235,6 +275,10 @@ int main(int argc, char** argv) {
         std::fprintf(stderr, "--isa=%s: not supported here\n", argv[i] + 6);
         return 1;
       }
+    } else if (std::strcmp(argv[i], "--qr") == 0) {
+      SetWlsBatchNormalEquations(false);
+    } else if (std::strcmp(argv[i], "--compare") == 0) {
+      g_compare = true;
     } else {
       ++i;
       continue;
@@ -249,6 +293,10 @@ int main(int argc, char** argv) {
   std::fprintf(stderr, "%s: %d vertices, %d triangles; mean stencil size d2 %.1f d4 %.1f d6 %.1f\n",
                g_mesh_path.empty() ? "torus n=168" : g_mesh_path.c_str(), f.mesh.NumVertices(), f.NumTriangles(), f.avg_stencil[2], f.avg_stencil[4],
                f.avg_stencil[6]);
+  if (g_compare) {
+    CompareNormalEquations();
+    return 0;
+  }
   benchmark::RunSpecifiedBenchmarks();
   benchmark::Shutdown();
   return 0;

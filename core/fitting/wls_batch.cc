@@ -65,6 +65,200 @@ GEOMFIT_INLINE void Reflect(const V* x, V tau, int j, int m, V* y) {
   for (int i = j + 1; i < m; ++i) y[i] -= w * x[i];
 }
 
+bool& NormalEquationsFlag() {
+  static bool enabled = true;
+  return enabled;
+}
+bool NormalEquationsEnabled() { return NormalEquationsFlag(); }
+
+// Lanes solved by the normal equations (SolveNormal): a condition (2.4) of the
+// column-scaled matrix up to kPlainCondition is solved directly (forward error of order
+// condition^2 eps < 1e-13 relative), up to kRefinedCondition with one step of refinement
+// on the residual (then of order condition eps, as the QR's; computed for the whole group
+// when one lane needs it, applied to the lanes above kPlainCondition only, so that a
+// lane's result does not depend on its neighbours in the batch); above, or within a factor 2
+// of the degree's cut-off, the lane takes the QR. Equality with the QR's results:
+// bench/README.md, "Issue 15, fourth round".
+constexpr double kPlainCondition = 30, kRefinedCondition = 1e3;
+
+// Weight (2.2.1) of a row at scaled distance (u, v) with safeguard factor g (0: dropped).
+template <int D, class V>
+GEOMFIT_INLINE V Weight(V u, V v, V g, double epsilon) {
+  constexpr int kPowers = D % 2 == 0 ? D / 2 : D;
+  const V s2 = u * u + v * v + epsilon;
+  const V root = D % 2 == 0 ? Sqrt(s2) : Sqrt(Sqrt(s2));
+  V denom = root;
+  for (int e = 1; e < kPowers; ++e) denom *= root;
+  return g > 0 ? g / denom : V{};
+}
+
+// x <- R^-1 R^-T x for the upper-triangular R (column-major, kCols x kCols) with the
+// reciprocals of its diagonal in `inv` (a vector division costs ~10 multiplications).
+template <int kCols, class V>
+GEOMFIT_INLINE void SolveGram(const V* r, const V* inv, V* x) {
+  for (int i = 0; i < kCols; ++i) {  // R^T y = x
+    V sum = x[i];
+    for (int k = 0; k < i; ++k) sum -= r[i * kCols + k] * x[k];
+    x[i] = sum * inv[i];
+  }
+  for (int i = kCols - 1; i >= 0; --i) {  // R x = y
+    V sum = x[i];
+    for (int k = i + 1; k < kCols; ++k) sum -= r[k * kCols + i] * x[k];
+    x[i] = sum * inv[i];
+  }
+}
+
+// The fit by the normal equations of the column-scaled weighted Vandermonde matrix A
+// ((2.3.5), (2.6.6)), for the lanes of `mask` (rows gathered as in Solve, `m` of them).
+// A^T A is never formed column by column: its entry (i, j) is the weighted moment
+// sum_r w_r^2 u^(a_i + a_j) v^(b_i + b_j) over the product of the two columns' norms, so
+// one pass over the rows accumulates the NumCoefficients(2D) moments and the moments of
+// the right-hand sides. Its Cholesky factor R is the QR's R up to row signs, so the
+// condition (2.4) is computed from it as the QR path does. Writes and returns the lanes
+// whose pivots are positive and whose condition is below the limits above; `r`
+// (kCols^2 vectors) is scratch.
+template <int W, int D, int First, class V>
+GEOMFIT_INLINE int SolveNormal(const V* gu, const V* gv, const V* gg, const V* grhs, int m, int dims, V hv,
+                               const double* h, int mask, const WlsSettings& S, double* const coefficients[],
+                               WlsSolution solutions[], V* r) {
+  constexpr int kN = NumCoefficients(D), kCols = kN - First, kMoments = NumCoefficients(2 * D);
+  V mom[kMoments], rmom[3][kN];  // moment of u^a v^b at TaylorIndex(a, b)
+  for (int t = 0; t < kMoments; ++t) mom[t] = V{};
+  for (int d = 0; d < dims; ++d)
+    for (int t = 0; t < kN; ++t) rmom[d][t] = V{};
+  for (int i = 0; i < m; ++i) {
+    const V u = gu[i] / hv, v = gv[i] / hv;
+    const V w = Weight<D>(u, v, gg[i], S.weight_epsilon);
+    V wu[2 * D + 1], vp[2 * D + 1];
+    wu[0] = w * w;
+    vp[0] = Splat<V>(1);
+    for (int e = 1; e <= 2 * D; ++e) wu[e] = wu[e - 1] * u, vp[e] = vp[e - 1] * v;
+    for (int p = 0, t = 0; p <= 2 * D; ++p)
+      for (int k = 0; k <= p; ++k, ++t) mom[t] += wu[p - k] * vp[k];
+    for (int d = 0; d < dims; ++d) {
+      const V b = grhs[d * m + i];
+      for (int p = 0, t = 0; p <= D; ++p)
+        for (int k = 0; k <= p; ++k, ++t) rmom[d][t] += wu[p - k] * vp[k] * b;
+    }
+  }
+  // Column c is the monomial (ea[c], eb[c]); f[c] = 1 / its norm (the scaling (2.6.6)
+  // with the factorials cancelled).
+  int ea[kCols], eb[kCols];
+  V f[kCols];
+  for (int p = First, c = 0; p <= D; ++p)
+    for (int k = 0; k <= p; ++k, ++c) ea[c] = p - k, eb[c] = k;
+  for (int c = 0; c < kCols; ++c) {
+    const V norm2 = mom[TaylorIndex(2 * ea[c], 2 * eb[c])];
+    f[c] = norm2 > 0 ? 1.0 / Sqrt(norm2) : Splat<V>(1);
+  }
+  // Cholesky factor of the scaled A^T A in place (upper, column-major).
+  V ok = Splat<V>(1), inv[kCols];  // inv: reciprocals of R's diagonal
+  for (int j = 0; j < kCols; ++j) {
+    V* rj = r + j * kCols;
+    for (int i = 0; i <= j; ++i) rj[i] = mom[TaylorIndex(ea[i] + ea[j], eb[i] + eb[j])] * f[i] * f[j];
+    for (int i = 0; i < j; ++i) {
+      const V* ri = r + i * kCols;
+      V sum = rj[i];
+      for (int k = 0; k < i; ++k) sum -= ri[k] * rj[k];
+      rj[i] = sum * inv[i];
+    }
+    V d = rj[j];
+    for (int k = 0; k < j; ++k) d -= rj[k] * rj[k];
+    // A pivot lost to cancellation (a condition near 1/sqrt(eps)) leaves the lane to the QR.
+    ok = d > 1e-10 ? ok : V{};
+    rj[j] = d > 1e-10 ? Sqrt(d) : Splat<V>(1);
+    inv[j] = 1.0 / rj[j];
+  }
+  // Condition (2.4): 1-norms of R and R^-1 (column by column, as InvertUpper).
+  V norm_r = V{}, norm_i = V{};
+  for (int c = 0; c < kCols; ++c) {
+    V x[kCols];
+    for (int i = 0; i < kCols; ++i) x[i] = V{};
+    x[c] = Splat<V>(1);
+    for (int i = c; i >= 0; --i) {
+      const V* ri = r + i * kCols;
+      const V xi = x[i] *= inv[i];
+      for (int l = 0; l < i; ++l) x[l] -= xi * ri[l];
+    }
+    V sr = V{}, si = V{};
+    for (int i = 0; i <= c; ++i) sr += Abs(r[c * kCols + i]), si += Abs(x[i]);
+    norm_r = Max(norm_r, sr);
+    norm_i = Max(norm_i, si);
+  }
+  const V condition = norm_r * norm_i;
+  const double limit = S.cond_threshold[D] / 2 < kRefinedCondition ? S.cond_threshold[D] / 2 : kRefinedCondition;
+  ok = condition <= limit ? ok : V{};
+  bool refine = false;
+  for (int l = 0; l < W; ++l)
+    if (!(ok[l] != 0))
+      mask &= ~(1 << l);
+    else if (mask >> l & 1)
+      refine |= condition[l] > kPlainCondition;
+  if (mask == 0) return 0;
+
+  // y = R^-1 R^-T (scaled A^T b); with refinement, y += R^-1 R^-T A^T (b - A y), the
+  // residual's moments accumulated row by row like the right-hand sides'.
+  V y[3][kCols];
+  for (int d = 0; d < dims; ++d) {
+    for (int c = 0; c < kCols; ++c) y[d][c] = rmom[d][TaylorIndex(ea[c], eb[c])] * f[c];
+    SolveGram<kCols>(r, inv, y[d]);
+  }
+  if (refine) {
+    V g[3][kCols];
+    for (int d = 0; d < dims; ++d)
+      for (int c = 0; c < kCols; ++c) g[d][c] = V{};
+    for (int i = 0; i < m; ++i) {
+      const V u = gu[i] / hv, v = gv[i] / hv;
+      const V w = Weight<D>(u, v, gg[i], S.weight_epsilon);
+      V up[D + 1], vp[D + 1];
+      up[0] = vp[0] = Splat<V>(1);
+      for (int e = 1; e <= D; ++e) up[e] = up[e - 1] * u, vp[e] = vp[e - 1] * v;
+      for (int d = 0; d < dims; ++d) {
+        V e = grhs[d * m + i];
+        for (int c = 0; c < kCols; ++c) e -= f[c] * y[d][c] * up[ea[c]] * vp[eb[c]];
+        e *= w * w;
+        for (int c = 0; c < kCols; ++c) g[d][c] += e * up[ea[c]] * vp[eb[c]];
+      }
+    }
+    // Only the lanes above kPlainCondition take the correction: a lane's result must not
+    // depend on the other lanes of its batch.
+    // (1 or 0 per lane, set lane by lane: GCC 12 fails on this vector comparison here.)
+    V refined;
+    for (int l = 0; l < W; ++l) refined[l] = condition[l] > kPlainCondition ? 1.0 : 0.0;
+    for (int d = 0; d < dims; ++d) {
+      for (int c = 0; c < kCols; ++c) g[d][c] *= f[c];
+      SolveGram<kCols>(r, inv, g[d]);
+      for (int c = 0; c < kCols; ++c) y[d][c] += refined * g[d][c];  // y + 0 = y exactly
+    }
+  }
+
+  // Unscaling as in Solve: c_ab = a! b! f_c y_c / h^(a+b).
+  V hp[D + 1];
+  hp[0] = Splat<V>(1);
+  for (int p = 1; p <= D; ++p) hp[p] = hp[p - 1] * hv;
+  for (int d = 0; d < dims; ++d) {
+    for (int c = 0; c < kCols; ++c) {
+      const V coef = Factorial(ea[c]) * Factorial(eb[c]) * f[c] * y[d][c] / hp[ea[c] + eb[c]];
+      const int t = TaylorIndex(ea[c], eb[c]);
+      for (int l = 0; l < W; ++l)
+        if (mask >> l & 1) coefficients[l][d * kN + t] = coef[l];
+    }
+    for (int l = 0; l < W; ++l)
+      if (mask >> l & 1)
+        for (int t = 0; t < First; ++t) coefficients[l][d * kN + t] = 0;
+  }
+  for (int l = 0; l < W; ++l) {
+    if (!(mask >> l & 1)) continue;
+    WlsSolution& sol = solutions[l];
+    sol = WlsSolution{};
+    sol.degree_used = D;
+    sol.rank = kN;
+    sol.condition = condition[l];
+    sol.radius = h[l];
+  }
+  return mask;
+}
+
 // SolveWls (wls.cc) at degree D with the first First Taylor columns fixed, for the lanes
 // of `problems`; the order of operations follows SolveWls so results agree to round-off.
 template <int W, int D, int First>
@@ -133,6 +327,17 @@ GEOMFIT_INLINE int Solve(const WlsProblem* const problems[], int count, const Wl
   V hv;
   for (int l = 0; l < W; ++l) hv[l] = h[l];
 
+  // Normal equations first, for fits without operator rows; the lanes they leave go on
+  // to the QR below.
+  int done = 0;
+  bool any_op = false;
+  for (int l = 0; l < count; ++l) any_op |= ops[l] != nullptr;
+  if (!any_op && NormalEquationsEnabled()) {
+    done = SolveNormal<W, D, First>(gu, gv, gg, grhs, m, dims, hv, h, mask, S, coefficients, solutions, rinv);
+    mask &= ~done;
+    if (mask == 0) return done;
+  }
+
   // Weighted Vandermonde (2.3.5) with weights (2.2.1); padded rows get weight 0.
   double inv_fact[kCols];
   {
@@ -140,14 +345,9 @@ GEOMFIT_INLINE int Solve(const WlsProblem* const problems[], int count, const Wl
     for (int p = First; p <= D; ++p)
       for (int k = 0; k <= p; ++k) inv_fact[c++] = 1.0 / (Factorial(p - k) * Factorial(k));
   }
-  constexpr int kPowers = D % 2 == 0 ? D / 2 : D;
   for (int i = 0; i < m; ++i) {
     const V u = gu[i] / hv, v = gv[i] / hv;
-    const V s2 = u * u + v * v + S.weight_epsilon;
-    const V root = D % 2 == 0 ? Sqrt(s2) : Sqrt(Sqrt(s2));
-    V denom = root;
-    for (int e = 1; e < kPowers; ++e) denom *= root;
-    const V w = weight[i] = gg[i] > 0 ? gg[i] / denom : V{};
+    const V w = weight[i] = Weight<D>(u, v, gg[i], S.weight_epsilon);
     V up[D + 1], vp[D + 1];
     up[0] = vp[0] = Splat<V>(1);
     for (int e = 1; e <= D; ++e) up[e] = up[e - 1] * u, vp[e] = vp[e - 1] * v;
@@ -214,7 +414,7 @@ GEOMFIT_INLINE int Solve(const WlsProblem* const problems[], int count, const Wl
   ok = condition <= S.cond_threshold[D] ? ok : V{};
   for (int l = 0; l < W; ++l)
     if (!(ok[l] != 0)) mask &= ~(1 << l);
-  if (mask == 0) return 0;
+  if (mask == 0) return done;
 
   // Back substitution and unscaling: c_jk = s_c y_c / h^(j+k).
   V hp[D + 1];
@@ -251,8 +451,6 @@ GEOMFIT_INLINE int Solve(const WlsProblem* const problems[], int count, const Wl
   }
 
   // Operator rows (SolveWls): row c = s_c / h^p * (Q z_c)^T Omega, z_c = R^-T e_c.
-  bool any_op = false;
-  for (int l = 0; l < count; ++l) any_op |= ops[l] != nullptr;
   if (any_op) {
     const int op_rows = S.op_rows < 0 ? kN : (S.op_rows < kN ? S.op_rows : kN);
     for (int l = 0; l < W; ++l)
@@ -273,7 +471,7 @@ GEOMFIT_INLINE int Solve(const WlsProblem* const problems[], int count, const Wl
         }
       }
   }
-  return mask;
+  return mask | done;
 }
 
 template <int W, int First>
@@ -374,6 +572,8 @@ int SolveWlsBatch(const WlsProblem* const problems[], int count, const WlsSettin
 }
 
 const char* WlsBatchIsa() { return Selected()->name; }
+
+void SetWlsBatchNormalEquations(bool enabled) { NormalEquationsFlag() = enabled; }
 
 std::vector<std::string> WlsBatchIsas() {
   std::vector<std::string> names;

@@ -24,7 +24,12 @@ struct WlsBatchWorkspace {
 /// problems sit side by side in SIMD lanes (row i of every problem in one vector, rows
 /// padded with zero weight), with the degree fixed at compile time. Same steps and
 /// safeguards as SolveWls (weights (2.2.1), column scaling (2.6.6), Householder QR,
-/// condition cut-off (2.4), operator rows), equal results to round-off.
+/// condition cut-off (2.4), operator rows), equal results to round-off. Without
+/// operator rows (every `ops[l]` null), lanes whose scaled condition is small (<= 1e3
+/// and half the cut-off) are solved by the normal equations instead (Cholesky of the
+/// column-scaled Gram matrix built from weighted moments, wls_batch.cc SolveNormal):
+/// the same condition and degree, normals and curvatures equal to the QR's to ~1e-14
+/// relative, but not bit for bit; the other lanes take the QR.
 ///
 /// A lane whose fit leaves the plain path (too few rows, a zero pivot, a condition above
 /// the cut-off, so a degree drop, or the oscillation safeguard, which is never batched)
@@ -35,6 +40,11 @@ struct WlsBatchWorkspace {
 int SolveWlsBatch(const WlsProblem* const problems[], int count, const WlsSettings& settings,
                   double* const coefficients[], double* const ops[], WlsSolution solutions[],
                   WlsBatchWorkspace& work);
+
+/// Tests and benchmarks: whether SolveWlsBatch may solve well-conditioned lanes without
+/// operator rows by the normal equations (the default) or always by the QR (not
+/// thread-safe: call before fitting).
+void SetWlsBatchNormalEquations(bool enabled);
 
 /// The instruction set SolveWlsBatch runs with: "avx512", "avx2" or "portable" (the
 /// best this CPU has unless SetWlsBatchIsa chose another).

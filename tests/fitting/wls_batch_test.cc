@@ -1,6 +1,6 @@
 // The batched SIMD kernel (wls_batch.h) against the scalar SolveWls: the same fits,
-// normals, curvatures and stencil rows to 1e-12 relative, and the safeguard lanes left
-// to the scalar path.
+// normals, curvatures and stencil rows to 1e-12 relative, the safeguard lanes left to the
+// scalar path, and the normal equations' lanes (fits without stencils) equal to the QR's.
 #include <cmath>
 #include <memory>
 #include <random>
@@ -12,6 +12,7 @@
 #include "core/fitting/wls_batch.h"
 #include "core/quantities/differentials.h"
 #include "core/surfaces/analytic.h"
+#include "tests/mesh/make_mesh.h"
 
 namespace geomfit {
 namespace {
@@ -132,6 +133,60 @@ TEST_P(WlsBatchIsaTest, FitsNormalsCurvaturesAndStencilsEqualTheScalarPath) {
   EXPECT_GT(batched_vertices, total * 3 / 4);
 }
 
+// Fits without stencil rows take the normal equations (wls_batch.cc SolveNormal) in the
+// well-conditioned lanes: normals and curvatures equal the scalar QR's to 1e-12 relative,
+// diagnostics equal (the condition, stored as a float, to its rounding), on the test
+// meshes and a shuffled irregular torus.
+// (The default kernel only: the kernels' arithmetic is the same per lane, see above.)
+TEST(WlsBatchTest, NormalEquationsGiveTheScalarPathsNormalsAndCurvatures) {
+  std::vector<Case> cases = Meshes();
+  GeneratorOptions g;
+  g.n = 12;
+  g.jitter = 0.4;
+  cases.push_back({"shuffled torus", testing_util::ShuffleVertices(GenerateTorusMesh(g), 11)});
+  int differ = 0, total = 0;
+  for (const Case& c : cases) {
+    const Topology t = BuildTopology(c.mesh).value();
+    for (int degree = 1; degree <= kMaxDegree; ++degree)
+      for (FitMethod method : {FitMethod::kLHF, FitMethod::kLOP})
+        for (bool interpolate : {true, false}) {
+          SCOPED_TRACE(::testing::Message() << c.name << " degree " << degree << " "
+                                            << FitMethodName(method) << " interpolate " << interpolate);
+          FitOptions o;
+          o.degree = degree;
+          o.method = method;
+          o.interpolate = interpolate;
+          FitRequest scalar_req;
+          scalar_req.batched_kernel = false;
+          const auto scalar = FitSurface(c.mesh, t, o, nullptr, scalar_req).value();
+          const auto batch = FitSurface(c.mesh, t, o, nullptr, {}).value();
+          const Differentials ds = ComputeDifferentials(*scalar);
+          const Differentials db = ComputeDifferentials(*batch);
+          const double kscale = std::max(ds.k1.cwiseAbs().maxCoeff(), ds.k2.cwiseAbs().maxCoeff());
+          const int nc = scalar->num_coefficients() * scalar->dims();
+          for (int v = 0; v < c.mesh.NumVertices(); ++v) {
+            const VertexDiagnostics &a = batch->diagnostics(v), &b = scalar->diagnostics(v);
+            ASSERT_EQ(a.degree_used, b.degree_used) << v;
+            ASSERT_EQ(a.rank, b.rank) << v;
+            ASSERT_EQ(a.flags, b.flags) << v;
+            ASSERT_EQ(a.points, b.points) << v;
+            ASSERT_NEAR(a.condition, b.condition, 1e-6 * b.condition) << "condition at vertex " << v;
+            for (int k = 0; k < 3; ++k) ASSERT_TRUE(Near(db.normals(v, k), ds.normals(v, k), 1)) << "normal at vertex " << v;
+            ASSERT_TRUE(Near(db.mean(v), ds.mean(v), kscale)) << "H at vertex " << v;
+            ASSERT_TRUE(Near(db.gaussian(v), ds.gaussian(v), kscale * kscale)) << "K at vertex " << v;
+            ASSERT_TRUE(Near(db.k1(v), ds.k1(v), kscale)) << "k1 at vertex " << v;
+            ASSERT_TRUE(Near(db.k2(v), ds.k2(v), kscale)) << "k2 at vertex " << v;
+            bool same = true;
+            for (int i = 0; i < nc; ++i) same &= batch->coefficients(v)[i] == scalar->coefficients(v)[i];
+            differ += !same;
+            total++;
+          }
+        }
+  }
+  // The QR lanes are the scalar path's bit for bit: most vertices were solved otherwise.
+  EXPECT_GT(differ, total / 2);
+}
+
 // A random stencil of `rows` points on a paraboloid, every row with weight 1.
 WlsProblem RandomProblem(int rows, std::mt19937& rng) {
   std::uniform_real_distribution<double> uni(-1, 1);
@@ -187,6 +242,73 @@ TEST_P(WlsBatchIsaTest, LanesLeavingThePlainPathAreLeftToTheScalarSolver) {
   S.oscillation_safeguard = true;
   EXPECT_EQ(SolveWlsBatch(p, kWlsLanes, S, c, o, sol, *work), 0);
   EXPECT_EQ(std::string(WlsBatchIsa()), GetParam());
+}
+
+// SolveWlsBatch without operator rows: a well-conditioned lane is solved by the normal
+// equations (equal to SolveWls to round-off, not bit for bit), a lane with a condition
+// above the normal equations' limit (1e3) but below the cut-off by the QR (SolveWls's
+// result bit for bit), a lane above the cut-off not at all; with the normal equations
+// off every solved lane is SolveWls's bit for bit; and a lane solved alone gives the bits
+// it gets in the batch.
+TEST_P(WlsBatchIsaTest, NormalEquationsLeaveIllConditionedLanesToTheQr) {
+  std::mt19937 rng(3);
+  WlsSettings S;
+  S.degree = 2;
+  const double thresholds[kMaxDegree + 1] = {0, 1e3, 1e6, 3.3e3, 1e4, 1e5, 1e6};
+  S.cond_threshold = thresholds;
+  WlsProblem P[kWlsLanes];
+  for (int l = 0; l < kWlsLanes; ++l) P[l] = RandomProblem(16, rng);
+  // Lanes 2, 5 and 6: the points close to the parabola v = u^2 / 2, so that the columns
+  // v and u^2 / 2 are nearly parallel (column scaling does not help): condition ~4e3,
+  // above the cut-off 1e6, and ~1e2 (normal equations with a refinement step).
+  for (int l : {2, 5, 6})
+    for (int r = 0; r < P[l].rows; ++r)
+      P[l].v[r] = 0.5 * P[l].u[r] * P[l].u[r] + (l == 2 ? 2e-4 : l == 5 ? 1e-7 : 1e-2) * P[l].v[r];
+  const WlsProblem* p[kWlsLanes];
+  double coef[kWlsLanes][kMaxCoefficients], *c[kWlsLanes], *o[kWlsLanes] = {};
+  for (int l = 0; l < kWlsLanes; ++l) p[l] = &P[l], c[l] = coef[l];
+  WlsSolution sol[kWlsLanes], ref[kWlsLanes];
+  double ref_coef[kWlsLanes][kMaxCoefficients];
+  for (int l = 0; l < kWlsLanes; ++l) ref[l] = SolveWls(P[l], S, ref_coef[l]);
+  ASSERT_GT(ref[2].condition, 1e3);
+  ASSERT_LT(ref[2].condition, 1e6);
+  ASSERT_TRUE(ref[5].condition_downgraded);  // to degree 1
+  ASSERT_GT(ref[6].condition, 30);
+  ASSERT_LT(ref[6].condition, 1e3);
+  auto work = std::make_unique<WlsBatchWorkspace>();
+  for (bool normal : {true, false}) {
+    SCOPED_TRACE(normal ? "normal equations" : "QR only");
+    SetWlsBatchNormalEquations(normal);
+    EXPECT_EQ(SolveWlsBatch(p, kWlsLanes, S, c, o, sol, *work), 0b11011111);
+    int bit_equal = 0;
+    for (int l = 0; l < kWlsLanes; ++l) {
+      if (l == 5) continue;
+      EXPECT_EQ(sol[l].degree_used, 2);
+      EXPECT_NEAR(sol[l].condition, ref[l].condition, 1e-12 * ref[l].condition);
+      bool same = true;
+      for (int i = 0; i < NumCoefficients(2); ++i) {
+        EXPECT_NEAR(c[l][i], ref_coef[l][i], 1e-12 * std::abs(ref_coef[l][i]) + 1e-15) << "lane " << l;
+        same &= c[l][i] == ref_coef[l][i];
+      }
+      if (l == 2 || !normal) {
+        EXPECT_TRUE(same) << "lane " << l;
+      }
+      bit_equal += same;
+    }
+    if (normal) {
+      EXPECT_LT(bit_equal, 4);
+    }
+    // A lane's result does not depend on the other lanes of its batch (lane 6 makes its
+    // group compute a refinement step): each lane solved alone gives the same bits.
+    for (int l = 0; l < kWlsLanes; ++l) {
+      if (l == 5) continue;
+      double alone[kMaxCoefficients], *a[1] = {alone}, *no_op[1] = {nullptr};
+      WlsSolution s;
+      ASSERT_EQ(SolveWlsBatch(p + l, 1, S, a, no_op, &s, *work), 1) << "lane " << l;
+      for (int i = 0; i < NumCoefficients(2); ++i) EXPECT_EQ(alone[i], c[l][i]) << "lane " << l;
+    }
+  }
+  SetWlsBatchNormalEquations(true);
 }
 
 INSTANTIATE_TEST_SUITE_P(Kernels, WlsBatchIsaTest, ::testing::ValuesIn(WlsBatchIsas()),
