@@ -81,11 +81,12 @@ struct FitOptions {
   /// fit); normals 0.03-0.43x CGAL's at degree 2 with it (bench/README.md).
   int normal_degree = 0;
   /// Hermite curvatures (degree-2 interpolating LHF fits only; ignored otherwise): the
-  /// Hessian is fitted to the directional second derivatives 6 h_j / r_j^2 - 2 g_j / r_j
+  /// Hessian is fitted to the directional second derivatives 4 h_j / r_j^2 - g_j / r_j
   /// of the stencil points (height h_j, radial slope g_j of the refined normal at r_j),
-  /// a combination in which the cubic Taylor terms cancel, so H and K become O(h^2) on
-  /// any stencil. Implies the normal refinement (normal_degree 3 when unset), which
-  /// supplies O(h^3) normals at every vertex; the stencil operators stay the plain fit's.
+  /// in which the quartic Taylor term cancels and the cubic one halves (it enters only
+  /// through the stencil's odd moments): H and K 0.04-0.45x CGAL's at degree 2. Implies
+  /// the normal refinement (normal_degree 3 when unset), which supplies O(h^3) normals at
+  /// every vertex; the stencil operators stay the plain fit's. Not for noisy input.
   bool hermite_hessian = false;
 
   /// Whether the Hermite curvatures apply (see hermite_hessian).
