@@ -10,6 +10,10 @@
 // vertex; `torus@/dir/mc%d_raw.obj@/dir/mc%d_proj.obj` fits the first (noisy) meshes and
 // measures at the second's vertices (the same numbering, positions on the surface).
 //
+// Environment overrides of our fit only: GF_RINGS, GF_MPF, GF_EPS, GF_ND (normal_degree),
+// GF_HERM (hermite_hessian); of CGAL's stencils only: GF_CGAL_RINGS, GF_CGAL_MPF; of both:
+// GF_NOISE (the noise mode's stencils).
+//
 // CGAL's results are converted to the project's conventions in bench/cgal_jet.h.
 #include <algorithm>
 #include <cstdio>
@@ -109,6 +113,7 @@ int main(int argc, char** argv) {
         if (const char* e = std::getenv("GF_MPF")) ours_o.min_points_factor = std::atof(e);
         if (const char* e = std::getenv("GF_EPS")) ours_o.weight_epsilon = std::atof(e);
         if (const char* e = std::getenv("GF_ND")) ours_o.normal_degree = std::atoi(e);
+        if (std::getenv("GF_HERM")) ours_o.hermite_hessian = true;  // Hermite curvatures
         auto ours_nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, mesh, RingSpecFor(ours_o)));
         Row r;
         r.surface = name, r.n = n, r.degree = d, r.nv = mesh.NumVertices();
@@ -119,8 +124,17 @@ int main(int argc, char** argv) {
         r.ours_s = t.Seconds();
         r.downgraded = 0;
         for (auto& dg : ours.diagnostics) r.downgraded += (dg.flags & kFlagDowngraded) != 0;
+        // CGAL on other stencils (its best ones may be larger than ours): GF_CGAL_RINGS,
+        // GF_CGAL_MPF override the rings / min_points_factor of CGAL's stencils only.
+        auto cgal_nb = nb;
+        if (std::getenv("GF_CGAL_RINGS") || std::getenv("GF_CGAL_MPF")) {
+          FitOptions co = o;
+          if (const char* e = std::getenv("GF_CGAL_RINGS")) co.rings = std::atof(e);
+          if (const char* e = std::getenv("GF_CGAL_MPF")) co.min_points_factor = std::atof(e);
+          cgal_nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, mesh, RingSpecFor(co)));
+        }
         Stopwatch tc;
-        Differentials cgal = CgalDifferentials(mesh, *nb, d, ours.normals, &r.cgal_too_few);
+        Differentials cgal = CgalDifferentials(mesh, *cgal_nb, d, ours.normals, &r.cgal_too_few);
         r.cgal_s = tc.Seconds();
         r.ours = MeasureErrors(at, *surface, ours);
         r.cgal = MeasureErrors(at, *surface, cgal);

@@ -85,6 +85,7 @@ FitOptionsBits FitOptionsIdentity(const FitOptions& o) {
   b[15 + kMaxDegree] = static_cast<uint64_t>(o.SmoothingPasses());
   b[16 + kMaxDegree] = static_cast<uint64_t>(o.solver);
   b[17 + kMaxDegree] = static_cast<uint64_t>(o.NormalDegree());
+  b[18 + kMaxDegree] = o.HermiteHessian();
   return b;
 }
 
@@ -95,8 +96,8 @@ std::string FitOptionsKey(const FitOptions& o) {
       FitMethodName(o.method), o.safeguard_angle_deg, o.Interpolates(), o.two_pass,
       static_cast<int>(o.frame_normals), o.weight_epsilon, o.oscillation_safeguard);
   for (int d = 1; d <= kMaxDegree; ++d) absl::StrAppendFormat(&key, " c%g", o.cond_threshold[d]);
-  absl::StrAppendFormat(&key, " n%s sp%d %s nd%d", NoiseModeName(o.noise), o.SmoothingPasses(),
-                        WlsSolverName(o.solver), o.NormalDegree());
+  absl::StrAppendFormat(&key, " n%s sp%d %s nd%d hh%d", NoiseModeName(o.noise), o.SmoothingPasses(),
+                        WlsSolverName(o.solver), o.NormalDegree(), o.HermiteHessian());
   return key;
 }
 

@@ -80,10 +80,24 @@ struct FitOptions {
   /// it costs ~3.5x a plain degree-2 fit (a second neighbourhood build and a degree-3
   /// fit); normals 0.03-0.43x CGAL's at degree 2 with it (bench/README.md).
   int normal_degree = 0;
+  /// Hermite curvatures (degree-2 interpolating LHF fits only; ignored otherwise): the
+  /// Hessian is fitted to the directional second derivatives 4 h_j / r_j^2 - g_j / r_j
+  /// of the stencil points (height h_j, radial slope g_j of the refined normal at r_j),
+  /// in which the quartic Taylor term cancels and the cubic one halves (it enters only
+  /// through the stencil's odd moments): H and K 0.04-0.45x CGAL's at degree 2. Implies
+  /// the normal refinement (normal_degree 3 when unset), which supplies O(h^3) normals at
+  /// every vertex; the stencil operators stay the plain fit's. Not for noisy input.
+  bool hermite_hessian = false;
 
+  /// Whether the Hermite curvatures apply (see hermite_hessian).
+  bool HermiteHessian() const {
+    return hermite_hessian && degree == 2 && method == FitMethod::kLHF && solver == WlsSolver::kQR &&
+           Interpolates();
+  }
   /// The normal pre-fit's degree actually used; equal to `degree` when there is none.
   int NormalDegree() const {
     if (method != FitMethod::kLHF || solver != WlsSolver::kQR) return degree;
+    if (HermiteHessian() && normal_degree <= degree) return degree + 1;
     return normal_degree > degree ? normal_degree : degree;
   }
 
@@ -115,7 +129,7 @@ std::string FitOptionsKey(const FitOptions& options);
 /// as exact bit patterns: two option sets give identical fits iff their bits are equal.
 /// Cache keys are built from these, never from formatted text (`%g` aliases 1.5 and
 /// 1.5000001).
-using FitOptionsBits = std::array<uint64_t, 18 + kMaxDegree>;
+using FitOptionsBits = std::array<uint64_t, 19 + kMaxDegree>;
 FitOptionsBits FitOptionsIdentity(const FitOptions& options);
 
 const char* FitMethodName(FitMethod m);

@@ -19,9 +19,11 @@ TEST(WireTest, FitOptionsRoundTripAndUnsetMeansDefault) {
   o.smoothing_passes = 3;
   o.solver = WlsSolver::kSVD;
   o.normal_degree = 5;
+  o.hermite_hessian = true;
   auto back = FromProto(ToProto(o));
   ASSERT_TRUE(back.ok()) << back.status();
   EXPECT_EQ(back->normal_degree, 5);
+  EXPECT_TRUE(back->hermite_hessian);
   EXPECT_EQ(FitOptionsKey(*back), FitOptionsKey(o));
   EXPECT_EQ(FitOptionsIdentity(*back), FitOptionsIdentity(o));
   for (FitMethod m : {FitMethod::kLHF, FitMethod::kLOP, FitMethod::kXu, FitMethod::kLSCM}) {
@@ -32,6 +34,7 @@ TEST(WireTest, FitOptionsRoundTripAndUnsetMeansDefault) {
   ASSERT_TRUE(defaults.ok());
   EXPECT_EQ(FitOptionsKey(*defaults), FitOptionsKey(FitOptions()));
   EXPECT_EQ(defaults->normal_degree, 0);
+  EXPECT_FALSE(defaults->hermite_hessian);
   v1::FitOptions bad;
   bad.set_degree(7);
   EXPECT_EQ(FromProto(bad).status().code(), absl::StatusCode::kInvalidArgument);

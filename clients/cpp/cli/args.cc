@@ -205,6 +205,9 @@ void AddCurvatureOptions(ArgParser* p, CurvatureArgs* a) {
       .Int("normal-degree", &f.normal_degree,
            "normal refinement: a first fit of this degree (> --degree) fixes the tangent "
            "plane (--degree 2 --normal-degree 3: O(h^3) normals); 0 = off")
+      .Flag("hermite-hessian", &f.hermite_hessian,
+            "degree 2: curvatures from the stencil's heights and refined normals jointly "
+            "(quartic term cancels: H, K ~0.1-0.4x CGAL's); implies --normal-degree 3")
       .String("solver", &a->solver, "least-squares solver: qr (the default) or svd", "qr|svd")
       .Flag("two-pass", &f.two_pass, "refit in frames from the first pass's fitted normals")
       .Flag("interpolate", &a->interpolate, "the fit passes through the vertex (the default)")

@@ -573,7 +573,9 @@ class Client:
         smoothing_passes, solver="qr"|"svd", normal_degree, ...); unset ones take the server
         defaults (degree 0 = 2). normal_degree: normal refinement, a first fit of that degree
         (> degree) fixes the tangent plane, so degree=2, normal_degree=3 gives O(h^3) normals
-        with the degree-2 curvatures (0 = off, the default). method: "lhf", "lop", or the
+        with the degree-2 curvatures (0 = off, the default). hermite_hessian=True (degree 2):
+        curvatures from the stencil's heights and refined normals jointly (the quartic term
+        cancels; implies normal_degree=3). method: "lhf", "lop", or the
         comparison methods "xu", "lscm".
         `progress`: callable(phase, done, total) or True (geomfit.progress), called with the
         server's phases of the fit ("noise test", "smooth 1/2", "smooth 2/2", "frames",
