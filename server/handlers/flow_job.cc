@@ -19,7 +19,7 @@ namespace {
 /// A parse error of core ("kind: unknown ...") as flow.<its field>.
 absl::Status Invalid(const absl::Status& s) { return absl::InvalidArgumentError(absl::StrCat("flow.", s.message())); }
 
-/// A relative-change limit: finite and >= 0 (0: none).
+/// A relative-change limit or a tolerance factor: finite and >= 0 (0: none).
 absl::Status CheckLimit(const char* field, double v) {
   if (std::isfinite(v) && v >= 0) return absl::OkStatus();
   return absl::InvalidArgumentError(absl::StrFormat("flow.%s = %g: expected a finite value >= 0", field, v));
@@ -65,6 +65,10 @@ absl::StatusOr<FlowOptions> FlowOptionsFromProto(const v1::FlowJob& spec) {
     return absl::InvalidArgumentError(absl::StrCat("flow.snapshot_every = ", spec.snapshot_every(), ": must be >= 0"));
   GF_RETURN_IF_ERROR(CheckLimit("max_area_change", spec.max_area_change()));
   GF_RETURN_IF_ERROR(CheckLimit("max_volume_change", spec.max_volume_change()));
+  if (spec.has_time_tolerance()) {  // unset: the core default
+    GF_RETURN_IF_ERROR(CheckLimit("time_tolerance", spec.time_tolerance()));
+    o.time_tolerance = spec.time_tolerance();
+  }
   if (absl::Status s = ValidateFlowOptions(o); !s.ok())
     return absl::InvalidArgumentError(absl::StrCat("flow.", s.message()));
   return o;

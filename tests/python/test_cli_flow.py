@@ -39,7 +39,7 @@ def test_flow_writes_a_pvd_series(server, data_dir):
     torus_obj = os.path.join(REPO, "data", "torus.obj")
     prefix = os.path.join(data_dir, "mcf")
     r = cli("flow", torus_obj, "--server", server.address, "--dt", "1e-3", "--steps", "4", "--snapshot-every", "2",
-            "--degree", "3", "--output-series", prefix)
+            "--degree", "3", "--time-tolerance", "1e-3", "--output-series", prefix)
     assert r.stderr.count("geomfit: step ") == 4, r.stderr
     assert "SUCCEEDED" in r.stderr
     root = ET.parse(prefix + ".pvd").getroot()
@@ -59,8 +59,12 @@ def test_flow_writes_a_pvd_series(server, data_dir):
 def test_flow_local_and_operator(server, data_dir):
     torus_obj = os.path.join(REPO, "data", "torus.obj")
     prefix = os.path.join(data_dir, "local")
-    r = cli("flow", torus_obj, "--local", "--dt", "1e-3", "--steps", "2", "--degree", "3", "--output-series", prefix)
+    r = cli("flow", torus_obj, "--local", "--dt", "1e-3", "--steps", "2", "--degree", "3", "--time-tolerance", "0",
+            "--output-series", prefix)
     assert r.stderr.count("geomfit: step ") == 2, r.stderr
+    bad = subprocess.run([os.environ["GEOMFIT_CLI_BINARY"], "flow", torus_obj, "--local", "--steps", "2",
+                          "--time-tolerance", "-1"], capture_output=True, text=True, timeout=60)
+    assert bad.returncode != 0 and "--time-tolerance" in bad.stderr, bad.stderr
     sets = ET.parse(prefix + ".pvd").getroot().find("Collection").findall("DataSet")
     assert len(sets) == 3
     mtx = os.path.join(data_dir, "L.mtx")

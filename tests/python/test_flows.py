@@ -40,6 +40,23 @@ def test_flow_bad_input_names_the_field(server):
         with pytest.raises(geomfit.GeomfitError) as e:
             next(client.flow(mesh.mesh_id, dt=1e-3, steps=3, scheme="leapfrog"))
         assert "flow.scheme" in str(e.value.details)
+        for bad in (-1e-3, float("nan"), float("inf")):
+            with pytest.raises(geomfit.GeomfitError) as e:
+                next(client.flow(mesh.mesh_id, dt=1e-3, steps=3, time_tolerance=bad))
+            assert "flow.time_tolerance" in str(e.value.details)
+
+
+def test_flow_time_tolerance_zero_agrees_with_the_default(server):
+    # 0: every solve to 1e-12; unset: solves tied to the step's local error dt^2 = 1e-6.
+    with geomfit.Client(server.address) as client:
+        positions, faces = torus(24, 12)
+        ends = []
+        for i, options in enumerate(({"time_tolerance": 0.0}, {})):
+            mesh = client.upload(positions, faces, name="torus %d" % i)  # a fresh mesh id per run
+            events = list(client.flow(mesh.mesh_id, dt=1e-3, steps=6, **options))
+            assert events[-1].state == pb.JOB_STATE_SUCCEEDED
+            ends.append(client.download(mesh.mesh_id)[0])
+        assert np.abs(ends[0] - ends[1]).max() < 0.1 * 1e-3 ** 2
 
 
 def test_operator_and_apply_operator(server):

@@ -5,10 +5,13 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include <gtest/gtest.h>
+
+#include "absl/strings/str_cat.h"
 
 #include "tests/server/test_util.h"
 
@@ -188,6 +191,48 @@ TEST(FlowJobsTest, StopConditionEndsEarly) {
   EXPECT_EQ(all.back().results(0).revision(), info->revision() + 1);
 }
 
+// FlowJob.time_tolerance reaches the stepper: unset is the core default 1e-3 (the same
+// positions as 1e-3 given), 0 solves every step to 1e-12 (more iterations), and the two
+// agree well below one step's local error dt^2 = 1e-6.
+TEST(FlowJobsTest, TimeToleranceReachesTheSolves) {
+  InProcessServer server;
+  const double dt = 1e-3;
+  int uploads = 0;
+  const auto run = [&](std::optional<double> tolerance, int64_t* iterations) -> absl::StatusOr<Mesh> {
+    // A fresh mesh per run (the name keeps the content-addressed ids apart).
+    absl::StatusOr<v1::MeshInfo> info =
+        testing::UploadMesh(server.stub(), testing::TestSphere(8), absl::StrCat("sphere ", ++uploads));
+    if (!info.ok()) return info.status();
+    v1::FlowJob spec = Spec(info->mesh_id(), "semi_implicit", dt, 10);
+    if (tolerance) spec.set_time_tolerance(*tolerance);
+    absl::StatusOr<v1::Job> job = StartFlow(server.stub(), spec);
+    if (!job.ok()) return job.status();
+    std::vector<v1::JobEvent> all;
+    if (const grpc::Status s = WatchJob(server.stub(), job->job_id(), 0, &all); !s.ok())
+      return absl::InternalError(s.error_message());
+    if (all.empty() || all.back().state() != v1::JOB_STATE_SUCCEEDED)
+      return absl::InternalError(all.empty() ? "no events" : all.back().message());
+    *iterations = 0;
+    for (const v1::JobEvent& e : all)
+      if (e.phase() == "step" && e.step() > 3) *iterations += e.counts().at("solver_iterations");
+    return testing::Download(server.stub(), info->mesh_id());  // the job's last revision
+  };
+  int64_t fixed_iterations = 0, default_iterations = 0, given_iterations = 0;
+  absl::StatusOr<Mesh> fixed = run(0.0, &fixed_iterations);
+  absl::StatusOr<Mesh> unset = run(std::nullopt, &default_iterations);
+  absl::StatusOr<Mesh> given = run(1e-3, &given_iterations);
+  ASSERT_TRUE(fixed.ok()) << fixed.status();
+  ASSERT_TRUE(unset.ok()) << unset.status();
+  ASSERT_TRUE(given.ok()) << given.status();
+  const double diff = (unset->positions - fixed->positions).cwiseAbs().maxCoeff();
+  std::printf("time_tolerance 0 vs unset: iterations of steps 4..10 %lld vs %lld, max position difference %.2e\n",
+              static_cast<long long>(fixed_iterations), static_cast<long long>(default_iterations), diff);
+  EXPECT_LT(default_iterations, fixed_iterations);
+  EXPECT_LT(diff, 0.1 * dt * dt);  // 10% of one step's local error (6.1e-9 here)
+  EXPECT_EQ(given_iterations, default_iterations);
+  EXPECT_EQ((given->positions - unset->positions).cwiseAbs().maxCoeff(), 0.0);
+}
+
 TEST(FlowJobsTest, BadInputsNameTheirFields) {
   InProcessServer server;
   v1::GeomFit::Stub& stub = server.stub();
@@ -217,6 +262,11 @@ TEST(FlowJobsTest, BadInputsNameTheirFields) {
     s = Spec(id, "semi_implicit", 1e-3, 5);
     s.set_max_volume_change(std::nan(""));
     cases.push_back({s, "flow.max_volume_change"});
+    for (double tol : {-1e-3, std::nan(""), HUGE_VAL}) {
+      s = Spec(id, "semi_implicit", 1e-3, 5);
+      s.set_time_tolerance(tol);
+      cases.push_back({s, "flow.time_tolerance"});
+    }
     s = Spec(id, "semi_implicit", 1e-3, 5);
     s.set_solver("cholesky");
     cases.push_back({s, "flow.solver"});

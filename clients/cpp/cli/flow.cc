@@ -49,6 +49,7 @@ struct FlowArgs {
   std::string mesh, server, kind = "mcf", scheme = "semi_implicit", solver, series;
   bool local = false;
   double dt = 1e-3, end_time = 0, max_area = 0, max_volume = 0;
+  double time_tolerance = FlowOptions{}.time_tolerance;
   int steps = 0, degree = 4, every = 1, threads = 0;
 };
 
@@ -69,6 +70,7 @@ absl::Status RunLocal(const FlowArgs& a) {
   o.steps = a.steps;
   o.end_time = a.end_time;
   o.fit.degree = a.degree;
+  o.time_tolerance = a.time_tolerance;
   if (absl::Status s = ValidateFlowOptions(o); !s.ok()) return UsageError(s.message());
   const int total = o.steps > 0 ? o.steps : static_cast<int>(std::ceil(o.end_time / o.dt - 1e-9));
   SeriesWriter series(a.series, mesh);
@@ -121,6 +123,7 @@ absl::Status RunRemote(const FlowArgs& a) {
   spec.set_max_area_change(a.max_area);
   spec.set_max_volume_change(a.max_volume);
   spec.set_send_positions(!a.series.empty());
+  spec.set_time_tolerance(a.time_tolerance);
   GF_ASSIGN_OR_RETURN(const v1::Job job, client->StartFlow(spec));
   std::fprintf(stderr, "geomfit: started flow job %s on %s (geomfit jobs cancel --server %s %s)\n",
                job.job_id().c_str(), id.c_str(), a.server.c_str(), job.job_id().c_str());
@@ -186,6 +189,8 @@ absl::Status RunFlowCommand(const std::vector<std::string>& argv) {
       .Int("snapshot-every", &a.every, "store (and write) every k steps")
       .Double("max-area-change", &a.max_area, "stop once |A/A0 - 1| exceeds this (0: no limit)")
       .Double("max-volume-change", &a.max_volume, "stop once |V/V0 - 1| exceeds this (0: no limit)")
+      .Double("time-tolerance", &a.time_tolerance,
+              "iterative solves stop at this times the step's truncation error (0: always to 1e-12)")
       .Int("threads", &a.threads, "--local: threads (0 = all cores)")
       .String("output-series", &a.series, "write PREFIX.pvd and PREFIX_NNNNN.vtp", "PREFIX");
   GF_RETURN_IF_ERROR(p.Parse(argv));
@@ -196,6 +201,8 @@ absl::Status RunFlowCommand(const std::vector<std::string>& argv) {
   if (a.every < 1) return UsageError("--snapshot-every must be >= 1");
   if (a.steps < 0) return UsageError("--steps must not be negative");
   if (a.steps == 0 && !(a.end_time > 0)) return UsageError("give --steps or --end-time");
+  if (!(std::isfinite(a.time_tolerance) && a.time_tolerance >= 0))
+    return UsageError("--time-tolerance must be a finite value >= 0");
   if (a.local == !a.server.empty()) return UsageError("give exactly one of --server HOST:PORT and --local");
   if (a.local) return RunLocal(a);
 #ifdef GEOMFIT_WITH_CLIENT

@@ -843,17 +843,21 @@ class Client:
     def start_flow(self, mesh_id: str, dt: float, steps: int = 0, end_time: float = 0.0, kind: str = "mcf",
                    scheme: str = "semi_implicit", degree: int = 0, solver: str = "", snapshot_every: int = 0,
                    max_area_change: float = 0.0, max_volume_change: float = 0.0, send_positions: bool = False,
-                   revision: int = 0) -> "pb.Job":
+                   revision: int = 0, time_tolerance: Optional[float] = None) -> "pb.Job":
         """Starts a flow job (kind "mcf" or "surface_diffusion"; scheme "explicit",
         "semi_implicit" or "bdf2"); degree 0 keeps the flow's default (4). Every
         `snapshot_every` steps and at the end the positions become a new revision of the
-        mesh. Returns the job at once; watch_job(job.job_id) streams its events."""
+        mesh. `time_tolerance`: iterative solves stop at this factor times the step's
+        truncation error (None: the server's default 1e-3; 0: every solve to 1e-12).
+        Returns the job at once; watch_job(job.job_id) streams its events."""
         spec = pb.FlowJob(mesh_id=mesh_id, revision=revision, kind=kind, scheme=scheme, dt=dt, steps=steps,
                           end_time=end_time, solver=solver, snapshot_every=snapshot_every,
                           max_area_change=max_area_change, max_volume_change=max_volume_change,
                           send_positions=send_positions)
         if degree:
             spec.fit.degree = degree
+        if time_tolerance is not None:
+            spec.time_tolerance = time_tolerance
         return self._call(lambda: self._stub.StartFlow(spec, timeout=self.timeout))
 
     def flow(self, mesh_id: str, dt: float, steps: int = 0, progress: ProgressArg = None,
