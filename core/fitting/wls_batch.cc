@@ -81,6 +81,39 @@ bool NormalEquationsEnabled() { return NormalEquationsFlag(); }
 // bench/README.md, "Issue 15, fourth round".
 constexpr double kPlainCondition = 30, kRefinedCondition = 1e3;
 
+// hp[p] = h^p, p = 0..D.
+template <int D, class V>
+GEOMFIT_INLINE void Powers(V h, V* hp) {
+  hp[0] = Splat<V>(1);
+  for (int p = 1; p <= D; ++p) hp[p] = hp[p - 1] * h;
+}
+
+// coefficients[l][at] = value[l] for the lanes in `mask`.
+template <int W, class V>
+GEOMFIT_INLINE void StoreLanes(V value, int mask, int at, double* const coefficients[]) {
+  for (int l = 0; l < W; ++l)
+    if (mask >> l & 1) coefficients[l][at] = value[l];
+}
+
+// The lanes in `mask` solved at full degree D and rank: their first `First` coefficients
+// of each dimension are zero (fixed columns), their diagnostics set.
+template <int W, int D, int First, class V>
+GEOMFIT_INLINE void FinishLanes(int mask, int dims, V condition, const double* h, double* const coefficients[],
+                                WlsSolution solutions[]) {
+  constexpr int kN = NumCoefficients(D);
+  for (int l = 0; l < W; ++l) {
+    if (!(mask >> l & 1)) continue;
+    for (int d = 0; d < dims; ++d)
+      for (int t = 0; t < First; ++t) coefficients[l][d * kN + t] = 0;
+    WlsSolution& sol = solutions[l];
+    sol = WlsSolution{};
+    sol.degree_used = D;
+    sol.rank = kN;
+    sol.condition = condition[l];
+    sol.radius = h[l];
+  }
+}
+
 // Weight (2.2.1) of a row at scaled distance (u, v) with safeguard factor g (0: dropped).
 template <int D, class V>
 GEOMFIT_INLINE V Weight(V u, V v, V g, double epsilon) {
@@ -234,28 +267,15 @@ GEOMFIT_INLINE int SolveNormal(const V* gu, const V* gv, const V* gg, const V* g
 
   // Unscaling as in Solve: c_ab = a! b! f_c y_c / h^(a+b).
   V hp[D + 1];
-  hp[0] = Splat<V>(1);
-  for (int p = 1; p <= D; ++p) hp[p] = hp[p - 1] * hv;
+  Powers<D>(hv, hp);
   for (int d = 0; d < dims; ++d) {
     for (int c = 0; c < kCols; ++c) {
       const V coef = Factorial(ea[c]) * Factorial(eb[c]) * f[c] * y[d][c] / hp[ea[c] + eb[c]];
       const int t = TaylorIndex(ea[c], eb[c]);
-      for (int l = 0; l < W; ++l)
-        if (mask >> l & 1) coefficients[l][d * kN + t] = coef[l];
+      StoreLanes<W>(coef, mask, d * kN + t, coefficients);
     }
-    for (int l = 0; l < W; ++l)
-      if (mask >> l & 1)
-        for (int t = 0; t < First; ++t) coefficients[l][d * kN + t] = 0;
   }
-  for (int l = 0; l < W; ++l) {
-    if (!(mask >> l & 1)) continue;
-    WlsSolution& sol = solutions[l];
-    sol = WlsSolution{};
-    sol.degree_used = D;
-    sol.rank = kN;
-    sol.condition = condition[l];
-    sol.radius = h[l];
-  }
+  FinishLanes<W, D, First>(mask, dims, condition, h, coefficients, solutions);
   return mask;
 }
 
@@ -418,8 +438,7 @@ GEOMFIT_INLINE int Solve(const WlsProblem* const problems[], int count, const Wl
 
   // Back substitution and unscaling: c_jk = s_c y_c / h^(j+k).
   V hp[D + 1];
-  hp[0] = Splat<V>(1);
-  for (int p = 1; p <= D; ++p) hp[p] = hp[p - 1] * hv;
+  Powers<D>(hv, hp);
   for (int d = 0; d < dims; ++d) {
     V y[kCols];
     const V* qtb = B + d * m;
@@ -433,22 +452,10 @@ GEOMFIT_INLINE int Solve(const WlsProblem* const problems[], int count, const Wl
       for (int kk = 0; kk <= p; ++kk, ++c) {
         const V coef = scale[c] * y[c] / hp[p];
         const int t = TaylorIndex(p - kk, kk);
-        for (int l = 0; l < W; ++l)
-          if (mask >> l & 1) coefficients[l][d * kN + t] = coef[l];
+        StoreLanes<W>(coef, mask, d * kN + t, coefficients);
       }
-    for (int l = 0; l < W; ++l)
-      if (mask >> l & 1)
-        for (int t = 0; t < First; ++t) coefficients[l][d * kN + t] = 0;
   }
-  for (int l = 0; l < W; ++l) {
-    if (!(mask >> l & 1)) continue;
-    WlsSolution& sol = solutions[l];
-    sol = WlsSolution{};
-    sol.degree_used = D;
-    sol.rank = kN;
-    sol.condition = condition[l];
-    sol.radius = h[l];
-  }
+  FinishLanes<W, D, First>(mask, dims, condition, h, coefficients, solutions);
 
   // Operator rows (SolveWls): row c = s_c / h^p * (Q z_c)^T Omega, z_c = R^-T e_c.
   if (any_op) {

@@ -24,6 +24,49 @@ namespace {
   return ::testing::AssertionFailure() << a << " vs " << b << " (scale " << scale << ")";
 }
 
+// Calls fn(o) for every degree 1..kMaxDegree, LHF and LOP, interpolating or not (traced
+// with the mesh's name).
+template <typename Fn>
+void ForEachFitOptions(const char* mesh, Fn fn) {
+  for (int degree = 1; degree <= kMaxDegree; ++degree)
+    for (FitMethod method : {FitMethod::kLHF, FitMethod::kLOP})
+      for (bool interpolate : {true, false}) {
+        SCOPED_TRACE(::testing::Message() << mesh << " degree " << degree << " " << FitMethodName(method)
+                                          << " interpolate " << interpolate);
+        FitOptions o;
+        o.degree = degree;
+        o.method = method;
+        o.interpolate = interpolate;
+        fn(o);
+      }
+}
+
+// Degree used, rank, flags and points equal; conditions within `condition_tolerance` relative.
+::testing::AssertionResult SameDiagnostics(const VertexDiagnostics& a, const VertexDiagnostics& b,
+                                           double condition_tolerance) {
+  if (a.degree_used != b.degree_used)
+    return ::testing::AssertionFailure() << "degree " << a.degree_used << " vs " << b.degree_used;
+  if (a.rank != b.rank) return ::testing::AssertionFailure() << "rank " << a.rank << " vs " << b.rank;
+  if (a.flags != b.flags) return ::testing::AssertionFailure() << "flags " << a.flags << " vs " << b.flags;
+  if (a.points != b.points) return ::testing::AssertionFailure() << "points " << a.points << " vs " << b.points;
+  const double ca = a.condition, cb = b.condition;
+  if (!(std::abs(ca - cb) <= condition_tolerance * cb))
+    return ::testing::AssertionFailure() << "condition " << a.condition << " vs " << b.condition;
+  return ::testing::AssertionSuccess();
+}
+
+// Normals, H, K, k1 and k2 of vertex v equal to 1e-12 relative (Near), the curvatures at
+// the scale `kscale`.
+::testing::AssertionResult SameQuantities(const Differentials& a, const Differentials& b, int v, double kscale) {
+  for (int k = 0; k < 3; ++k)
+    if (auto r = Near(a.normals(v, k), b.normals(v, k), 1); !r) return r << " normal";
+  if (auto r = Near(a.mean(v), b.mean(v), kscale); !r) return r << " H";
+  if (auto r = Near(a.gaussian(v), b.gaussian(v), kscale * kscale); !r) return r << " K";
+  if (auto r = Near(a.k1(v), b.k1(v), kscale); !r) return r << " k1";
+  if (auto r = Near(a.k2(v), b.k2(v), kscale); !r) return r << " k2";
+  return ::testing::AssertionSuccess();
+}
+
 struct Case {
   const char* name;
   Mesh mesh;
@@ -65,69 +108,54 @@ TEST_P(WlsBatchIsaTest, FitsNormalsCurvaturesAndStencilsEqualTheScalarPath) {
   int batched_vertices = 0, total = 0;
   for (const Case& c : Meshes()) {
     const Topology t = BuildTopology(c.mesh).value();
-    for (int degree = 1; degree <= kMaxDegree; ++degree)
-      for (FitMethod method : {FitMethod::kLHF, FitMethod::kLOP})
-        for (bool interpolate : {true, false}) {
-          SCOPED_TRACE(::testing::Message() << c.name << " degree " << degree << " "
-                                            << FitMethodName(method) << " interpolate " << interpolate);
-          FitOptions o;
-          o.degree = degree;
-          o.method = method;
-          o.interpolate = interpolate;
-          FitRequest scalar_req, batch_req;
-          scalar_req.stencils = batch_req.stencils = true;
-          scalar_req.batched_kernel = false;
-          const auto scalar = FitSurface(c.mesh, t, o, nullptr, scalar_req).value();
-          const auto batch = FitSurface(c.mesh, t, o, nullptr, batch_req).value();
-          const Differentials ds = ComputeDifferentials(*scalar);
-          const Differentials db = ComputeDifferentials(*batch);
-          const double kscale = std::max(ds.k1.cwiseAbs().maxCoeff(), ds.k2.cwiseAbs().maxCoeff());
-          for (int v = 0; v < c.mesh.NumVertices(); ++v) {
-            const VertexDiagnostics &a = batch->diagnostics(v), &b = scalar->diagnostics(v);
-            ASSERT_EQ(a.degree_used, b.degree_used) << v;
-            ASSERT_EQ(a.rank, b.rank) << v;
-            ASSERT_EQ(a.flags, b.flags) << v;
-            ASSERT_EQ(a.points, b.points) << v;
-            ASSERT_TRUE(Near(a.condition, b.condition, 0)) << "condition at vertex " << v;
-            // Taylor coefficients as heights at the stencil radius h (c_jk h^(j+k)), at the
-            // size of the largest: their rounding error grows with the condition of R (2.4).
-            const int nc = scalar->num_coefficients();
-            const double cond = std::max(1.0, static_cast<double>(b.condition));
-            double h = 0;
-            for (int k = 0; k < scalar->neighborhoods().Size(v); ++k)
-              h = std::max(h, (c.mesh.positions.row(scalar->neighborhoods().Points(v)[k]) - c.mesh.positions.row(v)).norm());
-            auto height = [&](const SurfaceFits& f, int d, int p, int i) { return f.coefficients(v)[d * nc + i] * std::pow(h, p); };
-            double cscale = 0;
-            for (int d = 0; d < scalar->dims(); ++d)
-              for (int p = 0; p <= degree; ++p)
-                for (int i = NumCoefficients(p - 1); i < NumCoefficients(p); ++i)
-                  cscale = std::max(cscale, std::abs(height(*scalar, d, p, i)));
-            for (int d = 0; d < scalar->dims(); ++d)
-              for (int p = 0; p <= degree; ++p)
-                for (int i = NumCoefficients(p - 1); i < NumCoefficients(p); ++i)
-                  ASSERT_LE(std::abs(height(*batch, d, p, i) - height(*scalar, d, p, i)), 1e-11 * cond * cscale)
-                      << "coefficient " << i << " at vertex " << v;
-            for (int k = 0; k < 3; ++k) ASSERT_TRUE(Near(db.normals(v, k), ds.normals(v, k), 1)) << "normal at vertex " << v;
-            ASSERT_TRUE(Near(db.mean(v), ds.mean(v), kscale)) << "H at vertex " << v;
-            ASSERT_TRUE(Near(db.gaussian(v), ds.gaussian(v), kscale * kscale)) << "K at vertex " << v;
-            ASSERT_TRUE(Near(db.k1(v), ds.k1(v), kscale)) << "k1 at vertex " << v;
-            ASSERT_TRUE(Near(db.k2(v), ds.k2(v), kscale)) << "k2 at vertex " << v;
-            // Stencil rows likewise: row i of order p in units of h^-p.
-            const int n = scalar->neighborhoods().Size(v);
-            auto entry = [&](const SurfaceFits& f, int p, int i, int k) { return f.stencil(v)[i * n + k] * std::pow(h, p); };
-            double sscale = 0;
-            for (int p = 0; NumCoefficients(p - 1) < scalar->stencil_rows(); ++p)
-              for (int i = NumCoefficients(p - 1); i < NumCoefficients(p); ++i)
-                for (int k = 0; k < n; ++k) sscale = std::max(sscale, std::abs(entry(*scalar, p, i, k)));
-            for (int p = 0; NumCoefficients(p - 1) < scalar->stencil_rows(); ++p)
-              for (int i = NumCoefficients(p - 1); i < NumCoefficients(p); ++i)
-                for (int k = 0; k < n; ++k)
-                  ASSERT_LE(std::abs(entry(*batch, p, i, k) - entry(*scalar, p, i, k)), 1e-11 * cond * sscale)
-                      << "stencil row " << i << " at vertex " << v;
-            total++;
-            batched_vertices += b.degree_used == degree;
-          }
-        }
+    ForEachFitOptions(c.name, [&](const FitOptions& o) {
+      const int degree = o.degree;
+      FitRequest scalar_req, batch_req;
+      scalar_req.stencils = batch_req.stencils = true;
+      scalar_req.batched_kernel = false;
+      const auto scalar = FitSurface(c.mesh, t, o, nullptr, scalar_req).value();
+      const auto batch = FitSurface(c.mesh, t, o, nullptr, batch_req).value();
+      const Differentials ds = ComputeDifferentials(*scalar);
+      const Differentials db = ComputeDifferentials(*batch);
+      const double kscale = std::max(ds.k1.cwiseAbs().maxCoeff(), ds.k2.cwiseAbs().maxCoeff());
+      for (int v = 0; v < c.mesh.NumVertices(); ++v) {
+        const VertexDiagnostics& b = scalar->diagnostics(v);
+        ASSERT_TRUE(SameDiagnostics(batch->diagnostics(v), b, 1e-12)) << "vertex " << v;
+        // Taylor coefficients as heights at the stencil radius h (c_jk h^(j+k)), at the
+        // size of the largest: their rounding error grows with the condition of R (2.4).
+        const int nc = scalar->num_coefficients();
+        const double cond = std::max(1.0, static_cast<double>(b.condition));
+        double h = 0;
+        for (int k = 0; k < scalar->neighborhoods().Size(v); ++k)
+          h = std::max(h, (c.mesh.positions.row(scalar->neighborhoods().Points(v)[k]) - c.mesh.positions.row(v)).norm());
+        auto height = [&](const SurfaceFits& f, int d, int p, int i) { return f.coefficients(v)[d * nc + i] * std::pow(h, p); };
+        double cscale = 0;
+        for (int d = 0; d < scalar->dims(); ++d)
+          for (int p = 0; p <= degree; ++p)
+            for (int i = NumCoefficients(p - 1); i < NumCoefficients(p); ++i)
+              cscale = std::max(cscale, std::abs(height(*scalar, d, p, i)));
+        for (int d = 0; d < scalar->dims(); ++d)
+          for (int p = 0; p <= degree; ++p)
+            for (int i = NumCoefficients(p - 1); i < NumCoefficients(p); ++i)
+              ASSERT_LE(std::abs(height(*batch, d, p, i) - height(*scalar, d, p, i)), 1e-11 * cond * cscale)
+                  << "coefficient " << i << " at vertex " << v;
+        ASSERT_TRUE(SameQuantities(db, ds, v, kscale)) << "vertex " << v;
+        // Stencil rows likewise: row i of order p in units of h^-p.
+        const int n = scalar->neighborhoods().Size(v);
+        auto entry = [&](const SurfaceFits& f, int p, int i, int k) { return f.stencil(v)[i * n + k] * std::pow(h, p); };
+        double sscale = 0;
+        for (int p = 0; NumCoefficients(p - 1) < scalar->stencil_rows(); ++p)
+          for (int i = NumCoefficients(p - 1); i < NumCoefficients(p); ++i)
+            for (int k = 0; k < n; ++k) sscale = std::max(sscale, std::abs(entry(*scalar, p, i, k)));
+        for (int p = 0; NumCoefficients(p - 1) < scalar->stencil_rows(); ++p)
+          for (int i = NumCoefficients(p - 1); i < NumCoefficients(p); ++i)
+            for (int k = 0; k < n; ++k)
+              ASSERT_LE(std::abs(entry(*batch, p, i, k) - entry(*scalar, p, i, k)), 1e-11 * cond * sscale)
+                  << "stencil row " << i << " at vertex " << v;
+        total++;
+        batched_vertices += b.degree_used == degree;
+      }
+    });
   }
   // Most vertices take the batched path (no degree drop); the rest were compared too.
   EXPECT_GT(batched_vertices, total * 3 / 4);
@@ -147,41 +175,24 @@ TEST(WlsBatchTest, NormalEquationsGiveTheScalarPathsNormalsAndCurvatures) {
   int differ = 0, total = 0;
   for (const Case& c : cases) {
     const Topology t = BuildTopology(c.mesh).value();
-    for (int degree = 1; degree <= kMaxDegree; ++degree)
-      for (FitMethod method : {FitMethod::kLHF, FitMethod::kLOP})
-        for (bool interpolate : {true, false}) {
-          SCOPED_TRACE(::testing::Message() << c.name << " degree " << degree << " "
-                                            << FitMethodName(method) << " interpolate " << interpolate);
-          FitOptions o;
-          o.degree = degree;
-          o.method = method;
-          o.interpolate = interpolate;
-          FitRequest scalar_req;
-          scalar_req.batched_kernel = false;
-          const auto scalar = FitSurface(c.mesh, t, o, nullptr, scalar_req).value();
-          const auto batch = FitSurface(c.mesh, t, o, nullptr, {}).value();
-          const Differentials ds = ComputeDifferentials(*scalar);
-          const Differentials db = ComputeDifferentials(*batch);
-          const double kscale = std::max(ds.k1.cwiseAbs().maxCoeff(), ds.k2.cwiseAbs().maxCoeff());
-          const int nc = scalar->num_coefficients() * scalar->dims();
-          for (int v = 0; v < c.mesh.NumVertices(); ++v) {
-            const VertexDiagnostics &a = batch->diagnostics(v), &b = scalar->diagnostics(v);
-            ASSERT_EQ(a.degree_used, b.degree_used) << v;
-            ASSERT_EQ(a.rank, b.rank) << v;
-            ASSERT_EQ(a.flags, b.flags) << v;
-            ASSERT_EQ(a.points, b.points) << v;
-            ASSERT_NEAR(a.condition, b.condition, 1e-6 * b.condition) << "condition at vertex " << v;
-            for (int k = 0; k < 3; ++k) ASSERT_TRUE(Near(db.normals(v, k), ds.normals(v, k), 1)) << "normal at vertex " << v;
-            ASSERT_TRUE(Near(db.mean(v), ds.mean(v), kscale)) << "H at vertex " << v;
-            ASSERT_TRUE(Near(db.gaussian(v), ds.gaussian(v), kscale * kscale)) << "K at vertex " << v;
-            ASSERT_TRUE(Near(db.k1(v), ds.k1(v), kscale)) << "k1 at vertex " << v;
-            ASSERT_TRUE(Near(db.k2(v), ds.k2(v), kscale)) << "k2 at vertex " << v;
-            bool same = true;
-            for (int i = 0; i < nc; ++i) same &= batch->coefficients(v)[i] == scalar->coefficients(v)[i];
-            differ += !same;
-            total++;
-          }
-        }
+    ForEachFitOptions(c.name, [&](const FitOptions& o) {
+      FitRequest scalar_req;
+      scalar_req.batched_kernel = false;
+      const auto scalar = FitSurface(c.mesh, t, o, nullptr, scalar_req).value();
+      const auto batch = FitSurface(c.mesh, t, o, nullptr, {}).value();
+      const Differentials ds = ComputeDifferentials(*scalar);
+      const Differentials db = ComputeDifferentials(*batch);
+      const double kscale = std::max(ds.k1.cwiseAbs().maxCoeff(), ds.k2.cwiseAbs().maxCoeff());
+      const int nc = scalar->num_coefficients() * scalar->dims();
+      for (int v = 0; v < c.mesh.NumVertices(); ++v) {
+        ASSERT_TRUE(SameDiagnostics(batch->diagnostics(v), scalar->diagnostics(v), 1e-6)) << "vertex " << v;
+        ASSERT_TRUE(SameQuantities(db, ds, v, kscale)) << "vertex " << v;
+        bool same = true;
+        for (int i = 0; i < nc; ++i) same &= batch->coefficients(v)[i] == scalar->coefficients(v)[i];
+        differ += !same;
+        total++;
+      }
+    });
   }
   // The QR lanes are the scalar path's bit for bit: most vertices were solved otherwise.
   EXPECT_GT(differ, total / 2);
