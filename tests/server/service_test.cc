@@ -1,4 +1,6 @@
 // The service over a real loopback channel (in-process server).
+#include <future>
+#include <memory>
 #include <thread>
 
 #include <gtest/gtest.h>
@@ -163,25 +165,49 @@ TEST(ServiceTest, DeadlineAndCancellationStopTheFit) {
   EXPECT_EQ(HealthCheck(server.channel()), "SERVING");
 }
 
+/// A degree-6 LOP fit of a 115k-vertex torus: ~0.5 s on one server thread, long enough
+/// that a call is still computing 100 ms after its fit's first progress message.
 v1::ComputeDifferentialsRequest SlowRequest(v1::GeomFit::Stub& stub) {
-  auto info = testing::UploadMesh(stub, testing::TestTorus(120), "slow", 20000);
+  auto info = testing::UploadMesh(stub, testing::TestTorus(240), "slow", 20000);
   EXPECT_TRUE(info.ok()) << info.status();
   v1::ComputeDifferentialsRequest request;
   request.set_mesh_id(info.ok() ? info->mesh_id() : "");
   request.mutable_options()->set_degree(6);
   request.mutable_options()->set_method(v1::FIT_METHOD_LOP);
+  request.set_progress(true);
   return request;
+}
+
+/// Runs `request` on a thread of its own; the returned future is ready once the fit's
+/// first progress message arrived, so the call is surely in flight (not a sleep).
+std::future<void> ComputeInBackground(v1::GeomFit::Stub& stub, const v1::ComputeDifferentialsRequest& request,
+                                      grpc::Status* status, std::thread* thread) {
+  auto started = std::make_shared<std::promise<void>>();
+  std::future<void> future = started->get_future();
+  *thread = std::thread([&stub, request, status, started] {
+    grpc::ClientContext ctx;
+    ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(60));
+    auto reader = stub.ComputeDifferentials(&ctx, request);
+    v1::ComputeDifferentialsResponse r;
+    bool told = false;
+    while (reader->Read(&r)) {
+      if (!told && r.has_progress() && r.progress().phase() == "fit") {
+        started->set_value();
+        told = true;
+      }
+    }
+    *status = reader->Finish();
+    if (!told) started->set_value();
+  });
+  return future;
 }
 
 TEST(ServiceTest, DrainingFinishesInFlightCallsAndRefusesNewOnes) {
   InProcessServer server;
-  const v1::ComputeDifferentialsRequest request = SlowRequest(server.stub());
   grpc::Status in_flight;
-  std::thread client([&] {
-    std::vector<v1::ComputeDifferentialsResponse> chunks;
-    in_flight = Compute(server.stub(), request, &chunks);
-  });
-  std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  std::thread client;
+  std::future<void> started = ComputeInBackground(server.stub(), SlowRequest(server.stub()), &in_flight, &client);
+  ASSERT_EQ(started.wait_for(std::chrono::seconds(30)), std::future_status::ready);
   std::thread stopper([&] { server.server().Shutdown(30); });
   std::string health;
   for (int i = 0; i < 200 && (health = HealthCheck(server.channel())) == "SERVING"; ++i)
@@ -198,13 +224,10 @@ TEST(ServiceTest, DrainingFinishesInFlightCallsAndRefusesNewOnes) {
 
 TEST(ServiceTest, DrainDeadlineCancelsWhatIsLeft) {
   InProcessServer server;
-  const v1::ComputeDifferentialsRequest request = SlowRequest(server.stub());
   grpc::Status in_flight;
-  std::thread client([&] {
-    std::vector<v1::ComputeDifferentialsResponse> chunks;
-    in_flight = Compute(server.stub(), request, &chunks);
-  });
-  std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  std::thread client;
+  std::future<void> started = ComputeInBackground(server.stub(), SlowRequest(server.stub()), &in_flight, &client);
+  ASSERT_EQ(started.wait_for(std::chrono::seconds(30)), std::future_status::ready);
   const auto start = std::chrono::steady_clock::now();
   server.server().Shutdown(0.1);
   const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
