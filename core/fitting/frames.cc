@@ -6,19 +6,6 @@
 
 namespace geomfit {
 
-LocalFrame FrameFromNormal(const Eigen::Vector3d& origin, const Eigen::Vector3d& n) {
-  LocalFrame fr;
-  fr.origin = origin;
-  fr.normal = n;
-  // Tangent from the coordinate axis least aligned with n (well conditioned).
-  int axis = 0;
-  n.cwiseAbs().minCoeff(&axis);
-  Eigen::Vector3d a = Eigen::Vector3d::Unit(axis);
-  fr.t1 = (a - a.dot(n) * n).normalized();
-  fr.t2 = n.cross(fr.t1);
-  return fr;
-}
-
 Eigen::Vector3d FaceNormal(const Mesh& mesh, int f) {
   auto p = [&](int i) -> Eigen::Vector3d { return mesh.positions.row(mesh.faces(f, i)).transpose(); };
   Eigen::Vector3d n = mesh.FaceSize(f) == 3 ? (p(1) - p(0)).cross(p(2) - p(0))
