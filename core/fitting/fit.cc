@@ -400,9 +400,19 @@ class SurfaceFitter {
         // locality order: each vertex's stencil is a random read).
         if (k + 16 < end) __builtin_prefetch(nb->offsets.data() + vertex_at(k + 16));
         if (k + 8 < end) {
-          const int32_t* p = nb->Points(static_cast<int>(vertex_at(k + 8)));
+          const int64_t w = vertex_at(k + 8);
+          const int32_t* p = nb->Points(static_cast<int>(w));
           __builtin_prefetch(p);
           __builtin_prefetch(p + 16);
+          // Its outputs too (input numbering: random lines; a store that misses holds up
+          // every later store).
+          const char* fr = reinterpret_cast<const char*>(&f.frames_[w]);
+          __builtin_prefetch(fr, 1);
+          __builtin_prefetch(fr + sizeof(LocalFrame) - 1, 1);
+          __builtin_prefetch(&f.diagnostics_[w], 1);
+          const double* c = f.coefficients_.data() + w * f.dims() * f.num_coefficients();
+          __builtin_prefetch(c, 1);
+          __builtin_prefetch(c + f.dims() * f.num_coefficients() - 1, 1);
         }
         if (local_order && k + 4 < end) {
           const int w = static_cast<int>(vertex_at(k + 4));
