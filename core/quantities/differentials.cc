@@ -84,7 +84,7 @@ void EvaluateVertex(const SurfaceFits& fits, uint32_t q, int64_t v, Differential
 constexpr int kLanes = 8;
 using Lanes = double[kLanes];
 
-void HeightLanes(const SurfaceFits& fits, uint32_t q, const int64_t* vs, int count, Differentials& d) {
+__attribute__((target_clones("arch=x86-64-v4", "avx2", "default"))) void HeightLanes(const SurfaceFits& fits, uint32_t q, const int64_t* vs, int count, Differentials& d) {
   const int nc = fits.num_coefficients();
   auto coef = [&](const double* c, int j, int k) { return TaylorIndex(j, k) < nc ? c[TaylorIndex(j, k)] : 0.0; };
   Lanes a[3], b[3], xuu[3], xuv[3], xvv[3];
