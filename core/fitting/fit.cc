@@ -381,6 +381,12 @@ class SurfaceFitter {
     std::vector<int32_t> rank(local_order ? nv : 0);
     ParallelFor(nv, ctx.threads(), [&](int64_t k) {
       const int64_t v = local_order ? topo.locality_order[k] : k;
+      if (local_order && k + 16 < nv) {  // random reads in the input numbering
+        const int64_t w = topo.locality_order[k + 16];
+        __builtin_prefetch(mesh.positions.data() + 3 * w);
+        __builtin_prefetch(normals.data() + 3 * w);
+        __builtin_prefetch(rank.data() + w, 1);
+      }
       if (local_order) rank[v] = static_cast<int32_t>(k);
       double* dst = xyzn.data() + 6 * k;
       for (int c = 0; c < 3; ++c) dst[c] = mesh.positions(v, c), dst[3 + c] = normals(v, c);
