@@ -381,6 +381,12 @@ class SurfaceFitter {
     std::vector<int32_t> rank(local_order ? nv : 0);
     ParallelFor(nv, ctx.threads(), [&](int64_t k) {
       const int64_t v = local_order ? topo.locality_order[k] : k;
+      if (local_order && k + 16 < nv) {  // random reads in the input numbering
+        const int64_t w = topo.locality_order[k + 16];
+        __builtin_prefetch(mesh.positions.data() + 3 * w);
+        __builtin_prefetch(normals.data() + 3 * w);
+        __builtin_prefetch(rank.data() + w, 1);
+      }
       if (local_order) rank[v] = static_cast<int32_t>(k);
       double* dst = xyzn.data() + 6 * k;
       for (int c = 0; c < 3; ++c) dst[c] = mesh.positions(v, c), dst[3 + c] = normals(v, c);
@@ -393,8 +399,33 @@ class SurfaceFitter {
     return ParallelFor((nv + kGrain - 1) / kGrain, ctx, [&](int64_t chunk) {
       const int64_t end = std::min<int64_t>(nv, (chunk + 1) * kGrain);
       std::unique_ptr<FitBatch> batch(new FitBatch);  // default-initialized: no 800 KB memset
+      const auto vertex_at = [&](int64_t k) -> int64_t { return local_order ? topo.locality_order[k] : k; };
       for (int64_t k = chunk * kGrain; k < end; ++k) {
-        const int64_t v = local_order ? topo.locality_order[k] : k;
+        // Prefetch: the CSR offsets 16 vertices ahead, the stencil indices 8 ahead and
+        // their slots 4 ahead (the neighbourhoods are in the input numbering, the walk in
+        // locality order: each vertex's stencil is a random read).
+        if (k + 16 < end) __builtin_prefetch(nb->offsets.data() + vertex_at(k + 16));
+        if (k + 8 < end) {
+          const int64_t w = vertex_at(k + 8);
+          const int32_t* p = nb->Points(static_cast<int>(w));
+          __builtin_prefetch(p);
+          __builtin_prefetch(p + 16);
+          // Its outputs too (input numbering: random lines; a store that misses holds up
+          // every later store).
+          const char* fr = reinterpret_cast<const char*>(&f.frames_[w]);
+          __builtin_prefetch(fr, 1);
+          __builtin_prefetch(fr + sizeof(LocalFrame) - 1, 1);
+          __builtin_prefetch(&f.diagnostics_[w], 1);
+          const double* c = f.coefficients_.data() + w * f.dims() * f.num_coefficients();
+          __builtin_prefetch(c, 1);
+          __builtin_prefetch(c + f.dims() * f.num_coefficients() - 1, 1);
+        }
+        if (local_order && k + 4 < end) {
+          const int w = static_cast<int>(vertex_at(k + 4));
+          const int32_t* p = nb->Points(w);
+          for (int i = 0, n = nb->Size(w); i < n; ++i) __builtin_prefetch(rank.data() + p[i]);
+        }
+        const int64_t v = vertex_at(k);
         if (topo.is_boundary[v]) f.diagnostics_[v].flags |= kFlagBoundary;
         const FitOutput out{&f.frames_[v], f.coefficients_.data() + v * f.dims() * f.num_coefficients(),
                             &f.diagnostics_[v], req.stencils ? f.stencils_.data() + f.stencil_offsets_[v] : nullptr,

@@ -1,4 +1,6 @@
 #pragma once
+#include <cmath>
+
 #include <Eigen/Core>
 
 #include "core/fitting/options.h"
@@ -13,8 +15,27 @@ struct LocalFrame {
                   normal = Eigen::Vector3d::UnitZ();
 };
 
-/// A frame whose normal is `n` (unit), with tangents chosen stably.
-LocalFrame FrameFromNormal(const Eigen::Vector3d& origin, const Eigen::Vector3d& n);
+/// A frame whose normal is `n` (unit), with tangents chosen stably: t1 from the
+/// coordinate axis least aligned with n (the first of equals), t2 = n x t1. Inline and
+/// scalar (a call per fitted vertex): the operations of Eigen's
+/// `(a - a.dot(n) * n).normalized()` and `n.cross(t1)` in their order, so the same bits.
+inline LocalFrame FrameFromNormal(const Eigen::Vector3d& origin, const Eigen::Vector3d& n) {
+  LocalFrame fr;
+  fr.origin = origin;
+  fr.normal = n;
+  const double n0 = n[0], n1 = n[1], n2 = n[2];
+  const double a0 = std::abs(n0), a1 = std::abs(n1), a2 = std::abs(n2);
+  const int axis = a1 < a0 ? (a2 < a1 ? 2 : 1) : (a2 < a0 ? 2 : 0);
+  const double s = axis == 0 ? n0 : axis == 1 ? n1 : n2;  // a.dot(n), exact
+  const double t0 = (axis == 0 ? 1.0 : 0.0) - s * n0, t1 = (axis == 1 ? 1.0 : 0.0) - s * n1,
+               t2 = (axis == 2 ? 1.0 : 0.0) - s * n2;
+  const double z = t0 * t0 + t1 * t1 + t2 * t2;
+  const double r = z > 0 ? std::sqrt(z) : 1.0;
+  fr.t1 = z > 0 ? Eigen::Vector3d(t0 / r, t1 / r, t2 / r) : Eigen::Vector3d(t0, t1, t2);
+  const double u0 = fr.t1[0], u1 = fr.t1[1], u2 = fr.t1[2];
+  fr.t2 = Eigen::Vector3d(n1 * u2 - n2 * u1, n2 * u0 - n0 * u2, n0 * u1 - n1 * u0);
+  return fr;
+}
 
 /// Unit face normal (quads: cross product of the diagonals).
 Eigen::Vector3d FaceNormal(const Mesh& mesh, int f);

@@ -1,10 +1,12 @@
 // DifferentialsFromJet (Table 3.1, 3.2.7-3.2.10) on exact jets of analytic surfaces, in
 // a deliberately non-orthogonal parametrization.
 #include <cmath>
+#include <cstring>
 
 #include <gtest/gtest.h>
 
 #include "core/quantities/differentials.h"
+#include "core/mesh/topology.h"
 #include "core/surfaces/analytic.h"
 
 namespace geomfit {
@@ -71,6 +73,55 @@ TEST(DifferentialsFromJetTest, SphereHasPositiveCurvatureWithOutwardNormal) {
   EXPECT_NEAR(p.gaussian, 0.25, 1e-14);
   EXPECT_NEAR(p.k1, 0.5, 1e-14);
   EXPECT_NEAR(p.k2, 0.5, 1e-14);
+}
+
+// ComputeDifferentials evaluates height-function fits several vertices at a time: every
+// quantity must be DifferentialsFromJet(Jet(v))'s bit for bit, on curved fits, on
+// degree-1 fits (equal principal curvatures: the directions are the QR's) and on
+// local-parametrization fits (one at a time), with a vertex count that leaves a partial
+// group, in every entry point.
+TEST(ComputeDifferentialsTest, EqualsDifferentialsFromJetBitForBit) {
+  auto same = [](const double* a, const double* b, int n) { return std::memcmp(a, b, 8 * n) == 0; };
+  GeneratorOptions g;
+  g.n = 13;
+  g.jitter = 0.3;
+  const Mesh mesh = GenerateTorusMesh(g);  // 507 vertices: 63 groups of 8 and 3 more
+  const Topology topo = BuildTopology(mesh).value();
+  for (FitMethod method : {FitMethod::kLHF, FitMethod::kLOP})
+    for (int degree : {1, 2, 3}) {
+      FitOptions o;
+      o.method = method;
+      o.degree = degree;
+      const auto fits = FitSurface(mesh, topo, o).value();
+      const Differentials a = ComputeDifferentials(*fits, kAllQuantities, 2);
+      const Differentials b = ComputeDifferentials(*fits, kAllQuantities, RunContext(nullptr, 1)).value();
+      Differentials c = AllocateDifferentials(fits->num_vertices(), kAllQuantities);
+      EvaluateDifferentials(*fits, kAllQuantities, 0, 100, &c);
+      EvaluateDifferentials(*fits, kAllQuantities, 100, fits->num_vertices(), &c);
+      const Differentials& cc = c;
+      int checked = 0;
+      for (const Differentials* d : {&a, &b, &cc})
+        for (int v = 0; v < fits->num_vertices(); ++v) {
+          ASSERT_GE(fits->diagnostics(v).degree_used, 1);
+          const PointDifferentials p = DifferentialsFromJet(fits->Jet(v));
+          SCOPED_TRACE(::testing::Message() << "degree " << degree << " vertex " << v);
+          EXPECT_TRUE(same(d->normals.row(v).data(), p.normal.data(), 3));
+          EXPECT_TRUE(same(&d->mean(v), &p.mean, 1));
+          EXPECT_TRUE(same(&d->gaussian(v), &p.gaussian, 1));
+          EXPECT_TRUE(same(&d->k1(v), &p.k1, 1));
+          EXPECT_TRUE(same(&d->k2(v), &p.k2, 1));
+          EXPECT_TRUE(same(d->dir1.row(v).data(), p.e1.data(), 3));
+          EXPECT_TRUE(same(d->dir2.row(v).data(), p.e2.data(), 3));
+          EXPECT_TRUE(same(d->tensor.row(v).data(), p.tensor.data(), 9));
+          if (degree == 1) {
+            EXPECT_EQ(p.k1, p.k2);  // the equal-curvature branch ran
+          } else if (degree == 2 && v % 50 == 0) {
+            EXPECT_NE(p.k1, p.k2);
+          }
+          ++checked;
+        }
+      EXPECT_EQ(checked, 3 * 507);
+    }
 }
 
 }  // namespace
