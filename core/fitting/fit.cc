@@ -316,6 +316,7 @@ class SurfaceFitter {
       });
     };
     std::vector<uint8_t> fixed_tangent;  // normal refinement (FitOptions::normal_degree)
+    std::shared_ptr<const Neighborhoods> smoothing_nb;  // the noise mode's cubic smoothing fits
     for (int pass = 0; pass < passes; ++pass) {
       if (pass > 0) adopt_normals(*fits, nullptr);
       if (pass > 0 && pass <= smoothing) {
@@ -326,6 +327,17 @@ class SurfaceFitter {
       FitOptions pass_options = eff;
       if (pass < smoothing) pass_options.interpolate = false;  // smoothing fits approximate
       const bool last = pass == passes - 1;
+      std::shared_ptr<const Neighborhoods> pass_nb = nb;
+      if (eff.noise == NoiseMode::kOn) {  // cubic smoothing fits; the final fit's weights (noise.h)
+        if (last) pass_options.weight_epsilon = NoiseFinalWeightEpsilon(eff.degree);
+        if (pass < smoothing && eff.degree != kNoiseSmoothingDegree) {
+          pass_options.degree = kNoiseSmoothingDegree;
+          if (!smoothing_nb)
+            smoothing_nb = std::make_shared<Neighborhoods>(
+                BuildNeighborhoods(topo, mesh, RingSpecFor(pass_options), ctx.threads()));
+          pass_nb = smoothing_nb;
+        }
+      }
       // Progress phases: "smooth i/S" per smoothing pass, "frames" (two_pass's first fit),
       // "normals" (the normal refinement's pre-fit), "fit".
       const std::string phase = pass < smoothing ? absl::StrFormat("smooth %d/%d", pass + 1, smoothing)
@@ -345,7 +357,7 @@ class SurfaceFitter {
         adopt_normals(pre_fits, &fixed_tangent);
       }
       fits = std::make_shared<SurfaceFits>();
-      if (absl::Status s = FitAll(*input, topo, pass_options, nb, normals, req, ctx, last ? &on_fitted : nullptr,
+      if (absl::Status s = FitAll(*input, topo, pass_options, pass_nb, normals, req, ctx, last ? &on_fitted : nullptr,
                                   fixed_tangent.empty() ? nullptr : fixed_tangent.data(), phase, *fits);
           !s.ok())
         return s;

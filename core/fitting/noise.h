@@ -16,11 +16,24 @@ namespace geomfit {
 /// polynomials, (2) with nearly uniform weights on d/2+1 rings grown to 3x the
 /// coefficient count (2.1), and (3)
 /// first runs smoothing-by-projection passes (§4.2.3): every vertex moves to its own
-/// fit's foot point, which averages the noise of its stencil away, and the mesh is refitted.
+/// (cubic, flat-weighted) fit's foot point, which averages the noise of its stencil away,
+/// and the mesh is refitted; (4) at degree 2 the final fit keeps the tangent plane of a
+/// cubic pre-fit on the smoothed mesh (the normal refinement of FitOptions::normal_degree).
 
-/// The weights' eps of (2.2.1) in the noise mode: nearly uniform weights (1 to 2^(-d/4)
-/// across the stencil) average the noise of every point instead of trusting the nearest.
+/// The weights' eps of (2.2.1) in the noise mode's smoothing fits (and the final fit at
+/// degree >= 4): nearly uniform weights (1 to 2^(-d/4) across the stencil) average the
+/// noise of every point instead of trusting the nearest.
 inline constexpr double kNoiseWeightEpsilon = 1.0;
+/// The smoothing passes fit cubics whatever the final degree: a cubic's foot point carries
+/// no error from the surface's cubic terms on asymmetric stencils (a quadratic's does,
+/// O(h^3) per pass, which the final fit differentiates into O(h) curvature errors), and
+/// it averages more noise than a quartic on the stencil it needs (bench/README.md, "Noisy
+/// meshes, second round").
+inline constexpr int kNoiseSmoothingDegree = 3;
+/// The final fit's eps after smoothing: at degrees <= 3 the truncation error of the large
+/// stencil dominates what noise is left, so the text's steep weights (eps = 0.01 of
+/// (2.2.1)) apply; at degree >= 4 the noise dominates and the weights stay flat.
+constexpr double NoiseFinalWeightEpsilon(int degree) { return degree >= 4 ? kNoiseWeightEpsilon : 0.01; }
 
 /// Every vertex moved onto its own fit (the fit's point at its origin, x(0, 0) of
 /// Table 3.1); vertices without a fit keep `positions`.

@@ -94,10 +94,12 @@ struct FitOptions {
     return hermite_hessian && degree == 2 && method == FitMethod::kLHF && solver == WlsSolver::kQR &&
            Interpolates();
   }
-  /// The normal pre-fit's degree actually used; equal to `degree` when there is none.
+  /// The normal pre-fit's degree actually used; equal to `degree` when there is none
+  /// (the noise mode at degree 2 always refines its normals with a cubic, noise.h).
   int NormalDegree() const {
     if (method != FitMethod::kLHF || solver != WlsSolver::kQR) return degree;
     if (HermiteHessian() && normal_degree <= degree) return degree + 1;
+    if (noise == NoiseMode::kOn && degree == 2 && normal_degree <= degree) return 3;  // noise.h
     return normal_degree > degree ? normal_degree : degree;
   }
 
