@@ -291,12 +291,18 @@ class SurfaceFitter {
     Positions normals = ApproximateVertexNormals(mesh, topo, o.frame_normals, ctx.threads());
     // Noise-aware fitting (noise.h): `o` resolved, smoothing-by-projection passes first.
     FitOptions eff = o;
-    if (o.noise == NoiseMode::kAuto) {
+    NoiseSchedule schedule;
+    if (o.noise != NoiseMode::kOff) {
       GF_ASSIGN_OR_RETURN(const NoiseEstimate est, EstimateNoise(mesh, topo, normals, ctx));
-      eff.noise = est.noisy ? NoiseMode::kOn : NoiseMode::kOff;
-      if (RingSpecFor(eff).rings != RingSpecFor(o).rings || RingSpecFor(eff).min_points != RingSpecFor(o).min_points)
-        nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, mesh, RingSpecFor(eff), ctx.threads()));
+      if (o.noise == NoiseMode::kAuto) eff.noise = est.noisy ? NoiseMode::kOn : NoiseMode::kOff;
+      schedule = NoiseScheduleFor(o.degree, est.residual_ratio);
     }
+    // The final fit's stencils (the clean ones under light noise, when not set explicitly).
+    FitOptions final_spec = eff;
+    if (eff.noise == NoiseMode::kOn && schedule.final_clean_stencils) final_spec.noise = NoiseMode::kOff;
+    if (RingSpecFor(final_spec).rings != RingSpecFor(o).rings ||
+        RingSpecFor(final_spec).min_points != RingSpecFor(o).min_points)
+      nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, mesh, RingSpecFor(final_spec), ctx.threads()));
     eff.interpolate = eff.Interpolates();
     if (eff.noise == NoiseMode::kOn) eff.weight_epsilon = kNoiseWeightEpsilon;
     const int smoothing = eff.SmoothingPasses(), passes = smoothing + (o.two_pass ? 2 : 1);
@@ -328,14 +334,18 @@ class SurfaceFitter {
       if (pass < smoothing) pass_options.interpolate = false;  // smoothing fits approximate
       const bool last = pass == passes - 1;
       std::shared_ptr<const Neighborhoods> pass_nb = nb;
-      if (eff.noise == NoiseMode::kOn) {  // cubic smoothing fits; the final fit's weights (noise.h)
-        if (last) pass_options.weight_epsilon = NoiseFinalWeightEpsilon(eff.degree);
-        if (pass < smoothing && eff.degree != kNoiseSmoothingDegree) {
-          pass_options.degree = kNoiseSmoothingDegree;
-          if (!smoothing_nb)
-            smoothing_nb = std::make_shared<Neighborhoods>(
-                BuildNeighborhoods(topo, mesh, RingSpecFor(pass_options), ctx.threads()));
-          pass_nb = smoothing_nb;
+      if (eff.noise == NoiseMode::kOn) {  // the smoothing fits' degree, the final fit's weights (noise.h)
+        if (last) pass_options.weight_epsilon = schedule.final_weight_epsilon;
+        if (pass < smoothing) {  // the noise mode's own stencils; rings and factor apply to the final fit
+          pass_options.degree = schedule.smoothing_degree;
+          pass_options.rings = pass_options.min_points_factor = 0;
+          const RingSpec spec = RingSpecFor(pass_options), final_rings = RingSpecFor(final_spec);
+          if (spec.rings != final_rings.rings || spec.min_points != final_rings.min_points ||
+              spec.min_points_boundary != final_rings.min_points_boundary) {
+            if (!smoothing_nb)
+              smoothing_nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, mesh, spec, ctx.threads()));
+            pass_nb = smoothing_nb;
+          }
         }
       }
       // Progress phases: "smooth i/S" per smoothing pass, "frames" (two_pass's first fit),

@@ -19,6 +19,19 @@ Positions ProjectOntoFits(const SurfaceFits& fits, const Positions& positions, i
   return out;
 }
 
+NoiseSchedule NoiseScheduleFor(int degree, double residual_ratio) {
+  NoiseSchedule s;
+  if (residual_ratio >= kHeavyNoiseResidualRatio) {
+    s.smoothing_degree = 3;
+    s.final_weight_epsilon = degree >= 4 ? kNoiseWeightEpsilon : 0.01;
+    s.final_clean_stencils = degree == 3;
+  } else {
+    s.smoothing_degree = std::min(degree + 2, kMaxDegree);
+    s.final_clean_stencils = true;
+  }
+  return s;
+}
+
 namespace {
 
 // rms of the residual of an approximating fit of `degree` (0 if it could not be solved).

@@ -24,16 +24,26 @@ namespace geomfit {
 /// degree >= 4): nearly uniform weights (1 to 2^(-d/4) across the stencil) average the
 /// noise of every point instead of trusting the nearest.
 inline constexpr double kNoiseWeightEpsilon = 1.0;
-/// The smoothing passes fit cubics whatever the final degree: a cubic's foot point carries
-/// no error from the surface's cubic terms on asymmetric stencils (a quadratic's does,
-/// O(h^3) per pass, which the final fit differentiates into O(h) curvature errors), and
-/// it averages more noise than a quartic on the stencil it needs (bench/README.md, "Noisy
-/// meshes, second round").
-inline constexpr int kNoiseSmoothingDegree = 3;
-/// The final fit's eps after smoothing: at degrees <= 3 the truncation error of the large
-/// stencil dominates what noise is left, so the text's steep weights (eps = 0.01 of
-/// (2.2.1)) apply; at degree >= 4 the noise dominates and the weights stay flat.
-constexpr double NoiseFinalWeightEpsilon(int degree) { return degree >= 4 ? kNoiseWeightEpsilon : 0.01; }
+/// How the noise mode balances bias against noise for the noise EstimateNoise finds
+/// (bench/README.md, "Noisy meshes, second round").
+struct NoiseSchedule {
+  int smoothing_degree = 3;           ///< degree of the smoothing fits (flat weights)
+  double final_weight_epsilon = 0.01;  ///< eps of (2.2.1) in the final fit
+  bool final_clean_stencils = false;  ///< final fit on the clean stencils ((d+1)/2 rings)
+};
+/// Residual ratio (NoiseEstimate) from which the noise dominates the truncation error.
+inline constexpr double kHeavyNoiseResidualRatio = 0.2;
+/// Heavy noise (O(h^2)): cubic smoothing fits, whose foot points carry no error from the
+/// surface's cubic terms on asymmetric stencils (a quadratic's do, O(h^3) per pass, which
+/// the final fit differentiates into O(h) curvature errors) and which average more noise
+/// than quartics on the stencils they need. After smoothing, the final fit uses the text's
+/// steep weights at degrees <= 3, where the truncation error of a large stencil dominates
+/// (at degree 3 also the clean stencils), and flat weights on the noise stencils at degree
+/// >= 4, where the noise still dominates (measured choices, bench/README.md).
+/// Light noise (O(h^3), small O(h^2)): the truncation error dominates, so the smoothing
+/// fits are of degree d + 2 (<= 6) and the final fit is the clean one (clean stencils,
+/// steep weights), approximating, on the smoothed mesh.
+NoiseSchedule NoiseScheduleFor(int degree, double residual_ratio);
 
 /// Every vertex moved onto its own fit (the fit's point at its origin, x(0, 0) of
 /// Table 3.1); vertices without a fit keep `positions`.
