@@ -337,8 +337,7 @@ class SurfaceFitter {
       if (eff.noise == NoiseMode::kOn) {  // the smoothing fits' degree, the final fit's weights (noise.h)
         if (last) pass_options.weight_epsilon = schedule.final_weight_epsilon;
         if (pass < smoothing) {  // the noise mode's own stencils; rings and factor apply to the final fit
-          pass_options.degree = schedule.smoothing_degree;
-          pass_options.rings = pass_options.min_points_factor = 0;
+          pass_options = NoiseSmoothingOptions(eff, schedule);
           const RingSpec spec = RingSpecFor(pass_options), final_rings = RingSpecFor(final_spec);
           if (spec.rings != final_rings.rings || spec.min_points != final_rings.min_points ||
               spec.min_points_boundary != final_rings.min_points_boundary) {

@@ -32,6 +32,18 @@ NoiseSchedule NoiseScheduleFor(int degree, double residual_ratio) {
   return s;
 }
 
+FitOptions NoiseSmoothingOptions(const FitOptions& options, const NoiseSchedule& schedule) {
+  FitOptions o = options;
+  o.noise = NoiseMode::kOn;
+  o.interpolate = false;
+  o.weight_epsilon = kNoiseWeightEpsilon;
+  o.degree = schedule.smoothing_degree;
+  o.rings = o.min_points_factor = 0;
+  o.normal_degree = 0;
+  o.two_pass = false;
+  return o;
+}
+
 namespace {
 
 // rms of the residual of an approximating fit of `degree` (0 if it could not be solved).

@@ -44,6 +44,9 @@ inline constexpr double kHeavyNoiseResidualRatio = 0.2;
 /// fits are of degree d + 2 (<= 6) and the final fit is the clean one (clean stencils,
 /// steep weights), approximating, on the smoothed mesh.
 NoiseSchedule NoiseScheduleFor(int degree, double residual_ratio);
+/// The options of a smoothing pass's fits: approximating, flat weights, the schedule's
+/// degree on the noise mode's own stencils (`options`' rings and factor are the final fit's).
+FitOptions NoiseSmoothingOptions(const FitOptions& options, const NoiseSchedule& schedule);
 
 /// Every vertex moved onto its own fit (the fit's point at its origin, x(0, 0) of
 /// Table 3.1); vertices without a fit keep `positions`.
