@@ -299,7 +299,10 @@ class SurfaceFitter {
     }
     // The final fit's stencils (the clean ones under light noise, when not set explicitly).
     FitOptions final_spec = eff;
-    if (eff.noise == NoiseMode::kOn && schedule.final_clean_stencils) final_spec.noise = NoiseMode::kOff;
+    if (eff.noise == NoiseMode::kOn && schedule.final_clean_stencils) {
+      final_spec.noise = NoiseMode::kOff;
+      if (final_spec.min_points_factor == 0) final_spec.min_points_factor = schedule.final_points_factor;
+    }
     if (RingSpecFor(final_spec).rings != RingSpecFor(o).rings ||
         RingSpecFor(final_spec).min_points != RingSpecFor(o).min_points)
       nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, mesh, RingSpecFor(final_spec), ctx.threads()));

@@ -26,8 +26,9 @@ NoiseSchedule NoiseScheduleFor(int degree, double residual_ratio) {
     s.final_weight_epsilon = degree >= 4 ? kNoiseWeightEpsilon : 0.01;
     s.final_clean_stencils = degree == 3;
   } else {
-    s.smoothing_degree = std::min(degree + 2, kMaxDegree);
+    s.smoothing_degree = std::min(degree + 2, 5);
     s.final_clean_stencils = true;
+    if (degree >= 4) s.final_weight_epsilon = 0.1, s.final_points_factor = 2;
   }
   return s;
 }

@@ -30,6 +30,7 @@ struct NoiseSchedule {
   int smoothing_degree = 3;           ///< degree of the smoothing fits (flat weights)
   double final_weight_epsilon = 0.01;  ///< eps of (2.2.1) in the final fit
   bool final_clean_stencils = false;  ///< final fit on the clean stencils ((d+1)/2 rings)
+  double final_points_factor = 0;     ///< and their growth factor (0: the clean one)
 };
 /// Residual ratio (NoiseEstimate) from which the noise dominates the truncation error.
 inline constexpr double kHeavyNoiseResidualRatio = 0.2;
@@ -41,8 +42,9 @@ inline constexpr double kHeavyNoiseResidualRatio = 0.2;
 /// (at degree 3 also the clean stencils), and flat weights on the noise stencils at degree
 /// >= 4, where the noise still dominates (measured choices, bench/README.md).
 /// Light noise (O(h^3), small O(h^2)): the truncation error dominates, so the smoothing
-/// fits are of degree d + 2 (<= 6) and the final fit is the clean one (clean stencils,
-/// steep weights), approximating, on the smoothed mesh.
+/// fits are of degree d + 2 (<= 5) and the final fit is the clean one (clean stencils,
+/// steep weights), approximating, on the smoothed mesh; at degree >= 4 on 2x the
+/// coefficients with eps = 0.1 (its truncation error is small, the noise still counts).
 NoiseSchedule NoiseScheduleFor(int degree, double residual_ratio);
 /// The options of a smoothing pass's fits: approximating, flat weights, the schedule's
 /// degree on the noise mode's own stencils (`options`' rings and factor are the final fit's).
