@@ -293,7 +293,9 @@ class SurfaceFitter {
     FitOptions eff = o;
     NoiseSchedule schedule;
     if (o.noise != NoiseMode::kOff) {
-      GF_ASSIGN_OR_RETURN(const NoiseEstimate est, EstimateNoise(mesh, topo, normals, ctx));
+      // Reported as a phase where it decides (auto); with kOn it only sets the schedule.
+      GF_ASSIGN_OR_RETURN(const NoiseEstimate est,
+                          EstimateNoise(mesh, topo, normals, o.noise == NoiseMode::kAuto ? ctx : ctx.WithProgress(nullptr)));
       if (o.noise == NoiseMode::kAuto) eff.noise = est.noisy ? NoiseMode::kOn : NoiseMode::kOff;
       schedule = NoiseScheduleFor(o.degree, est.residual_ratio);
     }
@@ -325,7 +327,7 @@ class SurfaceFitter {
       });
     };
     std::vector<uint8_t> fixed_tangent;  // normal refinement (FitOptions::normal_degree)
-    std::shared_ptr<const Neighborhoods> smoothing_nb;  // the noise mode's cubic smoothing fits
+    std::shared_ptr<const Neighborhoods> smoothing_nb;  // the noise mode's smoothing fits' stencils
     for (int pass = 0; pass < passes; ++pass) {
       if (pass > 0) adopt_normals(*fits, nullptr);
       if (pass > 0 && pass <= smoothing) {
