@@ -7,8 +7,10 @@
 //
 // Usage: noise_study [surfaces=torus,bump] [powers=2,3] [degrees=2,3,4] [n list=16,32,64]
 //                    [alpha=0.1] [smoothing passes list=-1]
-// Overrides of the noise mode's fit (experiments): NOISE_EPS (weight eps), NOISE_MPF
-// (min points factor), NOISE_RINGS, NOISE_ND (normal_degree: a normal pre-fit after smoothing).
+// Overrides of the noise mode's fit (experiments): NOISE_MPF (min points factor),
+// NOISE_RINGS, NOISE_ND (normal_degree: a normal pre-fit after smoothing). NOISE_DIAG=1
+// prints the errors within 3 rings of the boundary and inside separately.
+#include <algorithm>
 #include <cstdio>
 #include <cstdlib>
 #include <memory>
@@ -58,6 +60,36 @@ void Print(const Series& s, const std::vector<double>& hs, const Series* ref) {
   std::printf("\n");
 }
 
+// Rings from the boundary (BFS over edges); closed meshes: all large.
+std::vector<int> BoundaryDistance(const Topology& topo) {
+  std::vector<int> dist(topo.num_vertices, 1 << 20), queue;
+  for (int v = 0; v < topo.num_vertices; ++v)
+    if (topo.is_boundary[v]) dist[v] = 0, queue.push_back(v);
+  for (size_t i = 0; i < queue.size(); ++i)
+    for (int k = 0; k < topo.NumNeighbors(queue[i]); ++k) {
+      const int w = topo.Neighbors(queue[i])[k];
+      if (dist[w] > dist[queue[i]] + 1) dist[w] = dist[queue[i]] + 1, queue.push_back(w);
+    }
+  return dist;
+}
+
+// NOISE_DIAG: errors near the boundary (<= 3 rings) and inside, separately.
+void Diagnose(const char* what, const Mesh& clean, const AnalyticSurface& surface, const Differentials& d,
+              const Topology& topo) {
+  const std::vector<int> dist = BoundaryDistance(topo);
+  std::vector<uint8_t> near(dist.size()), inside(dist.size());
+  for (size_t v = 0; v < dist.size(); ++v) near[v] = dist[v] <= 3, inside[v] = dist[v] > 3;
+  const DifferentialErrors a = MeasureErrors(clean, surface, d, inside);
+  std::printf("    diag %-8s inside: n %8.2e %8.2e H %8.2e K %8.2e", what, a.normal.l2, a.normal.linf, a.mean.l2,
+              a.gaussian.l2);
+  if (std::count(near.begin(), near.end(), 1) > 0) {
+    const DifferentialErrors b = MeasureErrors(clean, surface, d, near);
+    std::printf(" | near boundary: n %8.2e %8.2e H %8.2e K %8.2e", b.normal.l2, b.normal.linf, b.mean.l2,
+                b.gaussian.l2);
+  }
+  std::printf("\n");
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -95,18 +127,20 @@ int main(int argc, char** argv) {
             FitOptions on = o;
             on.noise = NoiseMode::kOn;
             on.smoothing_passes = std::atoi(passes[i].c_str());
-            if (const char* e = std::getenv("NOISE_EPS")) on.weight_epsilon = std::atof(e);
             if (const char* e = std::getenv("NOISE_MPF")) on.min_points_factor = std::atof(e);
             if (const char* e = std::getenv("NOISE_RINGS")) on.rings = std::atof(e);
             if (const char* e = std::getenv("NOISE_ND")) on.normal_degree = std::atoi(e);
-            series[1 + i].errors.push_back(MeasureErrors(clean, *surface, ComputeDifferentials(*FitSurface(mesh, topo, on).value())));
+            const Differentials dn = ComputeDifferentials(*FitSurface(mesh, topo, on).value());
+            series[1 + i].errors.push_back(MeasureErrors(clean, *surface, dn));
+            if (std::getenv("NOISE_DIAG")) Diagnose("noise", clean, *surface, dn, topo);
           }
           FitOptions on = o;
           on.noise = NoiseMode::kOn;
           int few = 0;
           const Neighborhoods nb = BuildNeighborhoods(topo, mesh, RingSpecFor(on));
-          series[series.size() - 2].errors.push_back(
-              MeasureErrors(clean, *surface, CgalDifferentials(mesh, nb, d, def.normals, &few)));
+          const Differentials dc = CgalDifferentials(mesh, nb, d, def.normals, &few);
+          series[series.size() - 2].errors.push_back(MeasureErrors(clean, *surface, dc));
+          if (std::getenv("NOISE_DIAG")) Diagnose("CGAL", clean, *surface, dc, topo);
           const Neighborhoods nbd = BuildNeighborhoods(topo, mesh, RingSpecFor(o));
           series.back().errors.push_back(MeasureErrors(clean, *surface, CgalDifferentials(mesh, nbd, d, def.normals, &few)));
           const Positions normals = ApproximateVertexNormals(mesh, topo, NormalWeighting::kArea);
@@ -117,6 +151,17 @@ int main(int argc, char** argv) {
         std::printf("%s, O(h^%d) perturbation, degree %d\n", name.c_str(), k, d);
         const Series& cgal = series[series.size() - 2];
         for (const Series& s : series) Print(s, hs, &s == &cgal ? nullptr : &cgal);
+        // The finest level against the better CGAL run per norm (issue 16's comparison).
+        const DifferentialErrors &c = cgal.errors.back(), &cd = series.back().errors.back();
+        for (size_t i = 1; i + 2 < series.size(); ++i) {
+          const DifferentialErrors& e = series[i].errors.back();
+          auto ratio = [](double a, double b, double b2) { return a / std::min(b, b2); };
+          std::printf("  %-12s finest level / best CGAL: normal %.2f (Linf %.2f) H %.2f (Linf %.2f) K %.2f (Linf %.2f)\n",
+                      series[i].name.c_str(), ratio(e.normal.l2, c.normal.l2, cd.normal.l2),
+                      ratio(e.normal.linf, c.normal.linf, cd.normal.linf), ratio(e.mean.l2, c.mean.l2, cd.mean.l2),
+                      ratio(e.mean.linf, c.mean.linf, cd.mean.linf), ratio(e.gaussian.l2, c.gaussian.l2, cd.gaussian.l2),
+                      ratio(e.gaussian.linf, c.gaussian.linf, cd.gaussian.linf));
+        }
       }
     }
   }

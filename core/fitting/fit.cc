@@ -291,12 +291,23 @@ class SurfaceFitter {
     Positions normals = ApproximateVertexNormals(mesh, topo, o.frame_normals, ctx.threads());
     // Noise-aware fitting (noise.h): `o` resolved, smoothing-by-projection passes first.
     FitOptions eff = o;
-    if (o.noise == NoiseMode::kAuto) {
-      GF_ASSIGN_OR_RETURN(const NoiseEstimate est, EstimateNoise(mesh, topo, normals, ctx));
-      eff.noise = est.noisy ? NoiseMode::kOn : NoiseMode::kOff;
-      if (RingSpecFor(eff).rings != RingSpecFor(o).rings || RingSpecFor(eff).min_points != RingSpecFor(o).min_points)
-        nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, mesh, RingSpecFor(eff), ctx.threads()));
+    NoiseSchedule schedule;
+    if (o.noise != NoiseMode::kOff) {
+      // Reported as a phase where it decides (auto); with kOn it only sets the schedule.
+      GF_ASSIGN_OR_RETURN(const NoiseEstimate est,
+                          EstimateNoise(mesh, topo, normals, o.noise == NoiseMode::kAuto ? ctx : ctx.WithProgress(nullptr)));
+      if (o.noise == NoiseMode::kAuto) eff.noise = est.noisy ? NoiseMode::kOn : NoiseMode::kOff;
+      schedule = NoiseScheduleFor(o.degree, est.residual_ratio);
     }
+    // The final fit's stencils (the clean ones under light noise, when not set explicitly).
+    FitOptions final_spec = eff;
+    if (eff.noise == NoiseMode::kOn && schedule.final_clean_stencils) {
+      final_spec.noise = NoiseMode::kOff;
+      if (final_spec.min_points_factor == 0) final_spec.min_points_factor = schedule.final_points_factor;
+    }
+    if (RingSpecFor(final_spec).rings != RingSpecFor(o).rings ||
+        RingSpecFor(final_spec).min_points != RingSpecFor(o).min_points)
+      nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, mesh, RingSpecFor(final_spec), ctx.threads()));
     eff.interpolate = eff.Interpolates();
     if (eff.noise == NoiseMode::kOn) eff.weight_epsilon = kNoiseWeightEpsilon;
     const int smoothing = eff.SmoothingPasses(), passes = smoothing + (o.two_pass ? 2 : 1);
@@ -316,6 +327,7 @@ class SurfaceFitter {
       });
     };
     std::vector<uint8_t> fixed_tangent;  // normal refinement (FitOptions::normal_degree)
+    std::shared_ptr<const Neighborhoods> smoothing_nb;  // the noise mode's smoothing fits' stencils
     for (int pass = 0; pass < passes; ++pass) {
       if (pass > 0) adopt_normals(*fits, nullptr);
       if (pass > 0 && pass <= smoothing) {
@@ -326,6 +338,20 @@ class SurfaceFitter {
       FitOptions pass_options = eff;
       if (pass < smoothing) pass_options.interpolate = false;  // smoothing fits approximate
       const bool last = pass == passes - 1;
+      std::shared_ptr<const Neighborhoods> pass_nb = nb;
+      if (eff.noise == NoiseMode::kOn) {  // the smoothing fits' degree, the final fit's weights (noise.h)
+        if (last) pass_options.weight_epsilon = schedule.final_weight_epsilon;
+        if (pass < smoothing) {  // the noise mode's own stencils; rings and factor apply to the final fit
+          pass_options = NoiseSmoothingOptions(eff, schedule);
+          const RingSpec spec = RingSpecFor(pass_options), final_rings = RingSpecFor(final_spec);
+          if (spec.rings != final_rings.rings || spec.min_points != final_rings.min_points ||
+              spec.min_points_boundary != final_rings.min_points_boundary) {
+            if (!smoothing_nb)
+              smoothing_nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, mesh, spec, ctx.threads()));
+            pass_nb = smoothing_nb;
+          }
+        }
+      }
       // Progress phases: "smooth i/S" per smoothing pass, "frames" (two_pass's first fit),
       // "normals" (the normal refinement's pre-fit), "fit".
       const std::string phase = pass < smoothing ? absl::StrFormat("smooth %d/%d", pass + 1, smoothing)
@@ -345,7 +371,7 @@ class SurfaceFitter {
         adopt_normals(pre_fits, &fixed_tangent);
       }
       fits = std::make_shared<SurfaceFits>();
-      if (absl::Status s = FitAll(*input, topo, pass_options, nb, normals, req, ctx, last ? &on_fitted : nullptr,
+      if (absl::Status s = FitAll(*input, topo, pass_options, pass_nb, normals, req, ctx, last ? &on_fitted : nullptr,
                                   fixed_tangent.empty() ? nullptr : fixed_tangent.data(), phase, *fits);
           !s.ok())
         return s;

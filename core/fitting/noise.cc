@@ -19,6 +19,32 @@ Positions ProjectOntoFits(const SurfaceFits& fits, const Positions& positions, i
   return out;
 }
 
+NoiseSchedule NoiseScheduleFor(int degree, double residual_ratio) {
+  NoiseSchedule s;
+  if (residual_ratio >= kHeavyNoiseResidualRatio) {
+    s.smoothing_degree = 3;
+    s.final_weight_epsilon = degree >= 4 ? kNoiseWeightEpsilon : 0.01;
+    s.final_clean_stencils = degree == 3;
+  } else {
+    s.smoothing_degree = std::min(degree + 2, 5);
+    s.final_clean_stencils = true;
+    if (degree >= 4) s.final_weight_epsilon = 0.1, s.final_points_factor = 2;
+  }
+  return s;
+}
+
+FitOptions NoiseSmoothingOptions(const FitOptions& options, const NoiseSchedule& schedule) {
+  FitOptions o = options;
+  o.noise = NoiseMode::kOn;
+  o.interpolate = false;
+  o.weight_epsilon = kNoiseWeightEpsilon;
+  o.degree = schedule.smoothing_degree;
+  o.rings = o.min_points_factor = 0;
+  o.normal_degree = 0;
+  o.two_pass = false;
+  return o;
+}
+
 namespace {
 
 // rms of the residual of an approximating fit of `degree` (0 if it could not be solved).

@@ -16,11 +16,39 @@ namespace geomfit {
 /// polynomials, (2) with nearly uniform weights on d/2+1 rings grown to 3x the
 /// coefficient count (2.1), and (3)
 /// first runs smoothing-by-projection passes (§4.2.3): every vertex moves to its own
-/// fit's foot point, which averages the noise of its stencil away, and the mesh is refitted.
+/// (cubic, flat-weighted) fit's foot point, which averages the noise of its stencil away,
+/// and the mesh is refitted; (4) at degree 2 the final fit keeps the tangent plane of a
+/// cubic pre-fit on the smoothed mesh (the normal refinement of FitOptions::normal_degree).
 
-/// The weights' eps of (2.2.1) in the noise mode: nearly uniform weights (1 to 2^(-d/4)
-/// across the stencil) average the noise of every point instead of trusting the nearest.
+/// The weights' eps of (2.2.1) in the noise mode's smoothing fits (and the final fit at
+/// degree >= 4): nearly uniform weights (1 to 2^(-d/4) across the stencil) average the
+/// noise of every point instead of trusting the nearest.
 inline constexpr double kNoiseWeightEpsilon = 1.0;
+/// How the noise mode balances bias against noise for the noise EstimateNoise finds
+/// (bench/README.md, "Noisy meshes, second round").
+struct NoiseSchedule {
+  int smoothing_degree = 3;           ///< degree of the smoothing fits (flat weights)
+  double final_weight_epsilon = 0.01;  ///< eps of (2.2.1) in the final fit
+  bool final_clean_stencils = false;  ///< final fit on the clean stencils ((d+1)/2 rings)
+  double final_points_factor = 0;     ///< and their growth factor (0: the clean one)
+};
+/// Residual ratio (NoiseEstimate) from which the noise dominates the truncation error.
+inline constexpr double kHeavyNoiseResidualRatio = 0.2;
+/// Heavy noise (O(h^2)): cubic smoothing fits, whose foot points carry no error from the
+/// surface's cubic terms on asymmetric stencils (a quadratic's do, O(h^3) per pass, which
+/// the final fit differentiates into O(h) curvature errors) and which average more noise
+/// than quartics on the stencils they need. After smoothing, the final fit uses the text's
+/// steep weights at degrees <= 3, where the truncation error of a large stencil dominates
+/// (at degree 3 also the clean stencils), and flat weights on the noise stencils at degree
+/// >= 4, where the noise still dominates (measured choices, bench/README.md).
+/// Light noise (O(h^3), small O(h^2)): the truncation error dominates, so the smoothing
+/// fits are of degree d + 2 (<= 5) and the final fit is the clean one (clean stencils,
+/// steep weights), approximating, on the smoothed mesh; at degree >= 4 on 2x the
+/// coefficients with eps = 0.1 (its truncation error is small, the noise still counts).
+NoiseSchedule NoiseScheduleFor(int degree, double residual_ratio);
+/// The options of a smoothing pass's fits: approximating, flat weights, the schedule's
+/// degree on the noise mode's own stencils (`options`' rings and factor are the final fit's).
+FitOptions NoiseSmoothingOptions(const FitOptions& options, const NoiseSchedule& schedule);
 
 /// Every vertex moved onto its own fit (the fit's point at its origin, x(0, 0) of
 /// Table 3.1); vertices without a fit keep `positions`.

@@ -30,8 +30,9 @@ enum class NormalWeighting { kArea, kAngle };
 /// (marching cubes, perturbed or measured data; §3.3 noisy tests). See core/fitting/noise.h.
 enum class NoiseMode {
   kOff,   ///< the fits of chapters 2-3 as configured (the default)
-  kOn,    ///< approximating fits on d/2+1 rings (2.1), >= 3x the coefficient count, flat
-          ///< weights (eps = 1), after smoothing-by-projection passes (§4.2.3)
+  kOn,    ///< approximating fits after smoothing-by-projection passes (§4.2.3) on d/2+1
+          ///< rings (2.1), >= 3x the coefficient count; stencils, weights and the smoothing
+          ///< fits' degree follow the measured noise (NoiseSchedule, noise.h)
   kAuto,  ///< kOn where the mesh looks noisy (EstimateNoise), else kOff
 };
 
@@ -67,7 +68,8 @@ struct FitOptions {
   /// R exceeds it drops its highest degree, repeatedly. Index 0 unused.
   double cond_threshold[kMaxDegree + 1] = {0, 1e3, 1e3, 3.3e3, 1e4, 1e5, 1e6};
   /// Noise-aware fitting; kOn changes the automatic rings / min_points_factor and makes
-  /// the fits approximating with eps = 1 (interpolate and weight_epsilon are ignored).
+  /// the fits approximating with the schedule's eps (interpolate and weight_epsilon are
+  /// ignored; rings and min_points_factor, when set, apply to the final fit).
   NoiseMode noise = NoiseMode::kOff;
   /// Smoothing-by-projection passes before the final fit (§4.2.3: every vertex moves to
   /// its own approximating fit, then all are refitted); -1 = automatic: 0, or 2 with noise.
@@ -94,10 +96,12 @@ struct FitOptions {
     return hermite_hessian && degree == 2 && method == FitMethod::kLHF && solver == WlsSolver::kQR &&
            Interpolates();
   }
-  /// The normal pre-fit's degree actually used; equal to `degree` when there is none.
+  /// The normal pre-fit's degree actually used; equal to `degree` when there is none
+  /// (the noise mode at degree 2 always refines its normals with a cubic, noise.h).
   int NormalDegree() const {
     if (method != FitMethod::kLHF || solver != WlsSolver::kQR) return degree;
     if (HermiteHessian() && normal_degree <= degree) return degree + 1;
+    if (noise == NoiseMode::kOn && degree == 2 && normal_degree <= degree) return 3;  // noise.h
     return normal_degree > degree ? normal_degree : degree;
   }
 
