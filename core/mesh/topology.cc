@@ -262,7 +262,7 @@ absl::Status FaceError(const Mesh& mesh, int f) {
 
 }  // namespace
 
-absl::Status ValidateGeometry(const Mesh& mesh) {
+absl::Status ValidateGeometry(const Mesh& mesh, int num_threads) {
   const int nv = mesh.NumVertices();
   for (int v = 0; v < nv; ++v)
     for (int c = 0; c < 3; ++c)
@@ -271,7 +271,8 @@ absl::Status ValidateGeometry(const Mesh& mesh) {
             "vertex %d: coordinate %c is not finite (%g)", v, "xyz"[c], mesh.positions(v, c)));
   // Faces in parallel blocks; the error reported is always the lowest-numbered face's.
   // A few nanoseconds a face: below ~10^5 faces waking a thread team costs more.
-  const int threads = mesh.NumFaces() < 100'000 ? 1 : ResolveThreads(0);
+  // A team asked for but unused also costs: its idle thread spins a while after.
+  const int threads = mesh.NumFaces() < 100'000 ? 1 : ResolveThreads(num_threads);
   std::vector<int> first_bad(threads, std::numeric_limits<int>::max());
   ParallelForBlocks(mesh.NumFaces(), threads, [&](int64_t begin, int64_t end, int b) {
     for (int64_t f = begin; f < end; ++f)
@@ -284,10 +285,10 @@ absl::Status ValidateGeometry(const Mesh& mesh) {
   return bad == std::numeric_limits<int>::max() ? absl::OkStatus() : FaceError(mesh, bad);
 }
 
-absl::StatusOr<Topology> ValidateMesh(const Mesh& mesh) {
+absl::StatusOr<Topology> ValidateMesh(const Mesh& mesh, int num_threads) {
   auto topo = BuildTopology(mesh);
   if (!topo.ok()) return topo.status();
-  absl::Status geo = ValidateGeometry(mesh);
+  absl::Status geo = ValidateGeometry(mesh, num_threads);
   if (!geo.ok()) return geo;
   return topo;
 }

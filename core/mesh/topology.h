@@ -47,10 +47,11 @@ absl::StatusOr<Topology> BuildTopology(const Mesh& mesh);
 
 /// Validates positions against faces: finite coordinates, no zero-area face.
 /// Separate from BuildTopology because positions change every time step.
-absl::Status ValidateGeometry(const Mesh& mesh);
+/// `num_threads` as ResolveThreads (0: all); large meshes only are split.
+absl::Status ValidateGeometry(const Mesh& mesh, int num_threads = 0);
 
 /// BuildTopology + ValidateGeometry.
-absl::StatusOr<Topology> ValidateMesh(const Mesh& mesh);
+absl::StatusOr<Topology> ValidateMesh(const Mesh& mesh, int num_threads = 0);
 
 /// A mesh relabelled for memory locality: vertices in spatial (Morton) order, faces
 /// ordered by their lowest new vertex (ties in source order), each face row keeping its

@@ -58,7 +58,7 @@ absl::StatusOr<Differentials> FitLocal(const Mesh& mesh, const std::string& path
     absl::StatusOr<LocalityRelabelling> r = RelabelForLocality(mesh);
     absl::StatusOr<Topology> topo = r.ok() ? BuildTopology(*r) : r.status();
     // Any failure: the source's validation below reports it with the user's indices.
-    if (topo.ok() && ValidateGeometry(r->mesh).ok()) {
+    if (topo.ok() && ValidateGeometry(r->mesh, ctx.threads()).ok()) {
       validated();
       GF_ASSIGN_OR_RETURN(const auto fits, FitSurface(r->mesh, *topo, o, nullptr, {}, ctx));
       GF_ASSIGN_OR_RETURN(Differentials d, ComputeDifferentials(*fits, kAllQuantities, ctx));
@@ -79,7 +79,7 @@ absl::StatusOr<Differentials> FitLocal(const Mesh& mesh, const std::string& path
       return d;
     }
   }
-  const absl::StatusOr<Topology> topo = ValidateMesh(mesh);
+  const absl::StatusOr<Topology> topo = ValidateMesh(mesh, ctx.threads());
   GF_RETURN_IF_ERROR(WithPrefix(topo.status(), path));
   validated();
   GF_ASSIGN_OR_RETURN(const auto fits, FitSurface(mesh, *topo, o, nullptr, {}, ctx));
