@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstdlib>
 
 #include "core/util/parallel.h"
 
@@ -31,10 +30,7 @@ std::vector<int32_t> GrowthOrder(const Topology& t) {
   const int nv = t.num_vertices;
   std::vector<int32_t> order;
   order.reserve(nv);
-  int64_t gap = 0;  // sum over edges of |v - w|
-  for (int v = 0; v < nv; ++v)
-    for (int j = 0; j < t.NumNeighbors(v); ++j) gap += std::abs(v - t.Neighbors(v)[j]);
-  if (gap <= kLocalIndexGap * static_cast<int64_t>(t.vv.size())) {
+  if (HasLocalNumbering(t)) {
     for (int v = 0; v < nv; ++v) order.push_back(v);
     return order;
   }

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdlib>
 #include <limits>
 #include <numeric>
 
@@ -353,7 +354,14 @@ bool HasLocalNumbering(const Mesh& mesh) {
     for (int c = 0; c < n; ++c) gap += std::abs(static_cast<int64_t>(idx[c]) - idx[c + 1 < n ? c + 1 : 0]);
     edges += n;
   }
-  return gap <= kLocalIndexGap * edges;
+  return IsLocalIndexGap(gap, edges);
+}
+
+bool HasLocalNumbering(const Topology& t) {
+  int64_t gap = 0;
+  for (int v = 0; v < t.num_vertices; ++v)
+    for (int j = 0; j < t.NumNeighbors(v); ++j) gap += std::abs(v - t.Neighbors(v)[j]);
+  return IsLocalIndexGap(gap, static_cast<int64_t>(t.vv.size()));
 }
 
 absl::StatusOr<LocalityRelabelling> RelabelForLocality(const Mesh& mesh) {

@@ -67,9 +67,16 @@ struct LocalityRelabelling {
 /// neighbouring vertices then lie within a few hundred kB of each other.
 inline constexpr int64_t kLocalIndexGap = 4096;
 
+/// Whether `gap_sum`, a sum of |a - b| over `edges` edges (a, b), has a mean of at most
+/// kLocalIndexGap: the one test behind both HasLocalNumbering.
+inline bool IsLocalIndexGap(int64_t gap_sum, int64_t edges) { return gap_sum <= kLocalIndexGap * edges; }
+
 /// Whether the mean |a - b| over the edges (a, b) of the face rows is at most
 /// kLocalIndexGap (generators number locally; some meshers scatter their numbering).
 bool HasLocalNumbering(const Mesh& mesh);
+
+/// The same over the topology's edges (each row entry once).
+bool HasLocalNumbering(const Topology& topo);
 
 /// Relabels `mesh`. INVALID_ARGUMENT for an empty mesh or a vertex index out of range
 /// (no message worth showing: validate the source for that).

@@ -384,6 +384,11 @@ TEST(LocalityRelabellingTest, LocalNumbering) {
   EXPECT_TRUE(HasLocalNumbering(m));
   EXPECT_FALSE(HasLocalNumbering(testing_util::ShuffleVertices(m, 3)));
   EXPECT_TRUE(HasLocalNumbering(RelabelForLocality(testing_util::ShuffleVertices(m, 3)).value().mesh));
+  // The topology's test agrees with the faces' (each edge twice there, as here on a torus).
+  EXPECT_TRUE(HasLocalNumbering(BuildTopology(m).value()));
+  EXPECT_FALSE(HasLocalNumbering(BuildTopology(testing_util::ShuffleVertices(m, 3)).value()));
+  EXPECT_TRUE(IsLocalIndexGap(kLocalIndexGap * 10, 10));
+  EXPECT_FALSE(IsLocalIndexGap(kLocalIndexGap * 10 + 1, 10));
 }
 
 // Relabelling keeps every topology error: BuildTopology of the relabelled mesh fails
