@@ -94,7 +94,9 @@ absl::Status RunCurvature(const std::vector<std::string>& argv) {
   GF_RETURN_IF_ERROR(ParseCurvatureArgs(argv, &a, &help));
   if (help) return absl::OkStatus();
   if (!a.server.empty()) {
-#ifdef GEOMFIT_WITH_CLIENT
+#if defined(GEOMFIT_CLI_FRONT)
+    return RunInFullCli();
+#elif defined(GEOMFIT_WITH_CLIENT)
     return RunCurvatureRemote(a);
 #else
     return UsageError(kNoClientMessage);
