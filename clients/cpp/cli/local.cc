@@ -3,6 +3,12 @@
 #include <functional>
 #include <vector>
 
+#if defined(__linux__) && defined(__GLIBC__)
+#include <malloc.h>
+#include <sys/mman.h>
+#include <sys/stat.h>
+#endif
+
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "clients/cpp/cli/cli.h"
@@ -27,6 +33,33 @@ absl::Status CheckMeshOutput(const std::string& path) { return MeshOutputFormat(
 
 void Verbose(bool on, const std::string& line) {
   if (on) std::fprintf(stderr, "geomfit: %s\n", line.c_str());
+}
+
+/// Prepares the heap for a run on a mesh file of `file_bytes`: ~16x that (what a
+/// degree-4 run peaks at) is reserved at the heap's top (address space only: nothing
+/// is touched), marked for transparent huge pages, and kept (no trimming, arrays up to
+/// 32 MB from the heap). The run's arrays are then faulted in 2 MB at a time, and
+/// memory freed by one phase is reused by the next instead of being unmapped and
+/// faulted in again: ~20% of a degree-2 run's CPU went to page faults.
+void PrepareHeap(int64_t file_bytes) {
+#if defined(__linux__) && defined(__GLIBC__)
+  constexpr size_t kBlock = 30 << 20, kHuge = 2 << 20;
+  mallopt(M_MMAP_THRESHOLD, 32 << 20);
+  mallopt(M_TRIM_THRESHOLD, 1 << 30);
+  const int blocks = static_cast<int>(std::min<int64_t>(64, 16 * file_bytes / kBlock + 1));
+  std::vector<void*> held;
+  for (int i = 0; i < blocks; ++i)
+    if (void* p = std::malloc(kBlock)) held.push_back(p);
+  if (!held.empty()) {  // consecutive at the heap's top, normally: advise their span
+    uintptr_t lo = ~uintptr_t{0}, hi = 0;
+    for (void* p : held) lo = std::min(lo, reinterpret_cast<uintptr_t>(p)), hi = std::max(hi, reinterpret_cast<uintptr_t>(p) + kBlock);
+    lo = (lo + kHuge - 1) & ~(kHuge - 1);
+    if (hi - lo <= held.size() * (kBlock + 4096) && hi > lo) madvise(reinterpret_cast<void*>(lo), hi - lo, MADV_HUGEPAGE);
+  }
+  for (void* p : held) std::free(p);
+#else
+  (void)file_bytes;
+#endif
 }
 
 /// Rows of `m` moved from relabelled to source order (empty arrays stay empty).
@@ -106,6 +139,10 @@ absl::Status RunCurvature(const std::vector<std::string>& argv) {
   ProgressBar& bar = ProgressBar::Get();
   Stopwatch read_timer;
   bar.Begin("read");
+#if defined(__linux__) && defined(__GLIBC__)
+  struct stat st;
+  if (stat(a.mesh.c_str(), &st) == 0) PrepareHeap(st.st_size);
+#endif
   GF_ASSIGN_OR_RETURN(const Mesh mesh, ReadMesh(a.mesh));
   Stopwatch fit_timer;
   const RunContext ctx = bar.Context(a.threads);
