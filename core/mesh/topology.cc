@@ -318,40 +318,23 @@ uint32_t Spread3(uint32_t x) {
   return x;
 }
 
-// Sorts N packed (key, entry) pairs: an odd-even transposition network, unrolled and
-// branch-free (min/max), for keys that come in no pattern.
-template <int N>
-void SortNetwork(uint64_t* k) {
-  for (int pass = 0; pass < N; ++pass)
-    for (int i = pass & 1; i + 1 < N; i += 2) {
-      const uint64_t a = k[i], b = k[i + 1];
-      k[i] = std::min(a, b);
-      k[i + 1] = std::max(a, b);
-    }
-}
-
-// Sorts a row of distinct entries by key[entry]. Rows hold a vertex's few neighbours
-// or faces, whose keys (source indices) come in no pattern: up to 8 entries go through
-// a sorting network, more through std::sort.
+// Sorts a row of distinct entries by key[entry] (distinct keys). Rows hold a vertex's
+// few neighbours or faces, whose keys (source indices) come in no pattern: up to 8
+// entries each go straight to their rank, counted by comparing every pair in 8 lanes
+// (padded with the largest key; no branch, vectorised), more through std::sort.
 void SortRowByKey(int32_t* begin, int32_t* end, const std::vector<int32_t>& key) {
   const int n = static_cast<int>(end - begin);
   if (n > 8) {
     std::sort(begin, end, [&](int32_t x, int32_t y) { return key[x] < key[y]; });
     return;
   }
-  uint64_t k[8];
-  for (int i = 0; i < n; ++i) k[i] = static_cast<uint64_t>(key[begin[i]]) << 32 | static_cast<uint32_t>(begin[i]);
-  switch (n) {
-    case 8: SortNetwork<8>(k); break;
-    case 7: SortNetwork<7>(k); break;
-    case 6: SortNetwork<6>(k); break;
-    case 5: SortNetwork<5>(k); break;
-    case 4: SortNetwork<4>(k); break;
-    case 3: SortNetwork<3>(k); break;
-    case 2: SortNetwork<2>(k); break;
-    default: break;
-  }
-  for (int i = 0; i < n; ++i) begin[i] = static_cast<int32_t>(k[i] & 0xffffffffu);
+  int32_t k[8], rank[8] = {}, out[8];
+  for (int i = 0; i < n; ++i) k[i] = key[begin[i]];
+  for (int i = n; i < 8; ++i) k[i] = std::numeric_limits<int32_t>::max();
+  for (int j = 0; j < 8; ++j)
+    for (int i = 0; i < 8; ++i) rank[i] += k[j] < k[i];
+  for (int i = 0; i < n; ++i) out[rank[i]] = begin[i];
+  std::copy_n(out, n, begin);
 }
 
 }  // namespace
