@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstdlib>
 
 #include "core/util/parallel.h"
 
@@ -31,10 +30,7 @@ std::vector<int32_t> GrowthOrder(const Topology& t) {
   const int nv = t.num_vertices;
   std::vector<int32_t> order;
   order.reserve(nv);
-  int64_t gap = 0;  // sum over edges of |v - w|
-  for (int v = 0; v < nv; ++v)
-    for (int j = 0; j < t.NumNeighbors(v); ++j) gap += std::abs(v - t.Neighbors(v)[j]);
-  if (gap <= kLocalIndexGap * static_cast<int64_t>(t.vv.size())) {
+  if (HasLocalNumbering(t)) {
     for (int v = 0; v < nv; ++v) order.push_back(v);
     return order;
   }
@@ -246,7 +242,7 @@ Neighborhoods BuildNeighborhoods(const Topology& topo, const Mesh& mesh, const R
     RingGrower grower(topo, spans);
     std::vector<int32_t> stencil;
     auto& idx = block_indices[b];
-    idx.reserve((end - begin) * 24);
+    idx.reserve((end - begin) * std::max(24, 2 * spec.min_points));  // stencils rarely pass 1.5x min_points
     for (int64_t i = begin; i < end; ++i) {
       const int v = order[i];
       nb.rings[v] = grower.Grow(v, spec, stencil);
@@ -258,6 +254,14 @@ Neighborhoods BuildNeighborhoods(const Topology& topo, const Mesh& mesh, const R
   nb.offsets.resize(nv + 1);
   nb.offsets[0] = 0;
   for (int v = 0; v < nv; ++v) nb.offsets[v + 1] = nb.offsets[v] + sizes[v];
+  if (threads == 1 || nv == 1) {
+    bool identity = true;
+    for (int i = 0; i < nv && identity; ++i) identity = order[i] == i;
+    if (identity) {  // one block grown in vertex order: it is the result (its spare
+      nb.indices = std::move(block_indices[0]);  // capacity was never written: not resident)
+      return nb;
+    }
+  }
   nb.indices.resize(nb.offsets[nv]);
   ParallelForBlocks(nv, threads, [&](int64_t begin, int64_t end, int b) {
     for (int64_t i = begin; i < end; ++i) {

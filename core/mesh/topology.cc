@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdlib>
 #include <limits>
 #include <numeric>
 
@@ -154,7 +155,9 @@ absl::StatusOr<Topology> BuildTopology(const Mesh& mesh) {
 
   // Manifold vertices: the faces around each vertex form one fan (connected through
   // the edges incident on the vertex): union-find over its faces, joined where two
-  // share a spoke (found by sorting the spokes, keyed (other endpoint, local face)).
+  // share a spoke (up to kPairwiseFan faces by comparing every pair, beyond by sorting
+  // the spokes, keyed (other endpoint, local face)).
+  constexpr int kPairwiseFan = 12;
   t.is_isolated.assign(nv, 0);
   std::vector<int> parent;
   std::vector<uint64_t> keys;
@@ -167,16 +170,24 @@ absl::StatusOr<Topology> BuildTopology(const Mesh& mesh) {
     }
     parent.resize(k);
     std::iota(parent.begin(), parent.end(), 0);
-    keys.resize(2 * k);
     const std::array<int32_t, 2>* s = spokes.data() + t.vf_offsets[v];
-    for (int i = 0; i < k; ++i)
-      for (int side = 0; side < 2; ++side)
-        keys[2 * i + side] = static_cast<uint64_t>(s[i][side]) << 32 | static_cast<uint32_t>(i);
-    std::sort(keys.begin(), keys.end());
-    for (size_t i = 1; i < keys.size(); ++i)
-      if (keys[i] >> 32 == keys[i - 1] >> 32)
-        parent[Find(parent, static_cast<int>(keys[i] & 0xffffffffu))] =
-            Find(parent, static_cast<int>(keys[i - 1] & 0xffffffffu));
+    if (k <= kPairwiseFan) {
+      // A vertex's usual few faces: every pair compared (no sort; the same joins).
+      for (int i = 1; i < k; ++i)
+        for (int j = 0; j < i; ++j)
+          if ((s[i][0] == s[j][0]) | (s[i][0] == s[j][1]) | (s[i][1] == s[j][0]) | (s[i][1] == s[j][1]))
+            parent[Find(parent, i)] = Find(parent, j);
+    } else {
+      keys.resize(2 * k);
+      for (int i = 0; i < k; ++i)
+        for (int side = 0; side < 2; ++side)
+          keys[2 * i + side] = static_cast<uint64_t>(s[i][side]) << 32 | static_cast<uint32_t>(i);
+      std::sort(keys.begin(), keys.end());
+      for (size_t i = 1; i < keys.size(); ++i)
+        if (keys[i] >> 32 == keys[i - 1] >> 32)
+          parent[Find(parent, static_cast<int>(keys[i] & 0xffffffffu))] =
+              Find(parent, static_cast<int>(keys[i - 1] & 0xffffffffu));
+    }
     int fans = 0;
     for (int i = 0; i < k; ++i) fans += Find(parent, i) == i;
     if (fans > 1)
@@ -262,7 +273,7 @@ absl::Status FaceError(const Mesh& mesh, int f) {
 
 }  // namespace
 
-absl::Status ValidateGeometry(const Mesh& mesh) {
+absl::Status ValidateGeometry(const Mesh& mesh, int num_threads) {
   const int nv = mesh.NumVertices();
   for (int v = 0; v < nv; ++v)
     for (int c = 0; c < 3; ++c)
@@ -271,7 +282,8 @@ absl::Status ValidateGeometry(const Mesh& mesh) {
             "vertex %d: coordinate %c is not finite (%g)", v, "xyz"[c], mesh.positions(v, c)));
   // Faces in parallel blocks; the error reported is always the lowest-numbered face's.
   // A few nanoseconds a face: below ~10^5 faces waking a thread team costs more.
-  const int threads = mesh.NumFaces() < 100'000 ? 1 : ResolveThreads(0);
+  // A team asked for but unused also costs: its idle thread spins a while after.
+  const int threads = mesh.NumFaces() < 100'000 ? 1 : ResolveThreads(num_threads);
   std::vector<int> first_bad(threads, std::numeric_limits<int>::max());
   ParallelForBlocks(mesh.NumFaces(), threads, [&](int64_t begin, int64_t end, int b) {
     for (int64_t f = begin; f < end; ++f)
@@ -284,10 +296,10 @@ absl::Status ValidateGeometry(const Mesh& mesh) {
   return bad == std::numeric_limits<int>::max() ? absl::OkStatus() : FaceError(mesh, bad);
 }
 
-absl::StatusOr<Topology> ValidateMesh(const Mesh& mesh) {
+absl::StatusOr<Topology> ValidateMesh(const Mesh& mesh, int num_threads) {
   auto topo = BuildTopology(mesh);
   if (!topo.ok()) return topo.status();
-  absl::Status geo = ValidateGeometry(mesh);
+  absl::Status geo = ValidateGeometry(mesh, num_threads);
   if (!geo.ok()) return geo;
   return topo;
 }
@@ -306,40 +318,23 @@ uint32_t Spread3(uint32_t x) {
   return x;
 }
 
-// Sorts N packed (key, entry) pairs: an odd-even transposition network, unrolled and
-// branch-free (min/max), for keys that come in no pattern.
-template <int N>
-void SortNetwork(uint64_t* k) {
-  for (int pass = 0; pass < N; ++pass)
-    for (int i = pass & 1; i + 1 < N; i += 2) {
-      const uint64_t a = k[i], b = k[i + 1];
-      k[i] = std::min(a, b);
-      k[i + 1] = std::max(a, b);
-    }
-}
-
-// Sorts a row of distinct entries by key[entry]. Rows hold a vertex's few neighbours
-// or faces, whose keys (source indices) come in no pattern: up to 8 entries go through
-// a sorting network, more through std::sort.
+// Sorts a row of distinct entries by key[entry] (distinct keys). Rows hold a vertex's
+// few neighbours or faces, whose keys (source indices) come in no pattern: up to 8
+// entries each go straight to their rank, counted by comparing every pair in 8 lanes
+// (padded with the largest key; no branch, vectorised), more through std::sort.
 void SortRowByKey(int32_t* begin, int32_t* end, const std::vector<int32_t>& key) {
   const int n = static_cast<int>(end - begin);
   if (n > 8) {
     std::sort(begin, end, [&](int32_t x, int32_t y) { return key[x] < key[y]; });
     return;
   }
-  uint64_t k[8];
-  for (int i = 0; i < n; ++i) k[i] = static_cast<uint64_t>(key[begin[i]]) << 32 | static_cast<uint32_t>(begin[i]);
-  switch (n) {
-    case 8: SortNetwork<8>(k); break;
-    case 7: SortNetwork<7>(k); break;
-    case 6: SortNetwork<6>(k); break;
-    case 5: SortNetwork<5>(k); break;
-    case 4: SortNetwork<4>(k); break;
-    case 3: SortNetwork<3>(k); break;
-    case 2: SortNetwork<2>(k); break;
-    default: break;
-  }
-  for (int i = 0; i < n; ++i) begin[i] = static_cast<int32_t>(k[i] & 0xffffffffu);
+  int32_t k[8], rank[8] = {}, out[8];
+  for (int i = 0; i < n; ++i) k[i] = key[begin[i]];
+  for (int i = n; i < 8; ++i) k[i] = std::numeric_limits<int32_t>::max();
+  for (int j = 0; j < 8; ++j)
+    for (int i = 0; i < 8; ++i) rank[i] += k[j] < k[i];
+  for (int i = 0; i < n; ++i) out[rank[i]] = begin[i];
+  std::copy_n(out, n, begin);
 }
 
 }  // namespace
@@ -352,7 +347,14 @@ bool HasLocalNumbering(const Mesh& mesh) {
     for (int c = 0; c < n; ++c) gap += std::abs(static_cast<int64_t>(idx[c]) - idx[c + 1 < n ? c + 1 : 0]);
     edges += n;
   }
-  return gap <= kLocalIndexGap * edges;
+  return IsLocalIndexGap(gap, edges);
+}
+
+bool HasLocalNumbering(const Topology& t) {
+  int64_t gap = 0;
+  for (int v = 0; v < t.num_vertices; ++v)
+    for (int j = 0; j < t.NumNeighbors(v); ++j) gap += std::abs(v - t.Neighbors(v)[j]);
+  return IsLocalIndexGap(gap, static_cast<int64_t>(t.vv.size()));
 }
 
 absl::StatusOr<LocalityRelabelling> RelabelForLocality(const Mesh& mesh) {

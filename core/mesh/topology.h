@@ -47,10 +47,11 @@ absl::StatusOr<Topology> BuildTopology(const Mesh& mesh);
 
 /// Validates positions against faces: finite coordinates, no zero-area face.
 /// Separate from BuildTopology because positions change every time step.
-absl::Status ValidateGeometry(const Mesh& mesh);
+/// `num_threads` as ResolveThreads (0: all); large meshes only are split.
+absl::Status ValidateGeometry(const Mesh& mesh, int num_threads = 0);
 
 /// BuildTopology + ValidateGeometry.
-absl::StatusOr<Topology> ValidateMesh(const Mesh& mesh);
+absl::StatusOr<Topology> ValidateMesh(const Mesh& mesh, int num_threads = 0);
 
 /// A mesh relabelled for memory locality: vertices in spatial (Morton) order, faces
 /// ordered by their lowest new vertex (ties in source order), each face row keeping its
@@ -66,9 +67,16 @@ struct LocalityRelabelling {
 /// neighbouring vertices then lie within a few hundred kB of each other.
 inline constexpr int64_t kLocalIndexGap = 4096;
 
+/// Whether `gap_sum`, a sum of |a - b| over `edges` edges (a, b), has a mean of at most
+/// kLocalIndexGap: the one test behind both HasLocalNumbering.
+inline bool IsLocalIndexGap(int64_t gap_sum, int64_t edges) { return gap_sum <= kLocalIndexGap * edges; }
+
 /// Whether the mean |a - b| over the edges (a, b) of the face rows is at most
 /// kLocalIndexGap (generators number locally; some meshers scatter their numbering).
 bool HasLocalNumbering(const Mesh& mesh);
+
+/// The same over the topology's edges (each row entry once).
+bool HasLocalNumbering(const Topology& topo);
 
 /// Relabels `mesh`. INVALID_ARGUMENT for an empty mesh or a vertex index out of range
 /// (no message worth showing: validate the source for that).

@@ -10,6 +10,7 @@
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
 
+#include "absl/strings/str_cat.h"
 #include "core/surfaces/analytic.h"
 #include "tests/mesh/make_mesh.h"
 
@@ -220,6 +221,34 @@ TEST(TopologyErrorTest, NonManifoldVertexBowTie) {
   ExpectInvalid(ValidateMesh(m).status(), {"non-manifold vertex 0", "2 separate fans"});
 }
 
+// Cones of n faces each sharing their apex 0 (`cones` of them), closed or open:
+// the fan check compares face pairs up to 12 faces at a vertex and sorts beyond.
+Mesh Cones(int cones, int n, bool open) {
+  std::vector<std::array<double, 3>> p = {{0, 0, 0}};
+  std::vector<std::vector<int>> faces;
+  for (int c = 0; c < cones; ++c) {
+    const int base = static_cast<int>(p.size());
+    const double z = c % 2 == 0 ? 1 : -1, shift = c / 2 * 3.0;
+    for (int i = 0; i < n; ++i)
+      p.push_back({shift + std::cos(2 * M_PI * i / n), std::sin(2 * M_PI * i / n), z});
+    for (int i = 0; i < (open ? n - 1 : n); ++i) faces.push_back({0, base + i, base + (i + 1) % n});
+  }
+  return MakeMesh(p, faces);
+}
+
+TEST(TopologyErrorTest, FansCountedWithAndWithoutSorting) {
+  for (const int n : {3, 5, 6, 7, 13, 20}) {  // 2n, n - 1 and 2(n - 1) faces at the apex
+    EXPECT_TRUE(ValidateMesh(Cones(1, n, false)).ok()) << n;
+    EXPECT_TRUE(ValidateMesh(Cones(1, n, true)).ok()) << n;
+    ExpectInvalid(ValidateMesh(Cones(2, n, false)).status(),
+                  {"non-manifold vertex 0", absl::StrCat("its ", 2 * n, " faces form 2 separate fans")});
+    ExpectInvalid(ValidateMesh(Cones(2, n, true)).status(),
+                  {"non-manifold vertex 0", absl::StrCat("its ", 2 * (n - 1), " faces form 2 separate fans")});
+  }
+  ExpectInvalid(ValidateMesh(Cones(3, 5, false)).status(), {"its 15 faces form 3 separate fans"});
+  ExpectInvalid(ValidateMesh(Cones(3, 3, true)).status(), {"its 6 faces form 3 separate fans"});
+}
+
 TEST(TopologyErrorTest, FlippedFace) {
   Mesh m = Square();
   m.faces.Mutable().row(1) << 0, 3, 2, -1;  // traverses (2 -> 0) like face 0
@@ -384,6 +413,11 @@ TEST(LocalityRelabellingTest, LocalNumbering) {
   EXPECT_TRUE(HasLocalNumbering(m));
   EXPECT_FALSE(HasLocalNumbering(testing_util::ShuffleVertices(m, 3)));
   EXPECT_TRUE(HasLocalNumbering(RelabelForLocality(testing_util::ShuffleVertices(m, 3)).value().mesh));
+  // The topology's test agrees with the faces' (each edge twice there, as here on a torus).
+  EXPECT_TRUE(HasLocalNumbering(BuildTopology(m).value()));
+  EXPECT_FALSE(HasLocalNumbering(BuildTopology(testing_util::ShuffleVertices(m, 3)).value()));
+  EXPECT_TRUE(IsLocalIndexGap(kLocalIndexGap * 10, 10));
+  EXPECT_FALSE(IsLocalIndexGap(kLocalIndexGap * 10 + 1, 10));
 }
 
 // Relabelling keeps every topology error: BuildTopology of the relabelled mesh fails

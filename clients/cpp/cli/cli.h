@@ -212,6 +212,14 @@ inline const std::vector<std::string>& RemoteCommandNames() {
 }
 inline constexpr char kNoClientMessage[] = "this geomfit was built without the service client";
 
+#ifdef GEOMFIT_CLI_FRONT
+/// The lean front end (front.cc): Main saves argv; RunInFullCli replaces the process
+/// by `geomfit-full` (next to this binary) with that command line, returning only
+/// when it cannot.
+void SaveCommandLine(char** argv);
+absl::Status RunInFullCli();
+#endif
+
 /// The whole program: returns the exit code. Errors go to stderr as ONE line
 /// `geomfit: error: <message>`.
 int Main(int argc, char** argv);

@@ -25,6 +25,7 @@ constexpr Command kCommands[] = {
     {"curvature", "normals, curvatures and principal directions of a mesh", RunCurvature},
     {"generate", "generate a test mesh on an analytic surface", RunGenerate},
     {"convert", "convert a mesh between OBJ, OFF, PLY, STL (and write VTP)", RunConvert},
+#ifndef GEOMFIT_CLI_FRONT  // the rest run in geomfit-full (front.cc)
     {"project", "project points onto the reconstructed high-order surface", RunProject},
     {"refine", "refine a mesh uniformly onto the reconstructed surface", RunRefine},
     {"nodes", "quadratic or cubic element nodes on the reconstructed surface", RunNodes},
@@ -33,6 +34,7 @@ constexpr Command kCommands[] = {
     {"operator", "a GFD surface operator as a sparse matrix (--server)", RunOperatorCommand},
     {"membrane", "membrane stress and interface pressure; pressure-load solve (--server job or --local)",
      RunMembraneCommand},
+#endif
 };
 
 bool IsRemoteCommand(const std::string& name) {
@@ -64,6 +66,9 @@ std::string MainUsage() {
 absl::Status Dispatch(const std::string& name, const std::vector<std::string>& args) {
   for (const Command& c : kCommands)
     if (name == c.name) return c.run(args);
+#ifdef GEOMFIT_CLI_FRONT
+  return RunInFullCli();  // its table is the whole one: it reports unknown commands
+#endif
   if (IsRemoteCommand(name)) {
 #ifdef GEOMFIT_WITH_CLIENT
     return RunRemoteCommand(name, args);
@@ -78,6 +83,9 @@ absl::Status Dispatch(const std::string& name, const std::vector<std::string>& a
 
 
 int Main(int argc, char** argv) {
+#ifdef GEOMFIT_CLI_FRONT
+  SaveCommandLine(argv);
+#endif
   std::vector<std::string> args;
   ProgressBar::Mode progress = ProgressBar::Mode::kAuto;
   bool options_end = false;  // after `--`, everything is an argument
@@ -97,6 +105,11 @@ int Main(int argc, char** argv) {
   }
   const std::string& command = args[0];
   if (command == "--help" || command == "-h" || command == "help") {
+#ifdef GEOMFIT_CLI_FRONT
+    // The whole command list is geomfit-full's.
+    std::fprintf(stderr, "geomfit: error: %s\n", std::string(RunInFullCli().message()).c_str());
+    return kExitRuntimeError;
+#endif
     std::fputs(MainUsage().c_str(), stdout);
     return kExitOk;
   }
