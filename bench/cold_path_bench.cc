@@ -13,7 +13,11 @@
 //
 // `--mesh=FILE` adds two variants to BM_Topology and BM_Neighborhoods: shuffled:2, read
 // from FILE (e.g. the gmsh torus of bench/external_meshes.py), and shuffled:3, the same
-// mesh renumbered in its Topology::locality_order. `--stats` prints each
+// mesh renumbered in its Topology::locality_order; BM_Neighborhoods also gets shuffled:5,
+// FILE relabelled by RelabelForLocality with its rows in source order (what the CLI
+// fits on), and shuffled:6, the same relabelled mesh with its rows sorted by the new
+// labels (plain BuildTopology); shuffled:4 is the generated torus renumbered like
+// shuffled:3. `--stats` prints each
 // variant's mean stencil size and ring per degree instead of timing.
 //
 // `cold_path_bench --dump=FILE` writes every output (topologies, neighbourhoods at
@@ -74,8 +78,8 @@ struct Variant {
 std::string g_mesh_path;  // --mesh
 
 struct Fixture {
-  Variant v[5];
-  int count = 2;
+  Variant v[7];
+  int count = 2;  // variants in --dump and --stats (v[5], v[6], with --mesh, timed only)
   Fixture() {
     GeneratorOptions g;
     g.n = kTorusN;
@@ -97,6 +101,14 @@ struct Fixture {
       // shuffled:3, the same mesh renumbered in its locality order.
       Renumber(x, v[count++]);
       Renumber(v[0], v[count++]);
+      // shuffled:5, FILE relabelled as `geomfit curvature --local` does (rows in source order).
+      LocalityRelabelling r = RelabelForLocality(x.mesh).value();
+      v[5].topo = BuildTopology(r).value();
+      v[5].mesh = std::move(r.mesh);
+      // shuffled:6, the same relabelled mesh with plain BuildTopology (rows sorted by the
+      // new labels): the same memory layout as shuffled:5, other row order.
+      v[6].mesh = v[5].mesh;
+      v[6].topo = BuildTopology(v[6].mesh).value();
     }
   }
   static void Renumber(const Variant& x, Variant& y) {
@@ -275,7 +287,7 @@ int main(int argc, char** argv) {
         ->UseRealTime();
     benchmark::RegisterBenchmark("BM_Neighborhoods", BM_Neighborhoods)
         ->ArgNames({"shuffled", "deg", "threads"})
-        ->ArgsProduct({{2, 3, 4}, {2, 4}, {1, 2}})
+        ->ArgsProduct({{2, 3, 4, 5, 6}, {2, 4}, {1, 2}})
         ->Unit(benchmark::kMillisecond)
         ->UseRealTime();
   }
