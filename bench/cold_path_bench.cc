@@ -16,8 +16,8 @@
 // mesh renumbered in its Topology::locality_order; BM_Neighborhoods also gets shuffled:5,
 // FILE relabelled by RelabelForLocality with its rows in source order (what the CLI
 // fits on), and shuffled:6, the same relabelled mesh with its rows sorted by the new
-// labels (plain BuildTopology); shuffled:4 is the generated torus renumbered like
-// shuffled:3. `--stats` prints each
+// labels (plain BuildTopology); shuffled:7 and 8 are the same two for the generated
+// torus, shuffled:4 the generated torus renumbered like shuffled:3. `--stats` prints each
 // variant's mean stencil size and ring per degree instead of timing.
 //
 // `cold_path_bench --dump=FILE` writes every output (topologies, neighbourhoods at
@@ -78,8 +78,8 @@ struct Variant {
 std::string g_mesh_path;  // --mesh
 
 struct Fixture {
-  Variant v[7];
-  int count = 2;  // variants in --dump and --stats (v[5], v[6], with --mesh, timed only)
+  Variant v[9];
+  int count = 2;  // variants in --dump and --stats (v[5]-v[8], with --mesh, timed only)
   Fixture() {
     GeneratorOptions g;
     g.n = kTorusN;
@@ -109,6 +109,12 @@ struct Fixture {
       // new labels): the same memory layout as shuffled:5, other row order.
       v[6].mesh = v[5].mesh;
       v[6].topo = BuildTopology(v[6].mesh).value();
+      // shuffled:7 and 8, the same two for the generated torus.
+      LocalityRelabelling r2 = RelabelForLocality(v[0].mesh).value();
+      v[7].topo = BuildTopology(r2).value();
+      v[7].mesh = std::move(r2.mesh);
+      v[8].mesh = v[7].mesh;
+      v[8].topo = BuildTopology(v[8].mesh).value();
     }
   }
   static void Renumber(const Variant& x, Variant& y) {
@@ -287,7 +293,7 @@ int main(int argc, char** argv) {
         ->UseRealTime();
     benchmark::RegisterBenchmark("BM_Neighborhoods", BM_Neighborhoods)
         ->ArgNames({"shuffled", "deg", "threads"})
-        ->ArgsProduct({{2, 3, 4, 5, 6}, {2, 4}, {1, 2}})
+        ->ArgsProduct({{2, 3, 4, 5, 6, 7, 8}, {2, 4}, {1, 2}})
         ->Unit(benchmark::kMillisecond)
         ->UseRealTime();
   }
