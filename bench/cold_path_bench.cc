@@ -13,7 +13,13 @@
 //
 // `--mesh=FILE` adds two variants to BM_Topology and BM_Neighborhoods: shuffled:2, read
 // from FILE (e.g. the gmsh torus of bench/external_meshes.py), and shuffled:3, the same
-// mesh renumbered in its Topology::locality_order. `--stats` prints each
+// mesh renumbered in its Topology::locality_order; BM_Neighborhoods also gets shuffled:5,
+// FILE relabelled by RelabelForLocality with its rows in source order (what the CLI
+// fits on), and shuffled:6, the same relabelled mesh with its rows sorted by the new
+// labels (plain BuildTopology); shuffled:7 and 8 are the same two for the generated
+// torus, shuffled:4 the generated torus renumbered like shuffled:3, and shuffled:9 is
+// shuffled:6 with every row sorted by angle around its vertex from one direction field
+// (the stencils' points in another order: not the CLI's results). `--stats` prints each
 // variant's mean stencil size and ring per degree instead of timing.
 //
 // `cold_path_bench --dump=FILE` writes every output (topologies, neighbourhoods at
@@ -25,6 +31,9 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cmath>
+
+#include <Eigen/Dense>
 #include <cstdio>
 #include <cstring>
 #include <random>
@@ -74,8 +83,8 @@ struct Variant {
 std::string g_mesh_path;  // --mesh
 
 struct Fixture {
-  Variant v[5];
-  int count = 2;
+  Variant v[10];
+  int count = 2;  // variants in --dump and --stats (v[5]-v[9], with --mesh, timed only)
   Fixture() {
     GeneratorOptions g;
     g.n = kTorusN;
@@ -97,6 +106,52 @@ struct Fixture {
       // shuffled:3, the same mesh renumbered in its locality order.
       Renumber(x, v[count++]);
       Renumber(v[0], v[count++]);
+      // shuffled:5, FILE relabelled as `geomfit curvature --local` does (rows in source order).
+      LocalityRelabelling r = RelabelForLocality(x.mesh).value();
+      v[5].topo = BuildTopology(r).value();
+      v[5].mesh = std::move(r.mesh);
+      // shuffled:6, the same relabelled mesh with plain BuildTopology (rows sorted by the
+      // new labels): the same memory layout as shuffled:5, other row order.
+      v[6].mesh = v[5].mesh;
+      v[6].topo = BuildTopology(v[6].mesh).value();
+      // shuffled:7 and 8, the same two for the generated torus.
+      LocalityRelabelling r2 = RelabelForLocality(v[0].mesh).value();
+      v[7].topo = BuildTopology(r2).value();
+      v[7].mesh = std::move(r2.mesh);
+      v[8].mesh = v[7].mesh;
+      v[8].topo = BuildTopology(v[8].mesh).value();
+      // shuffled:9, shuffled:6 with rows in the same geometric pattern at every vertex.
+      v[9] = v[6];
+      RotationalRows(v[9]);
+    }
+  }
+  // Each vertex's neighbours and faces sorted by angle around it, from the direction of
+  // (-y, x, 0) (around a torus's axis): the same geometric pattern at every vertex.
+  static void RotationalRows(Variant& x) {
+    const Mesh& m = x.mesh;
+    Topology& t = x.topo;
+    auto p = [&](int u) { return Eigen::Vector3d(m.positions(u, 0), m.positions(u, 1), m.positions(u, 2)); };
+    for (int v = 0; v < t.num_vertices; ++v) {
+      const Eigen::Vector3d c = p(v);
+      Eigen::Vector3d n = Eigen::Vector3d::Zero();
+      for (int j = 0; j < t.NumVertexFaces(v); ++j) {
+        const int f = t.VertexFaces(v)[j];
+        n += (p(m.faces(f, 1)) - p(m.faces(f, 0))).cross(p(m.faces(f, 2)) - p(m.faces(f, 0)));
+      }
+      n.normalize();
+      Eigen::Vector3d e1(-c.y(), c.x(), 0.0);
+      e1 = (e1 - e1.dot(n) * n).normalized();
+      const Eigen::Vector3d e2 = n.cross(e1);
+      auto angle = [&](const Eigen::Vector3d& q) { return std::atan2((q - c).dot(e2), (q - c).dot(e1)); };
+      int32_t* nb = t.vv.data() + t.vv_offsets[v];
+      std::sort(nb, nb + t.NumNeighbors(v), [&](int a, int b) { return angle(p(a)) < angle(p(b)); });
+      int32_t* fs = t.vf_faces.data() + t.vf_offsets[v];
+      auto centroid = [&](int f) {
+        Eigen::Vector3d s = Eigen::Vector3d::Zero();
+        for (int k = 0; k < m.FaceSize(f); ++k) s += p(m.faces(f, k));
+        return Eigen::Vector3d(s / m.FaceSize(f));
+      };
+      std::sort(fs, fs + t.NumVertexFaces(v), [&](int a, int b) { return angle(centroid(a)) < angle(centroid(b)); });
     }
   }
   static void Renumber(const Variant& x, Variant& y) {
@@ -275,7 +330,7 @@ int main(int argc, char** argv) {
         ->UseRealTime();
     benchmark::RegisterBenchmark("BM_Neighborhoods", BM_Neighborhoods)
         ->ArgNames({"shuffled", "deg", "threads"})
-        ->ArgsProduct({{2, 3, 4}, {2, 4}, {1, 2}})
+        ->ArgsProduct({{2, 3, 4, 5, 6, 7, 8, 9}, {2, 4}, {1, 2}})
         ->Unit(benchmark::kMillisecond)
         ->UseRealTime();
   }
