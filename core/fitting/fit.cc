@@ -310,7 +310,9 @@ class SurfaceFitter {
       nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, mesh, RingSpecFor(final_spec), ctx.threads()));
     eff.interpolate = eff.Interpolates();
     if (eff.noise == NoiseMode::kOn) eff.weight_epsilon = kNoiseWeightEpsilon;
-    const int smoothing = eff.SmoothingPasses(), passes = smoothing + (o.two_pass ? 2 : 1);
+    const int smoothing = eff.noise == NoiseMode::kOn && o.smoothing_passes < 0 ? schedule.smoothing_passes
+                                                                                : eff.SmoothingPasses();
+    const int passes = smoothing + (o.two_pass ? 2 : 1);
     Mesh smoothed;  // positions after the smoothing passes (faces unused)
     const Mesh* input = &mesh;
     auto fits = std::make_shared<SurfaceFits>();
