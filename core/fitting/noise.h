@@ -32,6 +32,7 @@ struct NoiseSchedule {
   bool final_clean_stencils = false;  ///< final fit on the clean stencils ((d+1)/2 rings)
   double final_points_factor = 0;     ///< and their growth factor (0: the clean one)
   int smoothing_passes = 2;           ///< passes when FitOptions::smoothing_passes is automatic
+  bool cubic_near_boundary = false;   ///< smoothing fits within a ring of the boundary cubic
 };
 /// Residual ratio (NoiseEstimate) from which the noise dominates the truncation error.
 inline constexpr double kHeavyNoiseResidualRatio = 0.2;
@@ -52,7 +53,9 @@ inline constexpr double kModerateNoiseResidualRatio = 0.35;
 /// Moderate noise (small O(h^2), residual ratio in [0.2, 0.35)) at degree >= 3: the heavy
 /// schedule's final fit after 4 smoothing passes of degree d + 2 (<= 5), whose foot points
 /// carry no quartic-term bias (which cubic smoothing leaves on a strongly curved surface)
-/// and which average as much noise as two cubic passes (bench/README.md, third round).
+/// and which average as much noise as two cubic passes; within a ring of the boundary,
+/// where they extrapolate one-sided stencils, the smoothing fits stay cubic
+/// (bench/README.md, third round).
 NoiseSchedule NoiseScheduleFor(int degree, double residual_ratio);
 /// The options of a smoothing pass's fits: approximating, flat weights, the schedule's
 /// degree on the noise mode's own stencils (`options`' rings and factor are the final fit's).
