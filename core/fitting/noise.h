@@ -31,9 +31,14 @@ struct NoiseSchedule {
   double final_weight_epsilon = 0.01;  ///< eps of (2.2.1) in the final fit
   bool final_clean_stencils = false;  ///< final fit on the clean stencils ((d+1)/2 rings)
   double final_points_factor = 0;     ///< and their growth factor (0: the clean one)
+  int smoothing_passes = 2;           ///< passes when FitOptions::smoothing_passes is automatic
+  bool cubic_near_boundary = false;   ///< smoothing fits within a ring of the boundary cubic
 };
 /// Residual ratio (NoiseEstimate) from which the noise dominates the truncation error.
 inline constexpr double kHeavyNoiseResidualRatio = 0.2;
+/// Below it (and from kHeavyNoiseResidualRatio) the noise is moderate: at degree >= 3 the
+/// truncation error of cubic smoothing still dominates the curvatures.
+inline constexpr double kModerateNoiseResidualRatio = 0.35;
 /// Heavy noise (O(h^2)): cubic smoothing fits, whose foot points carry no error from the
 /// surface's cubic terms on asymmetric stencils (a quadratic's do, O(h^3) per pass, which
 /// the final fit differentiates into O(h) curvature errors) and which average more noise
@@ -45,6 +50,12 @@ inline constexpr double kHeavyNoiseResidualRatio = 0.2;
 /// fits are of degree d + 2 (<= 5) and the final fit is the clean one (clean stencils,
 /// steep weights), approximating, on the smoothed mesh; at degree >= 4 on 2x the
 /// coefficients with eps = 0.1 (its truncation error is small, the noise still counts).
+/// Moderate noise (small O(h^2), residual ratio in [0.2, 0.35)) at degree >= 3: the heavy
+/// schedule's final fit after 4 smoothing passes of degree d + 2 (<= 5), whose foot points
+/// carry no quartic-term bias (which cubic smoothing leaves on a strongly curved surface)
+/// and which average as much noise as two cubic passes; within a ring of the boundary,
+/// where they extrapolate one-sided stencils, the smoothing fits stay cubic
+/// (bench/README.md, third round).
 NoiseSchedule NoiseScheduleFor(int degree, double residual_ratio);
 /// The options of a smoothing pass's fits: approximating, flat weights, the schedule's
 /// degree on the noise mode's own stencils (`options`' rings and factor are the final fit's).

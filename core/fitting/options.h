@@ -72,7 +72,8 @@ struct FitOptions {
   /// ignored; rings and min_points_factor, when set, apply to the final fit).
   NoiseMode noise = NoiseMode::kOff;
   /// Smoothing-by-projection passes before the final fit (§4.2.3: every vertex moves to
-  /// its own approximating fit, then all are refitted); -1 = automatic: 0, or 2 with noise.
+  /// its own approximating fit, then all are refitted); -1 = automatic: 0, or with noise the
+  /// schedule's (NoiseScheduleFor: 2, or 4 under moderate noise at degree >= 3).
   int smoothing_passes = -1;
   WlsSolver solver = WlsSolver::kQR;
   /// Degree of a first LHF fit whose normals fix the final fit's tangent planes: the
