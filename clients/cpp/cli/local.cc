@@ -75,9 +75,9 @@ void ToSourceOrder(const std::vector<int32_t>& source, M* m) {
 /// (a generator's local numbering gains nothing), and only if the fit's results depend
 /// on the numbering through the topology's row orders alone, which
 /// BuildTopology(LocalityRelabelling) keeps (the parametric comparison methods read face
-/// rows themselves, the noise estimate sums over the mesh).
+/// rows themselves; the noise estimate of `--noise on|auto` samples vertices by index).
 bool RelabelForFit(const Mesh& mesh, const FitOptions& o) {
-  return (o.method == FitMethod::kLHF || o.method == FitMethod::kLOP) && o.noise != NoiseMode::kAuto &&
+  return (o.method == FitMethod::kLHF || o.method == FitMethod::kLOP) && o.noise == NoiseMode::kOff &&
          !HasLocalNumbering(mesh);
 }
 
