@@ -332,7 +332,7 @@ class SurfaceFitter {
     std::vector<uint8_t> fixed_tangent;  // normal refinement (FitOptions::normal_degree)
     std::shared_ptr<const Neighborhoods> smoothing_nb;  // the noise mode's smoothing fits' stencils
     std::shared_ptr<SurfaceFits> boundary_fits;  // cubic smoothing fits for the boundary vertices
-    const bool has_boundary = std::any_of(topo.is_boundary.begin(), topo.is_boundary.end(), [](auto b) { return b != 0; });
+    const bool has_boundary = topo.num_boundary_edges > 0;
     for (int pass = 0; pass < passes; ++pass) {
       if (pass > 0) adopt_normals(*fits, nullptr);
       if (pass > 0 && pass <= smoothing) {
