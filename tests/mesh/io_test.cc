@@ -16,11 +16,13 @@
 #include "absl/strings/ascii.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_replace.h"
+#include "core/mesh/formats/formats.h"
 #include "core/mesh/topology.h"
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
 
 #include "tests/mesh/make_mesh.h"
+#include "tests/mesh/reader_fuzz.h"
 
 namespace geomfit {
 namespace {
@@ -316,6 +318,73 @@ TEST(ObjTest, NonFiniteCoordinatesPassThroughAndValidationRejects) {
   auto m = ParseMesh("v 0 0 0\nv 1 nan 0\nv 1 1 0\nf 1 2 3\n", MeshFormat::kObj);
   ASSERT_TRUE(m.ok()) << m.status();
   ExpectError(ValidateMesh(*m).status(), {"vertex 1", "not finite"});
+}
+
+// The OBJ reader's fast path (plain "v"/"f" lines read straight from the bytes) gives
+// the general path's meshes and errors, bit for bit, on lines built from awkward pieces
+// (signs, exponents, non-finite and out-of-range numbers, slashes, forward, zero and
+// huge indices, comments, CR, tabs, form feeds, missing final newline) and on the
+// reader fuzz corpus's mutations.
+void ExpectObjPathsAgree(const std::string& text) {
+  const absl::StatusOr<Mesh> fast = mesh_io::ParseObj(text, "t.obj", true);
+  const absl::StatusOr<Mesh> general = mesh_io::ParseObj(text, "t.obj", false);
+  ASSERT_EQ(fast.status(), general.status()) << text;
+  if (!fast.ok()) return;
+  ASSERT_EQ(fast->NumVertices(), general->NumVertices()) << text;
+  ASSERT_EQ(fast->faces, general->faces) << text;
+  ASSERT_EQ(std::memcmp(fast->positions.data(), general->positions.data(),
+                        sizeof(double) * fast->positions.size()),
+            0)
+      << text;
+}
+
+TEST(ObjTest, FastPathReadsLikeTheGeneralPath) {
+  const std::vector<std::string> numbers = {
+      "0", "1", "-1", "+1", "1.5", "-0", "0.1", "1e5", "1E-5", "1e", "1.", ".5", "-.5", "1e400",
+      "-1e400", "1e-400", "inf", "-inf", "nan", "0x10", "1.2999381274644852",
+      "-3.1840816777831192e-16", "123456789012345678901234567890", "1x", "--1", "", "#1"};
+  const std::vector<std::string> indices = {"1",     "2",   "3",       "4",          "01",
+                                            "0",     "-1",  "+2",      "9",          "2147483648",
+                                            "0000000001",   "00000000001", "99999999999",
+                                            "1/1",   "2//3", "3/4/5",  "1/",         "2/#",
+                                            "1a",    "",    "x"};
+  const std::vector<std::string> gaps = {" ", "  ", "\t", " \t", "\f", "\v", "\r"};
+  const std::vector<std::string> ends = {"\n", "\r\n", " \n", "\t\r\n", "\r", "#c\n", " # c\n",
+                                         "\f\n", " 1\n", " x\n", ""};
+  std::mt19937_64 rng(7);
+  const auto pick = [&](const std::vector<std::string>& v) { return v[rng() % v.size()]; };
+  const auto odd = [&] { return rng() % 10 == 0; };  // an awkward piece, else a plain one
+  int parsed = 0;
+  for (int file = 0; file < 3000; ++file) {
+    std::string text = file % 2 == 0 ? "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n" : "";
+    for (int line = 0; line < 6; ++line) {
+      switch (rng() % 8) {
+        case 0: case 1: case 2:
+          text += "v";
+          for (int c = 0; c < (odd() ? 2 + static_cast<int>(rng() % 3) : 3); ++c)
+            text += (odd() ? pick(gaps) : " ") + (odd() ? pick(numbers) : absl::StrCat(rng() % 100 * 0.37));
+          break;
+        case 3: case 4: case 5:
+          text += "f";
+          for (int c = 0; c < (odd() ? 2 + static_cast<int>(rng() % 4) : 3 + static_cast<int>(rng() % 2)); ++c)
+            text += (odd() ? pick(gaps) : " ") + (odd() ? pick(indices) : absl::StrCat(1 + rng() % 4));
+          break;
+        case 6: text += pick({"vn 0 0 1", "vt", "# v 1 2 3", "", " v 1 2 3", "v#", "f#1 2 3", "fo 1 2 3",
+                              "vv 1 2 3", "\tf 1 2 3", "g", "v1 2 3"});
+          break;
+        default: text += pick(gaps);
+      }
+      text += odd() ? pick(ends) : "\n";
+    }
+    ExpectObjPathsAgree(text);
+    parsed += mesh_io::ParseObj(text, "t.obj").ok();
+  }
+  EXPECT_GT(parsed, 600);  // both outcomes are exercised
+  EXPECT_LT(parsed, 2400);
+  std::mt19937_64 mutations(11);
+  for (const reader_fuzz::SeedFile& seed : reader_fuzz::SeedFiles())
+    for (int i = 0; i < 300; ++i) ExpectObjPathsAgree(reader_fuzz::Mutate(seed.bytes, mutations));
+  ExpectObjPathsAgree(*FormatMesh(Tetrahedron(), MeshFormat::kObj));
 }
 
 // ---------------------------------------------------------------------------

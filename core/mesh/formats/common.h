@@ -29,7 +29,9 @@ class MeshBuilder {
   int64_t NumFaces() const { return static_cast<int64_t>(faces_.size() / 4); }
   void AddVertex(const double p[3]) { xyz_.insert(xyz_.end(), p, p + 3); }
   void AddFace(const int32_t* v, int n) {
-    for (int i = 0; i < 4; ++i) faces_.push_back(i < n ? v[i] : -1);
+    int32_t f[4];
+    for (int i = 0; i < 4; ++i) f[i] = i < n ? v[i] : -1;
+    faces_.insert(faces_.end(), f, f + 4);
   }
   Mesh Build() const;
 
@@ -99,6 +101,14 @@ class LineReader {
   bool NextTokens(std::vector<absl::string_view>* tokens);
   /// Byte offset just past the last line returned.
   size_t position() const { return std::min(pos_, text_.size()); }
+  /// The unread bytes [cursor(), end()), for a caller that parses a line itself and
+  /// then consumes it with SkipLine (the next line starts at `next`).
+  const char* cursor() const { return text_.data() + position(); }
+  const char* end() const { return text_.data() + text_.size(); }
+  void SkipLine(const char* next) {
+    pos_ = static_cast<size_t>(next - text_.data());
+    ++line_number_;
+  }
   size_t remaining() const { return text_.size() - position(); }
   int64_t line_number() const { return line_number_; }
   /// INVALID_ARGUMENT "<source>: line <n>: <what>".

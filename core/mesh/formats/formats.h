@@ -10,7 +10,10 @@
 
 namespace geomfit::mesh_io {
 
-absl::StatusOr<Mesh> ParseObj(absl::string_view bytes, absl::string_view source);
+/// `fast_path` false: every line through the general (tokenising) path, for tests that
+/// compare the two.
+absl::StatusOr<Mesh> ParseObj(absl::string_view bytes, absl::string_view source,
+                              bool fast_path = true);
 absl::StatusOr<Mesh> ParseOff(absl::string_view bytes, absl::string_view source);
 absl::StatusOr<Mesh> ParsePly(absl::string_view bytes, absl::string_view source);
 absl::StatusOr<Mesh> ParseStl(absl::string_view bytes, absl::string_view source);
