@@ -1,5 +1,6 @@
 #pragma once
 #include <Eigen/Core>
+#include <functional>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -124,6 +125,11 @@ using RowMajorMatrixXd = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, E
 /// NumPy .npy v1.0: '<f8', fortran_order False, shape (rows, cols).
 std::string FormatNpy(const Eigen::Ref<const RowMajorMatrixXd>& a);
 absl::Status WriteNpy(const std::string& path, const Eigen::Ref<const RowMajorMatrixXd>& a);
+/// WriteNpy of a rows x cols table made a block of rows at a time: fill(begin, end, out)
+/// stores rows [begin, end) row-major at out. Each block (~256 KB: it stays in the
+/// cache) is written as it is made; the table is never whole in memory.
+absl::Status WriteNpy(const std::string& path, int64_t rows, int64_t cols,
+                      const std::function<void(int64_t begin, int64_t end, double* out)>& fill);
 
 /// Whole-file helpers shared by the writers and the CLI. Errors name the path and
 /// the errno text.
@@ -132,6 +138,10 @@ absl::StatusOr<std::string> ReadFileToString(const std::string& path);
 /// and an existing file that is not a regular file (/dev/null, a FIFO, /dev/stdout)
 /// is written in place.
 absl::Status WriteFileAtomically(const std::string& path, std::string_view contents);
+/// The same for contents produced in pieces: `next()` returns each piece in turn (valid
+/// until the next call), then an empty one. Each piece is one write() to the file.
+absl::Status WriteFileAtomicallyInPieces(const std::string& path,
+                                         const std::function<std::string_view()>& next);
 /// True for "-" and for existing paths that are not regular files (see above).
 bool IsStreamPath(const std::string& path);
 

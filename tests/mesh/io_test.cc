@@ -824,6 +824,23 @@ TEST(NpyTest, HeaderAndData) {
   std::remove(path.c_str());
 }
 
+// Written in blocks of rows (a 5000 x 13 table: several blocks, the last one partial),
+// the file holds FormatNpy's bytes; an empty table and a table without columns too.
+TEST(NpyTest, BlockWritesEqualFormatNpy) {
+  for (const auto& [rows, cols] : {std::pair{5000, 13}, std::pair{0, 3}, std::pair{4, 0}, std::pair{1, 1}}) {
+    RowMajorMatrixXd a(rows, cols);
+    for (int i = 0; i < a.size(); ++i) a.data()[i] = std::sin(1.0 + i) * std::pow(10.0, i % 40 - 20);
+    const std::string path = TempPath("blocks.npy");
+    ASSERT_TRUE(WriteNpy(path, a).ok());
+    auto bytes = ReadFileToString(path);
+    ASSERT_TRUE(bytes.ok());
+    EXPECT_TRUE(*bytes == FormatNpy(a)) << rows << " x " << cols;
+    std::remove(path.c_str());
+  }
+  const std::string missing = TempPath("no_such_dir/x.npy");
+  ExpectError(WriteNpy(missing, RowMajorMatrixXd(2, 2)), {"cannot write", "x.npy"});
+}
+
 TEST(NpyTest, NumpyLoadsIt) {
   // Debian's python3-numpy (installed by scripts/install-deps.sh) is for /usr/bin/python3.
   RowMajorMatrixXd a(2, 3);

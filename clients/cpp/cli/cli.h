@@ -149,6 +149,16 @@ std::vector<PointField> DifferentialsFields(const Differentials& d);
 /// and scalars.
 absl::Status WriteDifferentials(const std::string& path, const Mesh& mesh, const Differentials& d,
                                 VtkEncoding encoding = VtkEncoding::kAppended);
+/// The quantities an output to `path` shows: all but the curvature tensor, which only
+/// the VTK outputs (.vtp, .vtu) carry.
+uint32_t OutputQuantities(const std::string& path);
+/// `d` with its rows moved to source order: row i is vertex source[i]'s (a fit on the
+/// mesh relabelled for locality); empty `source`: `d` as it is.
+Differentials InSourceOrder(Differentials d, const std::vector<int32_t>& source);
+/// WriteDifferentials(path, mesh, InSourceOrder(d, source), encoding); a .npy table is
+/// gathered from `d`'s rows block by block as it is written instead (the same bytes).
+absl::Status WriteRelabelledDifferentials(const std::string& path, const Mesh& mesh, Differentials d,
+                                          const std::vector<int32_t>& source, VtkEncoding encoding);
 /// The VTK encoding the --ascii and --zlib flags ask for (usage error when both).
 absl::StatusOr<VtkEncoding> VtkEncodingFromFlags(bool ascii, bool zlib);
 

@@ -62,15 +62,6 @@ void PrepareHeap(int64_t file_bytes) {
 #endif
 }
 
-/// Rows of `m` moved from relabelled to source order (empty arrays stay empty).
-template <typename M>
-void ToSourceOrder(const std::vector<int32_t>& source, M* m) {
-  if (m->rows() == 0) return;
-  M out(m->rows(), m->cols());
-  for (size_t i = 0; i < source.size(); ++i) out.row(source[i]) = m->row(static_cast<Eigen::Index>(i));
-  *m = std::move(out);
-}
-
 /// Whether to fit on the mesh relabelled for locality: when its numbering is scattered
 /// (a generator's local numbering gains nothing), and only if the fit's results depend
 /// on the numbering through the topology's row orders alone, which
@@ -81,12 +72,20 @@ bool RelabelForFit(const Mesh& mesh, const FitOptions& o) {
          !HasLocalNumbering(mesh);
 }
 
-/// Fit and quantities of every vertex, computed on the mesh relabelled for locality
+/// Quantities of every vertex and their order (LocalFit::source).
+struct LocalFit {
+  Differentials d;
+  std::vector<int32_t> source;  ///< row i of d is vertex source[i]'s; empty: vertex i's
+};
+
+/// Fit and `quantities` of every vertex, computed on the mesh relabelled for locality
 /// when that pays and gives the same numbers (RelabelForFit): an external mesher's
-/// scattered numbering then costs no cache misses. Results in the mesh's own order.
+/// scattered numbering then costs no cache misses. The rows stay in the relabelled
+/// order (LocalFit::source maps them back: WriteRelabelledDifferentials).
 /// `validated` is set once the mesh has passed validation (the "read" phase's end).
-absl::StatusOr<Differentials> FitLocal(const Mesh& mesh, const std::string& path, const FitOptions& o,
-                                       const RunContext& ctx, const std::function<void()>& validated) {
+absl::StatusOr<LocalFit> FitLocal(const Mesh& mesh, const std::string& path, const FitOptions& o,
+                                  uint32_t quantities, const RunContext& ctx,
+                                  const std::function<void()>& validated) {
   if (RelabelForFit(mesh, o)) {
     absl::StatusOr<LocalityRelabelling> r = RelabelForLocality(mesh);
     absl::StatusOr<Topology> topo = r.ok() ? BuildTopology(*r) : r.status();
@@ -94,29 +93,16 @@ absl::StatusOr<Differentials> FitLocal(const Mesh& mesh, const std::string& path
     if (topo.ok() && ValidateGeometry(r->mesh, ctx.threads()).ok()) {
       validated();
       GF_ASSIGN_OR_RETURN(const auto fits, FitSurface(r->mesh, *topo, o, nullptr, {}, ctx));
-      GF_ASSIGN_OR_RETURN(Differentials d, ComputeDifferentials(*fits, kAllQuantities, ctx));
-      const std::vector<int32_t>& source = r->vertex_source;
-      ToSourceOrder(source, &d.normals);
-      ToSourceOrder(source, &d.mean);
-      ToSourceOrder(source, &d.gaussian);
-      ToSourceOrder(source, &d.k1);
-      ToSourceOrder(source, &d.k2);
-      ToSourceOrder(source, &d.dir1);
-      ToSourceOrder(source, &d.dir2);
-      ToSourceOrder(source, &d.tensor);
-      if (!d.diagnostics.empty()) {
-        std::vector<VertexDiagnostics> diagnostics(d.diagnostics.size());
-        for (size_t i = 0; i < source.size(); ++i) diagnostics[source[i]] = d.diagnostics[i];
-        d.diagnostics = std::move(diagnostics);
-      }
-      return d;
+      GF_ASSIGN_OR_RETURN(Differentials d, ComputeDifferentials(*fits, quantities, ctx));
+      return LocalFit{std::move(d), std::move(r->vertex_source)};
     }
   }
   const absl::StatusOr<Topology> topo = ValidateMesh(mesh, ctx.threads());
   GF_RETURN_IF_ERROR(WithPrefix(topo.status(), path));
   validated();
   GF_ASSIGN_OR_RETURN(const auto fits, FitSurface(mesh, *topo, o, nullptr, {}, ctx));
-  return ComputeDifferentials(*fits, kAllQuantities, ctx);
+  GF_ASSIGN_OR_RETURN(Differentials d, ComputeDifferentials(*fits, quantities, ctx));
+  return LocalFit{std::move(d), {}};
 }
 
 }  // namespace
@@ -146,7 +132,7 @@ absl::Status RunCurvature(const std::vector<std::string>& argv) {
   GF_ASSIGN_OR_RETURN(const Mesh mesh, ReadMesh(a.mesh));
   Stopwatch fit_timer;
   const RunContext ctx = bar.Context(a.threads);
-  GF_ASSIGN_OR_RETURN(const Differentials d, FitLocal(mesh, a.mesh, a.fit, ctx, [&] {
+  GF_ASSIGN_OR_RETURN(LocalFit fit, FitLocal(mesh, a.mesh, a.fit, OutputQuantities(a.output), ctx, [&] {
                         Verbose(a.verbose, absl::StrFormat("read %s: %d vertices, %d faces in %.3f s", a.mesh,
                                                            mesh.NumVertices(), mesh.NumFaces(), read_timer.Seconds()));
                         fit_timer = Stopwatch();
@@ -157,7 +143,7 @@ absl::Status RunCurvature(const std::vector<std::string>& argv) {
   Stopwatch write_timer;
   bar.Begin("write");
   GF_ASSIGN_OR_RETURN(const VtkEncoding encoding, VtkEncodingFromFlags(a.ascii, a.zlib));
-  GF_RETURN_IF_ERROR(WriteDifferentials(a.output, mesh, d, encoding));
+  GF_RETURN_IF_ERROR(WriteRelabelledDifferentials(a.output, mesh, std::move(fit.d), fit.source, encoding));
   bar.Finish();
   Verbose(a.verbose, absl::StrFormat("wrote %s in %.3f s", a.output.empty() ? "stdout" : a.output,
                                      write_timer.Seconds()));

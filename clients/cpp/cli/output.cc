@@ -30,6 +30,28 @@ int NumVertices(const Differentials& d) {
                 d.tensor.rows(), static_cast<Eigen::Index>(d.diagnostics.size())}));
 }
 
+/// Row v of DifferentialsTable(d), stored at row[0..13).
+void TableRow(const Differentials& d, int v, double* row) {
+  for (int c = 0; c < 3; ++c) {
+    row[c] = At(d.normals, v, c);
+    row[7 + c] = At(d.dir1, v, c);
+    row[10 + c] = At(d.dir2, v, c);
+  }
+  row[3] = At(d.mean, v, 0);
+  row[4] = At(d.gaussian, v, 0);
+  row[5] = At(d.k1, v, 0);
+  row[6] = At(d.k2, v, 0);
+}
+
+/// Rows of `m` moved from relabelled to source order (empty arrays stay empty).
+template <typename M>
+void ToSourceOrder(const std::vector<int32_t>& source, M* m) {
+  if (m->rows() == 0) return;
+  M out(m->rows(), m->cols());
+  for (size_t i = 0; i < source.size(); ++i) out.row(source[i]) = m->row(static_cast<Eigen::Index>(i));
+  *m = std::move(out);
+}
+
 /// A #V x cols field copied out of any per-vertex array.
 template <typename M>
 PointField Field(const std::string& name, const M& m) {
@@ -65,17 +87,7 @@ const std::vector<std::string>& DifferentialsColumns() {
 RowMajorMatrixXd DifferentialsTable(const Differentials& d) {
   const int nv = NumVertices(d);
   RowMajorMatrixXd t(nv, 13);
-  for (int v = 0; v < nv; ++v) {
-    for (int c = 0; c < 3; ++c) {
-      t(v, c) = At(d.normals, v, c);
-      t(v, 7 + c) = At(d.dir1, v, c);
-      t(v, 10 + c) = At(d.dir2, v, c);
-    }
-    t(v, 3) = At(d.mean, v, 0);
-    t(v, 4) = At(d.gaussian, v, 0);
-    t(v, 5) = At(d.k1, v, 0);
-    t(v, 6) = At(d.k2, v, 0);
-  }
+  for (int v = 0; v < nv; ++v) TableRow(d, v, t.row(v).data());
   return t;
 }
 
@@ -191,6 +203,46 @@ absl::Status WriteDifferentials(const std::string& path, const Mesh& mesh, const
     }
   }
   return absl::InternalError("unreachable");
+}
+
+uint32_t OutputQuantities(const std::string& path) {
+  if (path.empty() || path == "-") return kAllQuantities & ~kCurvatureTensor;
+  const OutputKind kind = OutputKindFromPath(path).value_or(OutputKind::kVtp);
+  return kind == OutputKind::kVtp || kind == OutputKind::kVtu ? kAllQuantities
+                                                              : kAllQuantities & ~kCurvatureTensor;
+}
+
+Differentials InSourceOrder(Differentials d, const std::vector<int32_t>& source) {
+  if (source.empty()) return d;
+  ToSourceOrder(source, &d.normals);
+  ToSourceOrder(source, &d.mean);
+  ToSourceOrder(source, &d.gaussian);
+  ToSourceOrder(source, &d.k1);
+  ToSourceOrder(source, &d.k2);
+  ToSourceOrder(source, &d.dir1);
+  ToSourceOrder(source, &d.dir2);
+  ToSourceOrder(source, &d.tensor);
+  if (!d.diagnostics.empty()) {
+    std::vector<VertexDiagnostics> diagnostics(d.diagnostics.size());
+    for (size_t i = 0; i < source.size(); ++i) diagnostics[source[i]] = d.diagnostics[i];
+    d.diagnostics = std::move(diagnostics);
+  }
+  return d;
+}
+
+absl::Status WriteRelabelledDifferentials(const std::string& path, const Mesh& mesh, Differentials d,
+                                          const std::vector<int32_t>& source, VtkEncoding encoding) {
+  if (source.empty() || path.empty() || path == "-" ||
+      OutputKindFromPath(path).value_or(OutputKind::kTsv) != OutputKind::kNpy)
+    return WriteDifferentials(path, mesh, InSourceOrder(std::move(d), source), encoding);
+  // .npy: each block of rows gathered from d's rows as it is written (no reordered
+  // copy of d, no whole table in memory).
+  const int nv = NumVertices(d);
+  std::vector<int32_t> row_of(source.size());
+  for (size_t i = 0; i < source.size(); ++i) row_of[source[i]] = static_cast<int32_t>(i);
+  return WriteNpy(path, nv, 13, [&](int64_t begin, int64_t end, double* out) {
+    for (int64_t v = begin; v < end; ++v, out += 13) TableRow(d, row_of[v], out);
+  });
 }
 
 }  // namespace geomfit::cli

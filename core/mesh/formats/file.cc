@@ -3,6 +3,7 @@
 
 #include <cerrno>
 #include <cstdio>
+#include <functional>
 #include <memory>
 #include <string>
 
@@ -42,38 +43,49 @@ bool IsStreamPath(const std::string& path) {
 
 namespace {
 
-/// Writes `contents` to an open stream; the error names `path`.
-absl::Status WriteAll(FILE* f, const std::string& path, std::string_view contents) {
-  if (std::fwrite(contents.data(), 1, contents.size(), f) != contents.size() || std::fflush(f) != 0)
-    return absl::ErrnoToStatus(errno, absl::StrCat("cannot write '", path, "'"));
+/// Writes the pieces of `next` to an open stream; the error names `path`.
+absl::Status WriteAll(FILE* f, const std::string& path, const std::function<std::string_view()>& next) {
+  for (std::string_view piece = next(); !piece.empty(); piece = next())
+    if (std::fwrite(piece.data(), 1, piece.size(), f) != piece.size())
+      return absl::ErrnoToStatus(errno, absl::StrCat("cannot write '", path, "'"));
+  if (std::fflush(f) != 0) return absl::ErrnoToStatus(errno, absl::StrCat("cannot write '", path, "'"));
   return absl::OkStatus();
 }
 
 }  // namespace
 
 absl::Status WriteFileAtomically(const std::string& path, std::string_view contents) {
-  if (path == "-") return WriteAll(stdout, "standard output", contents);
+  bool done = false;
+  return WriteFileAtomicallyInPieces(path, [&]() -> std::string_view {
+    if (done) return {};
+    done = true;
+    return contents;
+  });
+}
+
+absl::Status WriteFileAtomicallyInPieces(const std::string& path,
+                                         const std::function<std::string_view()>& next) {
+  if (path == "-") return WriteAll(stdout, "standard output", next);
   if (IsStreamPath(path)) {  // a device or pipe: no temporary file beside it
     std::unique_ptr<FILE, int (*)(FILE*)> f(std::fopen(path.c_str(), "wb"), &std::fclose);
     if (!f) return absl::ErrnoToStatus(errno, absl::StrCat("cannot write '", path, "'"));
-    return WriteAll(f.get(), path, contents);
+    return WriteAll(f.get(), path, next);
   }
   const std::string tmp = path + ".tmp";
   FILE* f = std::fopen(tmp.c_str(), "wb");
   if (!f) return absl::ErrnoToStatus(errno, absl::StrCat("cannot write '", path, "'"));
-  bool ok =
-      std::fwrite(contents.data(), 1, contents.size(), f) == contents.size() && std::fflush(f) == 0;
-  int err = ok ? 0 : errno;
-  if (std::fclose(f) != 0 && ok) {
-    ok = false;
-    err = errno;
-  }
-  if (!ok) {
+  // Unbuffered: each piece goes to the kernel in one write(), with no copy through
+  // stdio's buffer (pieces are large, or the whole contents).
+  std::setvbuf(f, nullptr, _IONBF, 0);
+  absl::Status written = WriteAll(f, path, next);
+  if (std::fclose(f) != 0 && written.ok())
+    written = absl::ErrnoToStatus(errno, absl::StrCat("cannot write '", path, "'"));
+  if (!written.ok()) {
     std::remove(tmp.c_str());
-    return absl::ErrnoToStatus(err, absl::StrCat("cannot write '", path, "'"));
+    return written;
   }
   if (std::rename(tmp.c_str(), path.c_str()) != 0) {
-    err = errno;
+    const int err = errno;
     std::remove(tmp.c_str());
     return absl::ErrnoToStatus(err, absl::StrCat("cannot rename '", tmp, "' to '", path, "'"));
   }
