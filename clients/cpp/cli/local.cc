@@ -83,15 +83,20 @@ struct LocalFit {
 /// scattered numbering then costs no cache misses. The rows stay in the relabelled
 /// order (LocalFit::source maps them back: WriteRelabelledDifferentials).
 /// `validated` is set once the mesh has passed validation (the "read" phase's end).
-absl::StatusOr<LocalFit> FitLocal(const Mesh& mesh, const std::string& path, const FitOptions& o,
-                                  uint32_t quantities, const RunContext& ctx,
+/// Unless `keep_mesh`, a relabelled fit empties *mesh once it is validated (its memory
+/// is then reused by the fit's arrays instead of new pages).
+absl::StatusOr<LocalFit> FitLocal(Mesh* source_mesh, bool keep_mesh, const std::string& path,
+                                  const FitOptions& o, uint32_t quantities, const RunContext& ctx,
                                   const std::function<void()>& validated) {
+  const Mesh& mesh = *source_mesh;
   if (RelabelForFit(mesh, o)) {
     absl::StatusOr<LocalityRelabelling> r = RelabelForLocality(mesh);
     absl::StatusOr<Topology> topo = r.ok() ? BuildTopology(*r) : r.status();
     // Any failure: the source's validation below reports it with the user's indices.
     if (topo.ok() && ValidateGeometry(r->mesh, ctx.threads()).ok()) {
       validated();
+      if (!keep_mesh) *source_mesh = Mesh();
+      std::vector<int32_t>().swap(r->face_source);  // BuildTopology's alone
       GF_ASSIGN_OR_RETURN(const auto fits, FitSurface(r->mesh, *topo, o, nullptr, {}, ctx));
       GF_ASSIGN_OR_RETURN(Differentials d, ComputeDifferentials(*fits, quantities, ctx));
       return LocalFit{std::move(d), std::move(r->vertex_source)};
@@ -129,10 +134,12 @@ absl::Status RunCurvature(const std::vector<std::string>& argv) {
   struct stat st;
   if (stat(a.mesh.c_str(), &st) == 0) PrepareHeap(st.st_size);
 #endif
-  GF_ASSIGN_OR_RETURN(const Mesh mesh, ReadMesh(a.mesh));
+  GF_ASSIGN_OR_RETURN(Mesh mesh, ReadMesh(a.mesh));
   Stopwatch fit_timer;
   const RunContext ctx = bar.Context(a.threads);
-  GF_ASSIGN_OR_RETURN(LocalFit fit, FitLocal(mesh, a.mesh, a.fit, OutputQuantities(a.output), ctx, [&] {
+  // Only the VTK outputs need the mesh once it is fitted.
+  const bool keep_mesh = OutputNeedsMesh(a.output);
+  GF_ASSIGN_OR_RETURN(LocalFit fit, FitLocal(&mesh, keep_mesh, a.mesh, a.fit, OutputQuantities(a.output), ctx, [&] {
                         Verbose(a.verbose, absl::StrFormat("read %s: %d vertices, %d faces in %.3f s", a.mesh,
                                                            mesh.NumVertices(), mesh.NumFaces(), read_timer.Seconds()));
                         fit_timer = Stopwatch();
