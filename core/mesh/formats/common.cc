@@ -11,10 +11,15 @@
 
 namespace geomfit::mesh_io {
 
-Mesh MeshBuilder::Build() const {
+Mesh MeshBuilder::Build() {
+  xyz_.conservativeResize(num_vertices_, 3);  // row-major, same columns: a realloc
+  faces_.conservativeResize(num_faces_, 4);
   Mesh m;
-  m.positions = Eigen::Map<const Positions>(xyz_.data(), NumVertices(), 3);
-  m.faces = Eigen::Map<const Faces>(faces_.data(), NumFaces(), 4);
+  m.positions = std::move(xyz_);
+  m.faces = SharedFaces(std::move(faces_));
+  num_vertices_ = num_faces_ = 0;
+  xyz_.resize(0, 3);
+  faces_.resize(0, 4);
   return m;
 }
 

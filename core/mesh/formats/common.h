@@ -20,24 +20,36 @@ constexpr int64_t kMaxInt32 = std::numeric_limits<int32_t>::max();
 // ---------------------------------------------------------------------------
 // Mesh assembly
 
-/// Collects vertices and faces (4 slots per face, -1 for triangles).
+/// Collects vertices and faces (4 slots per face, -1 for triangles) straight into the
+/// mesh's arrays: they grow by doubling and Build() shrinks them in place (realloc), so
+/// the mesh is never copied.
 class MeshBuilder {
  public:
-  void ReserveVertices(int64_t n) { xyz_.reserve(3 * n); }
-  void ReserveFaces(int64_t n) { faces_.reserve(4 * n); }
-  int64_t NumVertices() const { return static_cast<int64_t>(xyz_.size() / 3); }
-  int64_t NumFaces() const { return static_cast<int64_t>(faces_.size() / 4); }
-  void AddVertex(const double p[3]) { xyz_.insert(xyz_.end(), p, p + 3); }
-  void AddFace(const int32_t* v, int n) {
-    int32_t f[4];
-    for (int i = 0; i < 4; ++i) f[i] = i < n ? v[i] : -1;
-    faces_.insert(faces_.end(), f, f + 4);
+  void ReserveVertices(int64_t n) {
+    if (n > xyz_.rows()) xyz_.conservativeResize(n, 3);
   }
-  Mesh Build() const;
+  void ReserveFaces(int64_t n) {
+    if (n > faces_.rows()) faces_.conservativeResize(n, 4);
+  }
+  int64_t NumVertices() const { return num_vertices_; }
+  int64_t NumFaces() const { return num_faces_; }
+  void AddVertex(const double p[3]) {
+    if (num_vertices_ == xyz_.rows()) ReserveVertices(std::max<int64_t>(64, 2 * num_vertices_));
+    double* row = xyz_.data() + 3 * num_vertices_++;
+    row[0] = p[0], row[1] = p[1], row[2] = p[2];
+  }
+  void AddFace(const int32_t* v, int n) {
+    if (num_faces_ == faces_.rows()) ReserveFaces(std::max<int64_t>(64, 2 * num_faces_));
+    int32_t* row = faces_.data() + 4 * num_faces_++;
+    for (int i = 0; i < 4; ++i) row[i] = i < n ? v[i] : -1;
+  }
+  /// The mesh; the builder is empty afterwards.
+  Mesh Build();
 
  private:
-  std::vector<double> xyz_;
-  std::vector<int32_t> faces_;
+  Positions xyz_;
+  Faces faces_;
+  int64_t num_vertices_ = 0, num_faces_ = 0;
 };
 
 /// Welds vertices whose coordinates are bitwise equal (STL stores every corner).
