@@ -325,9 +325,10 @@ TEST(ObjTest, NonFiniteCoordinatesPassThroughAndValidationRejects) {
 // (signs, exponents, non-finite and out-of-range numbers, slashes, forward, zero and
 // huge indices, comments, CR, tabs, form feeds, missing final newline) and on the
 // reader fuzz corpus's mutations.
-void ExpectObjPathsAgree(const std::string& text) {
-  const absl::StatusOr<Mesh> fast = mesh_io::ParseObj(text, "t.obj", true);
-  const absl::StatusOr<Mesh> general = mesh_io::ParseObj(text, "t.obj", false);
+using TextParser = absl::StatusOr<Mesh> (*)(absl::string_view, absl::string_view, bool);
+void ExpectPathsAgree(TextParser parse, const std::string& text) {
+  const absl::StatusOr<Mesh> fast = parse(text, "t", true);
+  const absl::StatusOr<Mesh> general = parse(text, "t", false);
   ASSERT_EQ(fast.status(), general.status()) << text;
   if (!fast.ok()) return;
   ASSERT_EQ(fast->NumVertices(), general->NumVertices()) << text;
@@ -376,15 +377,50 @@ TEST(ObjTest, FastPathReadsLikeTheGeneralPath) {
       }
       text += odd() ? pick(ends) : "\n";
     }
-    ExpectObjPathsAgree(text);
+    ExpectPathsAgree(mesh_io::ParseObj, text);
     parsed += mesh_io::ParseObj(text, "t.obj").ok();
   }
   EXPECT_GT(parsed, 600);  // both outcomes are exercised
   EXPECT_LT(parsed, 2400);
   std::mt19937_64 mutations(11);
   for (const reader_fuzz::SeedFile& seed : reader_fuzz::SeedFiles())
-    for (int i = 0; i < 300; ++i) ExpectObjPathsAgree(reader_fuzz::Mutate(seed.bytes, mutations));
-  ExpectObjPathsAgree(*FormatMesh(Tetrahedron(), MeshFormat::kObj));
+    for (int i = 0; i < 300; ++i) ExpectPathsAgree(mesh_io::ParseObj, reader_fuzz::Mutate(seed.bytes, mutations));
+  ExpectPathsAgree(mesh_io::ParseObj, *FormatMesh(Tetrahedron(), MeshFormat::kObj));
+}
+
+// The same for OFF's fast path (vertex lines "X Y Z", face lines "N I J K [L]").
+TEST(OffTest, FastPathReadsLikeTheGeneralPath) {
+  const std::vector<std::string> pieces = {
+      "0", "1", "2", "3", "4", "5", "-1", "+1", "1.5", "1e400", "nan", "inf", "03", "0x1", "1x",
+      "99999999999", "#", "# c", "", " ", "\t", "\r", "\f", "255 0 0", "1/2"};
+  std::mt19937_64 rng(9);
+  const auto odd = [&] { return rng() % 20 == 0; };
+  const auto pick = [&] { return pieces[rng() % pieces.size()]; };
+  int parsed = 0;
+  for (int file = 0; file < 3000; ++file) {
+    std::string text = "OFF\n4 2 0\n";
+    for (int v = 0; v < 4 + (odd() ? 1 : 0); ++v) {
+      for (int c = 0; c < (odd() ? 2 + static_cast<int>(rng() % 3) : 3); ++c)
+        text += (c > 0 ? (odd() ? pick() + " " : std::string(" ")) : std::string()) +
+                (odd() ? pick() : absl::StrCat(rng() % 100 * 0.37));
+      text += odd() ? pick() + "\n" : "\n";
+    }
+    for (int f = 0; f < 2; ++f) {
+      const int n = odd() ? static_cast<int>(rng() % 6) : 3 + static_cast<int>(rng() % 2);
+      text += odd() ? pick() : absl::StrCat(n);
+      for (int c = 0; c < n; ++c) text += (odd() ? pick() + " " : std::string(" ")) + (odd() ? pick() : absl::StrCat(rng() % 4));
+      text += odd() ? pick() + (rng() % 2 ? "\r\n" : "\n") : "\n";
+    }
+    if (odd()) text.pop_back();  // no final newline
+    ExpectPathsAgree(mesh_io::ParseOff, text);
+    parsed += mesh_io::ParseOff(text, "t.off").ok();
+  }
+  EXPECT_GT(parsed, 600);  // both outcomes are exercised
+  EXPECT_LT(parsed, 2400);
+  std::mt19937_64 mutations(13);
+  for (const reader_fuzz::SeedFile& seed : reader_fuzz::SeedFiles())
+    for (int i = 0; i < 300; ++i) ExpectPathsAgree(mesh_io::ParseOff, reader_fuzz::Mutate(seed.bytes, mutations));
+  ExpectPathsAgree(mesh_io::ParseOff, *FormatMesh(Tetrahedron(), MeshFormat::kOff));
 }
 
 // ---------------------------------------------------------------------------

@@ -1,9 +1,12 @@
 #pragma once
-#include <cstring>
 // Internal to core/mesh: pieces shared by the format readers and writers.
 #include <algorithm>
 #include <array>
+#include <charconv>
+#include <cmath>
 #include <cstdint>
+#include <cstring>
+#include <system_error>
 #include <limits>
 #include <string>
 #include <unordered_map>
@@ -135,6 +138,79 @@ class LineReader {
   size_t pos_ = 0;
   int64_t line_number_ = 0;
 };
+
+// Fast path of the text readers: plain lines read straight from the bytes, no tokens.
+// Each function returns where reading continues, or nullptr for anything it would not
+// read exactly as the general path (LineReader tokens, ParseDouble) does; the reader
+// then leaves that line to the general path, with its checks and error messages.
+
+inline bool IsBlank(char c) { return c == ' ' || c == '\t'; }
+inline bool IsDigit(char c) { return static_cast<unsigned>(c - '0') <= 9; }
+inline const char* SkipBlanks(const char* p, const char* end) {
+  while (p < end && IsBlank(*p)) ++p;
+  return p;
+}
+
+/// Where the next line starts if only blanks and the line's end ("\n", "\r\n" or the
+/// end of the text) follow p; else nullptr.
+inline const char* LineEnd(const char* p, const char* end) {
+  p = SkipBlanks(p, end);
+  if (p == end) return end;
+  if (*p == '\n') return p + 1;
+  if (*p == '\r' && p + 1 < end && p[1] == '\n') return p + 2;
+  return nullptr;
+}
+
+/// Three blank-separated finite numbers from p, then the line's end. std::from_chars
+/// reads each on the bytes; its answer is ParseDouble's for the token, which ends where
+/// from_chars stops (a blank or the line's end must follow).
+/// `blank_first`: blanks must also come before the first number (OBJ's "v" line after
+/// its "v").
+inline const char* FastCoordinates(const char* p, const char* end, double xyz[3], bool blank_first = false) {
+  for (int c = 0; c < 3; ++c) {
+    if (c > 0 || blank_first) {
+      if (p == end || !IsBlank(*p)) return nullptr;
+      do ++p;
+      while (p < end && IsBlank(*p));
+    }
+    const std::from_chars_result r = std::from_chars(p, end, xyz[c]);
+    if (r.ec != std::errc() || !std::isfinite(xyz[c])) return nullptr;
+    p = r.ptr;
+  }
+  return LineEnd(p, end);
+}
+
+/// The decimal digits at p (a digit; up to 10 of them) as *value; where they end
+/// (nullptr: more than 10).
+/// Fewer than 8 digits cost one 8-byte load and no branch per digit (SWAR: the digits
+/// moved to the word's top bytes, the bytes below them read as leading zeros, then the
+/// usual eight-digit multiply-shift).
+inline const char* FastDigits(const char* p, const char* end, uint64_t* value) {
+  if (end - p >= 8) {
+    uint64_t w;
+    std::memcpy(&w, p, 8);  // little-endian: p[0] in the low byte
+    const uint64_t t = w ^ 0x3030303030303030ull;  // digits: bytes 0-9
+    const uint64_t non_digit =
+        (((t & 0x7f7f7f7f7f7f7f7full) + 0x7676767676767676ull) | t) & 0x8080808080808080ull;
+    const int n = non_digit == 0 ? 8 : __builtin_ctzll(non_digit) / 8;
+    if (n < 8) {
+      uint64_t d = t << (8 * (8 - n));
+      d = d * 10 + (d >> 8);
+      *value = (((d & 0x000000ff000000ffull) * (100 + (1000000ull << 32))) +
+                (((d >> 16) & 0x000000ff000000ffull) * (1 + (10000ull << 32)))) >>
+               32;
+      return p + n;
+    }
+  }
+  const char* const first = p;
+  uint64_t k = 0;
+  while (p < end && IsDigit(*p)) {
+    if (p - first == 10) return nullptr;
+    k = 10 * k + static_cast<uint64_t>(*p++ - '0');
+  }
+  *value = k;
+  return p;
+}
 
 /// Three coordinates from tok[first], tok[first + 1], tok[first + 2].
 absl::Status ParseCoordinates(const LineReader& lines, const std::vector<absl::string_view>& tok,

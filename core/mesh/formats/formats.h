@@ -14,7 +14,8 @@ namespace geomfit::mesh_io {
 /// compare the two.
 absl::StatusOr<Mesh> ParseObj(absl::string_view bytes, absl::string_view source,
                               bool fast_path = true);
-absl::StatusOr<Mesh> ParseOff(absl::string_view bytes, absl::string_view source);
+absl::StatusOr<Mesh> ParseOff(absl::string_view bytes, absl::string_view source,
+                              bool fast_path = true);
 absl::StatusOr<Mesh> ParsePly(absl::string_view bytes, absl::string_view source);
 absl::StatusOr<Mesh> ParseStl(absl::string_view bytes, absl::string_view source);
 

@@ -1,8 +1,5 @@
 // Wavefront OBJ: `v` and `f` lines; everything else is ignored.
-#include <charconv>
-#include <cmath>
 #include <cstring>
-#include <system_error>
 #include <vector>
 
 #include "absl/strings/str_cat.h"
@@ -14,61 +11,13 @@
 namespace geomfit::mesh_io {
 namespace {
 
-// The fast path: lines in the plain form writers produce ("v X Y Z", "f I J K [L]" with
-// positive indices, blanks between fields, LF or CRLF) are read straight from the bytes.
-// Each function returns where the next line starts, or nullptr for anything else, which
-// the general path (LineReader tokens) then reads with its checks and error messages:
-// the fast path accepts only lines the general path reads to the same values.
-
-bool IsBlank(char c) { return c == ' ' || c == '\t'; }
-
-/// Where the next line starts if only blanks and the line's end ("\n", "\r\n" or the
-/// end of the text) follow p; else nullptr.
-const char* LineEnd(const char* p, const char* end) {
-  while (p < end && IsBlank(*p)) ++p;
-  if (p == end) return end;
-  if (*p == '\n') return p + 1;
-  if (*p == '\r' && p + 1 < end && p[1] == '\n') return p + 2;
-  return nullptr;
-}
-
-/// A vertex line after its "v" (at p): three blank-separated finite numbers that
-/// std::from_chars reads whole (ParseDouble's answer for them: the token ends where
-/// from_chars stops), then the line's end.
-const char* FastVertex(const char* p, const char* end, double xyz[3]) {
-  for (int c = 0; c < 3; ++c) {
-    if (p == end || !IsBlank(*p)) return nullptr;
-    do ++p;
-    while (p < end && IsBlank(*p));
-    const std::from_chars_result r = std::from_chars(p, end, xyz[c]);
-    if (r.ec != std::errc() || !std::isfinite(xyz[c])) return nullptr;
-    p = r.ptr;
-  }
-  return LineEnd(p, end);
-}
+// The fast path (common.h): "v X Y Z" and "f I J K [L]" lines with positive indices,
+// blanks between fields, LF or CRLF, read straight from the bytes; every other line goes
+// to the general path.
 
 /// Ends a token for LineReader(..., '#'): its separators, the line's end, a comment.
 bool EndsToken(char c) {
   return c == ' ' || c == '\t' || c == '\r' || c == '\f' || c == '\v' || c == '\n' || c == '#';
-}
-
-/// The value of the decimal digits at p (at least one) and, in *len, their count, if
-/// fewer than 8: one 8-byte load, no branch per digit (SWAR: the digits moved to the
-/// word's top bytes, bytes below them read as leading zeros, then the usual
-/// eight-digit multiply-shift). *len = 8: more digits may follow, the value is unset.
-uint64_t ShortDecimal(const char* p, int* len) {
-  uint64_t w;
-  std::memcpy(&w, p, 8);  // little-endian: p[0] in the low byte
-  const uint64_t t = w ^ 0x3030303030303030ull;  // digits: bytes 0-9
-  const uint64_t non_digit = (((t & 0x7f7f7f7f7f7f7f7full) + 0x7676767676767676ull) | t) & 0x8080808080808080ull;
-  const int n = non_digit == 0 ? 8 : __builtin_ctzll(non_digit) / 8;
-  *len = n;
-  if (n == 0 || n == 8) return 0;
-  uint64_t d = t << (8 * (8 - n));
-  d = d * 10 + (d >> 8);
-  return (((d & 0x000000ff000000ffull) * (100 + (1000000ull << 32))) +
-          (((d >> 16) & 0x000000ff000000ffull) * (1 + (10000ull << 32)))) >>
-         32;
 }
 
 /// A face line after its "f" (at p): 3 or 4 decimal indices in [1, num_vertices] (no
@@ -79,17 +28,10 @@ const char* FastFace(const char* p, const char* end, int64_t num_vertices, int32
   while (p < end && IsBlank(*p)) {
     do ++p;
     while (p < end && IsBlank(*p));
-    if (p == end || static_cast<unsigned>(*p - '0') > 9) break;  // LineEnd decides
+    if (p == end || !IsDigit(*p)) break;  // LineEnd decides
     if (count == 4) return nullptr;
-    uint64_t k = 0;
-    int len = 8;
-    if (end - p >= 8) k = ShortDecimal(p, &len);
-    if (len < 8) {
-      p += len;
-    } else {
-      const char* const first = p;
-      while (p < end && static_cast<unsigned>(*p - '0') <= 9 && p - first < 10) k = 10 * k + (*p++ - '0');
-    }
+    uint64_t k;
+    if ((p = FastDigits(p, end, &k)) == nullptr) return nullptr;
     if (k == 0 || k > static_cast<uint64_t>(num_vertices)) return nullptr;  // also forward references
     if (p < end && *p == '/')
       while (p < end && !EndsToken(*p)) ++p;
@@ -137,7 +79,7 @@ absl::StatusOr<Mesh> ParseObj(absl::string_view bytes, absl::string_view source,
       const char* next = nullptr;
       if (*p == 'v') {
         double xyz[3];
-        if ((next = FastVertex(p + 1, end, xyz)) != nullptr) b.AddVertex(xyz);
+        if ((next = FastCoordinates(p + 1, end, xyz, true)) != nullptr) b.AddVertex(xyz);
       } else if (*p == 'f') {
         int32_t v[4];
         int n;

@@ -10,8 +10,29 @@
 #include "core/util/status_macros.h"
 
 namespace geomfit::mesh_io {
+namespace {
 
-absl::StatusOr<Mesh> ParseOff(absl::string_view bytes, absl::string_view source) {
+/// The fast path (common.h) of a face line "N I J K [L]": N = 3 or 4 and that many
+/// indices in [0, num_vertices), then the line's end (a line with colours goes to the
+/// general path).
+const char* FastFace(const char* p, const char* end, int64_t num_vertices, int32_t v[4], int* n) {
+  uint64_t k;
+  p = SkipBlanks(p, end);
+  if (p == end || !IsDigit(*p) || (p = FastDigits(p, end, &k)) == nullptr || k < 3 || k > 4) return nullptr;
+  *n = static_cast<int>(k);
+  for (int i = 0; i < *n; ++i) {
+    if (p == end || !IsBlank(*p)) return nullptr;
+    p = SkipBlanks(p, end);
+    if (p == end || !IsDigit(*p) || (p = FastDigits(p, end, &k)) == nullptr || k >= static_cast<uint64_t>(num_vertices))
+      return nullptr;
+    v[i] = static_cast<int32_t>(k);
+  }
+  return LineEnd(p, end);
+}
+
+}  // namespace
+
+absl::StatusOr<Mesh> ParseOff(absl::string_view bytes, absl::string_view source, bool fast_path) {
   LineReader lines(bytes, source, '#');
   std::vector<absl::string_view> tok;
   if (!lines.NextTokens(&tok)) return lines.Error("empty file");
@@ -43,7 +64,15 @@ absl::StatusOr<Mesh> ParseOff(absl::string_view bytes, absl::string_view source)
   MeshBuilder b;
   b.ReserveVertices(nv);
   b.ReserveFaces(nf);
+  const char* const end = lines.end();
   for (int64_t i = 0; i < nv; ++i) {
+    double xyz[3];
+    const char* next = fast_path ? FastCoordinates(SkipBlanks(lines.cursor(), end), end, xyz) : nullptr;
+    if (next != nullptr) {  // common.h
+      lines.SkipLine(next);
+      b.AddVertex(xyz);
+      continue;
+    }
     if (!lines.NextTokens(&tok))
       return lines.Error(absl::StrFormat("unexpected end of file after %d of %d vertices", i, nv));
     double p[3];
@@ -51,6 +80,14 @@ absl::StatusOr<Mesh> ParseOff(absl::string_view bytes, absl::string_view source)
     b.AddVertex(p);
   }
   for (int64_t f = 0; f < nf; ++f) {
+    int32_t corners[4];
+    int n_fast;
+    const char* next = fast_path ? FastFace(lines.cursor(), end, nv, corners, &n_fast) : nullptr;
+    if (next != nullptr) {
+      lines.SkipLine(next);
+      b.AddFace(corners, n_fast);
+      continue;
+    }
     if (!lines.NextTokens(&tok))
       return lines.Error(absl::StrFormat("unexpected end of file after %d of %d faces", f, nf));
     int64_t n;
