@@ -168,14 +168,20 @@ WlsSolution SolveWls(const WlsProblem& P, const WlsSettings& S, double* coeffici
   solve(degree, y);
   // Oscillation safeguard (4.1.3), made scale-free. In heights at the stencil radius
   // (c h^p), a resolved degree-p fit's degree-p coefficients differ from the degree-d
-  // fit's by the aliased degree-(p+1) term, ~ h t^p with t = |c^_2| h the stencil radius
-  // over the curvature radius (from the degree-2 fit). The text's test
+  // fit's by the aliased degree-(p+1) term: a derivative of order p+1 of a surface whose
+  // curvature radius is h / t, ~ (p+1)! h t^p with t = |c^_2| h the stencil radius over
+  // the curvature radius (from the degree-2 fit). The text's test
   // |c^_p - c_p| <= max(|c^_p|, eps) with an absolute eps = 0.01 instead downgrades
   // resolved fits whose c_p vanish by symmetry (odd orders on a sphere), costing up to
-  // 100x at mid resolutions; so eps becomes tolerance * h t^p. That alone lets the
-  // unresolved fits of coarse meshes through (t ~ 1), so a second test bounds what WALF
-  // uses: inside half the stencil radius the degree-d fit may not leave the degree-2 fit
-  // by more than deviation * h.
+  // 100x at mid resolutions; so eps becomes tolerance * (p+1)!/3! * h t^p (without the
+  // factorial, degree-6 fits of marching-cubes tori whose stencils reach t ~ 1 were
+  // lowered to 5 at 2.4x the normal error; bench/README.md, issue 16). That alone lets
+  // the unresolved fits of coarse meshes through (t ~ 1), so a second test bounds the
+  // fit where WALF uses it: at the nearest rows (about the one-ring) and half-way to
+  // them, the degree-d fit may not leave the degree-2 fit by more than deviation times
+  // the distance of the farthest of those rows. (Comparing on the disc of half the
+  // stencil radius instead cost up to 8x on anisotropic meshes, whose stencils reach
+  // around a thin tube where no height function of the tangent plane exists.)
   if (S.oscillation_safeguard && degree > 2) {
     double y2[3][kMaxCoef];
     solve(2, y2);
@@ -193,6 +199,14 @@ WlsSolution SolveWls(const WlsProblem& P, const WlsSettings& S, double* coeffici
     };
     double c2[3][kMaxCoef];
     unscaled(y2, 2, c2);
+    // The nearest rows (in the unit disc) and the radius they reach.
+    constexpr int kNear = 6;
+    int near[kMaxStencil];
+    for (int i = 0; i < rows; ++i) near[i] = keep[i];
+    const int num_near = std::min(rows, kNear);
+    auto dist2 = [&](int r) { return P.u[r] * P.u[r] + P.v[r] * P.v[r]; };
+    std::partial_sort(near, near + num_near, near + rows, [&](int x, int z) { return dist2(x) < dist2(z); });
+    const double near_radius = std::sqrt(dist2(near[num_near - 1]));
     while (degree > 2) {
       bool ok = true;
       for (int p = 2; p < degree && ok; ++p) {
@@ -205,16 +219,17 @@ WlsSolution SolveWls(const WlsProblem& P, const WlsSettings& S, double* coeffici
             diff2 += (lo - hi) * (lo - hi);
             ref2 += lo * lo;
           }
-        const double eps = S.oscillation_tolerance * h * std::pow(t, p) + 1e-12 * h;
+        const double eps =
+            S.oscillation_tolerance * kFactorial[p + 1] / kFactorial[3] * h * std::pow(t, p) + 1e-12 * h;
         ok = std::sqrt(diff2) <= std::max(std::sqrt(ref2), eps);
       }
       if (ok) {
         double cd[3][kMaxCoef];
         unscaled(y, degree, cd);
         double dev = 0;
-        for (int a = 0; a < 12; ++a)
-          for (double r : {0.25, 0.5}) {
-            const double u = r * std::cos(a * M_PI / 6), v = r * std::sin(a * M_PI / 6);
+        for (int k = 0; k < num_near; ++k)
+          for (double f : {0.5, 1.0}) {
+            const double u = f * P.u[near[k]] / h, v = f * P.v[near[k]] / h;
             double e2 = 0;
             for (int d = 0; d < dims; ++d) {
               double fd, f2;
@@ -224,7 +239,7 @@ WlsSolution SolveWls(const WlsProblem& P, const WlsSettings& S, double* coeffici
             }
             dev = std::max(dev, std::sqrt(e2));
           }
-        ok = dev <= S.oscillation_deviation * h;
+        ok = dev <= S.oscillation_deviation * near_radius;
       }
       if (ok) break;
       --degree;

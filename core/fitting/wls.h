@@ -21,10 +21,11 @@ struct WlsSettings {
   double weight_epsilon = 0.01;
   const double* cond_threshold = nullptr;  ///< per degree, index 1..6
   bool oscillation_safeguard = false;      ///< (4.1.3)
-  /// Coefficient test: |c^_p - c_p| <= max(|c^_p|, tolerance h t^p) (see SolveWls).
+  /// Coefficient test: |c^_p - c_p| <= max(|c^_p|, tolerance (p+1)!/3! h t^p) (see SolveWls).
   double oscillation_tolerance = 10;
-  /// Deviation test: |f_d - f_2| <= deviation h inside half the stencil radius.
-  double oscillation_deviation = 0.3;
+  /// Deviation test: |f_d - f_2| <= deviation r at the nearest rows and half-way to
+  /// them, r the distance of the farthest of those rows (about the one-ring).
+  double oscillation_deviation = 0.2;
   /// Operator rows to build (leading Taylor coefficients); -1 builds all.
   int op_rows = -1;
 };

@@ -13,6 +13,10 @@
 namespace geomfit {
 namespace {
 
+// Ridge-curve fit windows end where the chord from the node turns more than this from
+// the curve tangent (see FeatureSurface).
+constexpr double kMaxChordAngleDeg = 30;
+
 using Eigen::Vector3d;
 using Edge = std::pair<int32_t, int32_t>;
 
@@ -140,11 +144,29 @@ FeatureSurface::FeatureSurface(const Mesh& mesh, std::shared_ptr<const Features>
       fit.tangent = (mesh.positions.row(at(hi)) - mesh.positions.row(at(lo))).transpose().normalized();
       fit.n1 = FrameFromNormal(x0, fit.tangent).t1;
       fit.n2 = fit.tangent.cross(fit.n1);
-      // Window of neighbours along the curve (interpolating at the node).
+      // Window of neighbours along the curve (interpolating at the node): up to degree + 1
+      // on each side, each side ending where the curve stops being a tame graph over the
+      // tangent: a chord at more than kMaxChordAngleDeg to it (on a circle the chord to
+      // the node at arc angle theta makes theta / 2, so 60 degrees of arc) or a tangential
+      // coordinate that stops growing. On coarse meshes of small holes (14 nodes on a
+      // circle) the full window spanned 100-130 degrees of arc, where the offsets are no
+      // polynomial of the tangential coordinate, and the faces missed the ridge by half
+      // the chord-to-arc area (bench/README.md, issue 16 item 4).
       std::vector<int> window;
       const int w = degree + 1;
-      for (int j = i - w; j <= i + w; ++j)
-        if (j != i && (closed || (j >= 0 && j < m))) window.push_back(at(j));
+      const double max_cos = std::cos(kMaxChordAngleDeg * M_PI / 180);
+      for (int dir : {-1, 1}) {
+        double last_s = 0;
+        for (int j = i + dir; std::abs(j - i) <= w; j += dir) {
+          if (!closed && (j < 0 || j >= m)) break;
+          if (closed && std::abs(j - i) >= nodes) break;
+          const Vector3d d = mesh.positions.row(at(j)).transpose() - x0;
+          const double s = dir * fit.tangent.dot(d);
+          if (!(s > last_s) || s < max_cos * d.norm()) break;
+          last_s = s;
+          window.push_back(at(j));
+        }
+      }
       const int deg = std::min<int>(degree, static_cast<int>(window.size()) - 1);
       if (deg >= 1) {
         double h = 0;

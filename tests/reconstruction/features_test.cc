@@ -86,7 +86,11 @@ TEST(FeaturesTest, RefinementKeepsSharpEdges) {
     EXPECT_GT(smooth_worst, 10 * worst);
   }
   EXPECT_GE(ConvergenceOrder(h, with), 3.5);     // degree-3 curve and surface fits: O(h^4)
-  EXPECT_GE(ConvergenceOrder(h, rim_err), 3.5);
+  // The rim's order from the resolved levels: at n = 4 (16 nodes per rim) the ridge-curve
+  // windows stop at 60 degrees of arc, which brought that level's rim error from 9.2e-3
+  // to 2.1e-3 (it no longer reads as the start of an O(h^4) sequence).
+  EXPECT_LT(rim_err[0], 3e-3);
+  EXPECT_GE(ConvergenceOrder({h[1], h[2]}, {rim_err[1], rim_err[2]}), 3.5);
 }
 
 // Inside faces along a ridge the feature surface follows the ridge curve (a curved-edge
@@ -94,7 +98,7 @@ TEST(FeaturesTest, RefinementKeepsSharpEdges) {
 // Jacobian is the derivative of its positions (what integration uses, 4.3).
 TEST(FeaturesTest, RimFacesFollowTheRidgeWithConsistentJacobians) {
   std::vector<double> h, err;
-  for (int n : {4, 8, 16}) {
+  for (int n : {4, 8, 16, 32}) {
     const Mesh mesh = GenerateCylinderMesh(n);
     const Topology topo = BuildTopology(mesh).value();
     auto features = std::make_shared<Features>(DetectFeatures(mesh, topo, FeatureOptions()).value());
@@ -122,6 +126,10 @@ TEST(FeaturesTest, RimFacesFollowTheRidgeWithConsistentJacobians) {
     }
     std::printf("n=%d: rim faces' interior points within %.2e of the cylinder; Jacobian vs FD %.1e\n", n, worst, jac);
     EXPECT_LT(jac, 1e-6);
+    // 16 nodes on each rim: the ridge-curve windows stop at 60 degrees of arc (they
+    // spanned 90 and missed the rim by 8.5e-3).
+    if (n == 4) EXPECT_LT(worst, 3e-3);
+    if (n == 4) continue;  // the order from the resolved levels
     h.push_back(AverageEdgeLength(mesh));
     err.push_back(worst);
   }
