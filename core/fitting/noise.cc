@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
 #include <vector>
 
 #include "core/fitting/wls.h"
@@ -10,10 +11,11 @@
 
 namespace geomfit {
 
-Positions ProjectOntoFits(const SurfaceFits& fits, const Positions& positions, int num_threads) {
+Positions ProjectOntoFits(const SurfaceFits& fits, const Positions& positions, int num_threads,
+                          const uint8_t* only) {
   Positions out = positions;
   ParallelFor(fits.num_vertices(), num_threads, [&](int64_t v) {
-    if (fits.diagnostics(static_cast<int>(v)).degree_used >= 1)
+    if (fits.diagnostics(static_cast<int>(v)).degree_used >= 1 && (!only || only[v]))
       out.row(v) = fits.Jet(static_cast<int>(v)).x.transpose();
   });
   return out;
@@ -31,7 +33,15 @@ NoiseSchedule NoiseScheduleFor(int degree, double residual_ratio) {
     s.smoothing_degree = std::min(degree + 2, 5);
     s.final_clean_stencils = true;
     if (degree >= 4) s.final_weight_epsilon = 0.1, s.final_points_factor = 2;
+    if (degree == 3) s.final_rings = 1.5, s.final_points_factor = 1;
+    if (degree >= 3) s.local_passes = 2;
   }
+  if (const char* e = std::getenv("NS_EPS")) s.final_weight_epsilon = std::atof(e);
+  if (const char* e = std::getenv("NS_PF")) s.final_points_factor = std::atof(e);
+  if (const char* e = std::getenv("NS_PASSES")) s.smoothing_passes = std::atoi(e);
+  if (const char* e = std::getenv("NS_LOCAL")) s.local_passes = std::atoi(e);
+  if (const char* e = std::getenv("NS_RINGS")) s.final_rings = std::atof(e);
+  if (const char* e = std::getenv("NS_SDEG")) s.smoothing_degree = std::atoi(e);
   return s;
 }
 
@@ -45,6 +55,26 @@ FitOptions NoiseSmoothingOptions(const FitOptions& options, const NoiseSchedule&
   o.normal_degree = 0;
   o.two_pass = false;
   return o;
+}
+
+std::vector<uint8_t> NoiseDominatedVertices(const SurfaceFits& fits, const Mesh& mesh, double noise_over_h,
+                                            int num_threads) {
+  const double h = AverageEdgeLength(mesh), noise = noise_over_h * h;
+  std::vector<uint8_t> out(fits.num_vertices(), 0);
+  if (fits.dims() != 1) return out;
+  ParallelFor(fits.num_vertices(), num_threads, [&](int64_t v) {
+    const int p = fits.diagnostics(static_cast<int>(v)).degree_used;
+    if (p < 1) return;
+    const double* c = fits.coefficients(static_cast<int>(v));
+    double sum = 0, fjk = std::tgamma(p + 1.0);  // j! k! for j = p - k
+    for (int k = 0; k <= p; ++k) {
+      if (k > 0) fjk = fjk / (p - k + 1) * k;
+      const double a = c[TaylorIndex(p - k, k)] / fjk;
+      sum += a * a;
+    }
+    out[v] = std::sqrt(sum) * std::pow(h, p) < (std::getenv("NS_SIG") ? std::atof(std::getenv("NS_SIG")) : kLocalSmoothingSignal) * noise;
+  });
+  return out;
 }
 
 namespace {

@@ -1,5 +1,6 @@
 #pragma once
 #include <memory>
+#include <vector>
 
 #include "absl/status/statusor.h"
 #include "core/fitting/fit.h"
@@ -33,7 +34,15 @@ struct NoiseSchedule {
   double final_points_factor = 0;     ///< and their growth factor (0: the clean one)
   int smoothing_passes = 2;           ///< passes when FitOptions::smoothing_passes is automatic
   bool cubic_near_boundary = false;   ///< smoothing fits within a ring of the boundary cubic
+  /// Further passes after smoothing_passes that move only the NoiseDominatedVertices of
+  /// the first pass (automatic pass count only).
+  int local_passes = 0;
+  /// The final fit's rings on the clean stencils (0: (d+1)/2); when set, the final fit
+  /// keeps the tangent plane of a fit of its degree on the (d+1)/2-ring clean stencils.
+  double final_rings = 0;
 };
+/// NoiseDominatedVertices: top-degree part below this fraction of the noise level.
+inline constexpr double kLocalSmoothingSignal = 0.3;
 /// Residual ratio (NoiseEstimate) from which the noise dominates the truncation error.
 inline constexpr double kHeavyNoiseResidualRatio = 0.2;
 /// Below it (and from kHeavyNoiseResidualRatio) the noise is moderate: at degree >= 3 the
@@ -62,8 +71,17 @@ NoiseSchedule NoiseScheduleFor(int degree, double residual_ratio);
 FitOptions NoiseSmoothingOptions(const FitOptions& options, const NoiseSchedule& schedule);
 
 /// Every vertex moved onto its own fit (the fit's point at its origin, x(0, 0) of
-/// Table 3.1); vertices without a fit keep `positions`.
-Positions ProjectOntoFits(const SurfaceFits& fits, const Positions& positions, int num_threads = 0);
+/// Table 3.1); vertices without a fit, or not marked in `only` (when given), keep `positions`.
+Positions ProjectOntoFits(const SurfaceFits& fits, const Positions& positions, int num_threads = 0,
+                          const uint8_t* only = nullptr);
+
+/// The vertices whose (smoothing) fit's top-degree part over one edge length h, |the
+/// degree-p Taylor terms c_jk / (j! k!)| h^p, is below kLocalSmoothingSignal x the noise
+/// level noise_over_h h (NoiseEstimate): no high-order content above the noise, so further
+/// smoothing passes average noise without adding the bias of the surface's higher terms.
+/// LHF fits only (none marked otherwise).
+std::vector<uint8_t> NoiseDominatedVertices(const SurfaceFits& fits, const Mesh& mesh, double noise_over_h,
+                                            int num_threads = 0);
 
 /// The noise test of NoiseMode::kAuto, on a sample of vertices: approximating degree-2
 /// and degree-4 fits on the same (>= 40-point) stencil. On smooth data the quartic's
