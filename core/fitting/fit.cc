@@ -304,11 +304,11 @@ class SurfaceFitter {
     }
     // The final fit's stencils (the clean ones under light noise, when not set explicitly).
     FitOptions final_spec = eff;
-    bool tangent_prefit = false;
+    bool clean_tangent = false;  // the final fit keeps a clean-stencil fit's tangent plane
     if (eff.noise == NoiseMode::kOn && schedule.final_clean_stencils) {
       final_spec.noise = NoiseMode::kOff;
       if (final_spec.min_points_factor == 0) final_spec.min_points_factor = schedule.final_points_factor;
-      if (final_spec.rings == 0) final_spec.rings = schedule.final_rings, tangent_prefit = schedule.final_rings > 0;
+      if (final_spec.rings == 0) final_spec.rings = schedule.final_rings, clean_tangent = schedule.final_rings > 0;
     }
     if (RingSpecFor(final_spec).rings != RingSpecFor(o).rings ||
         RingSpecFor(final_spec).min_points != RingSpecFor(o).min_points)
@@ -318,7 +318,7 @@ class SurfaceFitter {
     // The schedule's passes, then its local ones (noise.h), when the count is automatic.
     const bool scheduled = eff.noise == NoiseMode::kOn && o.smoothing_passes < 0;
     const int smoothing = scheduled ? schedule.smoothing_passes + schedule.local_passes : eff.SmoothingPasses();
-    std::vector<uint8_t> local_smoothing;  // the vertices the local passes move
+    std::vector<double> local_smoothing;  // the local passes' steps per vertex
     const int passes = smoothing + (o.two_pass ? 2 : 1);
     Mesh smoothed;  // positions after the smoothing passes (faces unused)
     const Mesh* input = &mesh;
@@ -380,7 +380,6 @@ class SurfaceFitter {
                                                  : std::string("frames");
       // The final frames from a higher-degree fit, or (noise schedule with final_rings) from
       // the same degree's fit on the clean stencils, which the final fit's smaller ones keep.
-      const bool clean_tangent = tangent_prefit;
       if (last && (eff.NormalDegree() > eff.degree || clean_tangent)) {
         FitOptions pre = eff;
         pre.degree = pre.normal_degree = eff.NormalDegree();
@@ -388,7 +387,6 @@ class SurfaceFitter {
         if (clean_tangent) {
           pre.noise = NoiseMode::kOff;
           pre.weight_epsilon = schedule.final_weight_epsilon;
-          pre.min_points_factor = schedule.final_points_factor;
         }
         const auto pre_nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, *input, RingSpecFor(pre), ctx.threads()));
         SurfaceFits pre_fits;
@@ -405,7 +403,7 @@ class SurfaceFitter {
           !s.ok())
         return s;
       if (scheduled && pass == 0 && schedule.local_passes > 0)
-        local_smoothing = NoiseDominatedVertices(*fits, mesh, noise_over_h, ctx.threads());
+        local_smoothing = LocalSmoothingSteps(*fits, mesh, noise_over_h, ctx.threads());
       // Moderate noise: the smoothing fits above cubic extrapolate the one-sided stencils
       // of the boundary (normal Linf 1.3x there, bench/README.md third round); cubic ones.
       if (eff.noise == NoiseMode::kOn && pass < smoothing && schedule.cubic_near_boundary && has_boundary) {

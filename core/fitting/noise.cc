@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstdlib>
 #include <vector>
 
 #include "core/fitting/wls.h"
@@ -12,11 +11,13 @@
 namespace geomfit {
 
 Positions ProjectOntoFits(const SurfaceFits& fits, const Positions& positions, int num_threads,
-                          const uint8_t* only) {
+                          const double* step) {
   Positions out = positions;
   ParallelFor(fits.num_vertices(), num_threads, [&](int64_t v) {
-    if (fits.diagnostics(static_cast<int>(v)).degree_used >= 1 && (!only || only[v]))
-      out.row(v) = fits.Jet(static_cast<int>(v)).x.transpose();
+    if (fits.diagnostics(static_cast<int>(v)).degree_used < 1) return;
+    const Eigen::Vector3d x = fits.Jet(static_cast<int>(v)).x;
+    if (!step) out.row(v) = x.transpose();
+    else if (step[v] > 0) out.row(v) += step[v] * (x.transpose() - positions.row(v));
   });
   return out;
 }
@@ -34,14 +35,8 @@ NoiseSchedule NoiseScheduleFor(int degree, double residual_ratio) {
     s.final_clean_stencils = true;
     if (degree >= 4) s.final_weight_epsilon = 0.1, s.final_points_factor = 2;
     if (degree == 3) s.final_rings = 1.5, s.final_points_factor = 1;
-    if (degree >= 3) s.local_passes = 2;
+    if (degree >= 3 && residual_ratio >= kLocalSmoothingResidualRatio) s.local_passes = 2;
   }
-  if (const char* e = std::getenv("NS_EPS")) s.final_weight_epsilon = std::atof(e);
-  if (const char* e = std::getenv("NS_PF")) s.final_points_factor = std::atof(e);
-  if (const char* e = std::getenv("NS_PASSES")) s.smoothing_passes = std::atoi(e);
-  if (const char* e = std::getenv("NS_LOCAL")) s.local_passes = std::atoi(e);
-  if (const char* e = std::getenv("NS_RINGS")) s.final_rings = std::atof(e);
-  if (const char* e = std::getenv("NS_SDEG")) s.smoothing_degree = std::atoi(e);
   return s;
 }
 
@@ -57,11 +52,11 @@ FitOptions NoiseSmoothingOptions(const FitOptions& options, const NoiseSchedule&
   return o;
 }
 
-std::vector<uint8_t> NoiseDominatedVertices(const SurfaceFits& fits, const Mesh& mesh, double noise_over_h,
-                                            int num_threads) {
+std::vector<double> LocalSmoothingSteps(const SurfaceFits& fits, const Mesh& mesh, double noise_over_h,
+                                        int num_threads) {
   const double h = AverageEdgeLength(mesh), noise = noise_over_h * h;
-  std::vector<uint8_t> out(fits.num_vertices(), 0);
-  if (fits.dims() != 1) return out;
+  std::vector<double> out(fits.num_vertices(), 0);
+  if (fits.dims() != 1 || !(noise > 0)) return out;
   ParallelFor(fits.num_vertices(), num_threads, [&](int64_t v) {
     const int p = fits.diagnostics(static_cast<int>(v)).degree_used;
     if (p < 1) return;
@@ -72,7 +67,8 @@ std::vector<uint8_t> NoiseDominatedVertices(const SurfaceFits& fits, const Mesh&
       const double a = c[TaylorIndex(p - k, k)] / fjk;
       sum += a * a;
     }
-    out[v] = std::sqrt(sum) * std::pow(h, p) < (std::getenv("NS_SIG") ? std::atof(std::getenv("NS_SIG")) : kLocalSmoothingSignal) * noise;
+    const double q = std::sqrt(sum) * std::pow(h, p) / (kLocalSmoothingSignal * noise);
+    out[v] = 1 / (1 + q * q);
   });
   return out;
 }
