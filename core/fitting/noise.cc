@@ -27,7 +27,7 @@ NoiseSchedule NoiseScheduleFor(int degree, double residual_ratio) {
   if (residual_ratio >= kHeavyNoiseResidualRatio) {
     s.smoothing_degree = 3;
     s.final_weight_epsilon = degree >= 4 ? kNoiseWeightEpsilon : 0.01;
-    s.final_clean_stencils = degree == 3;
+    s.final_clean_stencils = degree == 3 && residual_ratio < kVeryHeavyNoiseResidualRatio;
     if (degree >= 3 && residual_ratio < kModerateNoiseResidualRatio)
       s.smoothing_degree = std::min(degree + 2, 5), s.smoothing_passes = 4, s.cubic_near_boundary = true;
   } else {

@@ -49,6 +49,11 @@ inline constexpr double kLocalSmoothingSignal = 0.3;
 inline constexpr double kLocalSmoothingResidualRatio = 0.032;
 /// Residual ratio (NoiseEstimate) from which the noise dominates the truncation error.
 inline constexpr double kHeavyNoiseResidualRatio = 0.2;
+/// From this residual ratio on the degree-3 final fit, too, takes the noise stencils: the
+/// noise then dominates its curvatures (alpha 0.5 h^2 at n = 64: ratio 0.73-0.75, torus K
+/// 0.70 -> 0.60x CGAL; a gmsh torus at h = 0.0127: H / K 0.83 / 0.80 -> 0.67 / 0.64x), while
+/// at 0.44-0.49 (alpha 0.2) the bump's K needs the clean ones (1.00x on the noise stencils).
+inline constexpr double kVeryHeavyNoiseResidualRatio = 0.6;
 /// Below it (and from kHeavyNoiseResidualRatio) the noise is moderate: at degree >= 3 the
 /// truncation error of cubic smoothing still dominates the curvatures.
 inline constexpr double kModerateNoiseResidualRatio = 0.35;
@@ -57,7 +62,7 @@ inline constexpr double kModerateNoiseResidualRatio = 0.35;
 /// the final fit differentiates into O(h) curvature errors) and which average more noise
 /// than quartics on the stencils they need. After smoothing, the final fit uses the text's
 /// steep weights at degrees <= 3, where the truncation error of a large stencil dominates
-/// (at degree 3 also the clean stencils), and flat weights on the noise stencils at degree
+/// (at degree 3 also the clean stencils, below kVeryHeavyNoiseResidualRatio), and flat weights on the noise stencils at degree
 /// >= 4, where the noise still dominates (measured choices, bench/README.md).
 /// Light noise (O(h^3), small O(h^2)): the truncation error dominates, so the smoothing
 /// fits are of degree d + 2 (<= 5) and the final fit is the clean one (clean stencils,

@@ -262,6 +262,7 @@ TEST(NoiseAwareTest, ScheduleFollowsTheResidualRatio) {
   EXPECT_EQ(heavy.final_weight_epsilon, 0.01);
   EXPECT_EQ(NoiseScheduleFor(4, 0.5).final_weight_epsilon, kNoiseWeightEpsilon);
   EXPECT_TRUE(NoiseScheduleFor(3, 0.5).final_clean_stencils);
+  EXPECT_FALSE(NoiseScheduleFor(3, 0.7).final_clean_stencils);  // very heavy: noise stencils
   EXPECT_EQ(light.smoothing_degree, 5);
   EXPECT_EQ(NoiseScheduleFor(2, 0.05).smoothing_degree, 4);
   EXPECT_TRUE(light.final_clean_stencils);
