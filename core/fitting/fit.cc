@@ -293,26 +293,32 @@ class SurfaceFitter {
     // Noise-aware fitting (noise.h): `o` resolved, smoothing-by-projection passes first.
     FitOptions eff = o;
     NoiseSchedule schedule;
+    double noise_over_h = 0;
     if (o.noise != NoiseMode::kOff) {
       // Reported as a phase where it decides (auto); with kOn it only sets the schedule.
       GF_ASSIGN_OR_RETURN(const NoiseEstimate est,
                           EstimateNoise(mesh, topo, normals, o.noise == NoiseMode::kAuto ? ctx : ctx.WithProgress(nullptr)));
       if (o.noise == NoiseMode::kAuto) eff.noise = est.noisy ? NoiseMode::kOn : NoiseMode::kOff;
       schedule = NoiseScheduleFor(o.degree, est.residual_ratio);
+      noise_over_h = est.noise_over_h;
     }
     // The final fit's stencils (the clean ones under light noise, when not set explicitly).
     FitOptions final_spec = eff;
+    bool clean_tangent = false;  // the final fit keeps a clean-stencil fit's tangent plane
     if (eff.noise == NoiseMode::kOn && schedule.final_clean_stencils) {
       final_spec.noise = NoiseMode::kOff;
       if (final_spec.min_points_factor == 0) final_spec.min_points_factor = schedule.final_points_factor;
+      if (final_spec.rings == 0) final_spec.rings = schedule.final_rings, clean_tangent = schedule.final_rings > 0;
     }
     if (RingSpecFor(final_spec).rings != RingSpecFor(o).rings ||
         RingSpecFor(final_spec).min_points != RingSpecFor(o).min_points)
       nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, mesh, RingSpecFor(final_spec), ctx.threads()));
     eff.interpolate = eff.Interpolates();
     if (eff.noise == NoiseMode::kOn) eff.weight_epsilon = kNoiseWeightEpsilon;
-    const int smoothing = eff.noise == NoiseMode::kOn && o.smoothing_passes < 0 ? schedule.smoothing_passes
-                                                                                : eff.SmoothingPasses();
+    // The schedule's passes, then its local ones (noise.h), when the count is automatic.
+    const bool scheduled = eff.noise == NoiseMode::kOn && o.smoothing_passes < 0;
+    const int smoothing = scheduled ? schedule.smoothing_passes + schedule.local_passes : eff.SmoothingPasses();
+    std::vector<double> local_smoothing;  // the local passes' steps per vertex
     const int passes = smoothing + (o.two_pass ? 2 : 1);
     Mesh smoothed;  // positions after the smoothing passes (faces unused)
     const Mesh* input = &mesh;
@@ -336,7 +342,9 @@ class SurfaceFitter {
     for (int pass = 0; pass < passes; ++pass) {
       if (pass > 0) adopt_normals(*fits, nullptr);
       if (pass > 0 && pass <= smoothing) {
-        smoothed.positions = ProjectOntoFits(*fits, input->positions, ctx.threads());
+        const bool local = scheduled && pass > schedule.smoothing_passes;
+        smoothed.positions = ProjectOntoFits(*fits, input->positions, ctx.threads(),
+                                             local ? local_smoothing.data() : nullptr);
         if (boundary_fits)  // vertices within a ring of the boundary onto their cubic fits
           ParallelFor(mesh.NumVertices(), ctx.threads(), [&](int64_t v) {
             bool near = topo.is_boundary[v];
@@ -370,10 +378,16 @@ class SurfaceFitter {
       const std::string phase = pass < smoothing ? absl::StrFormat("smooth %d/%d", pass + 1, smoothing)
                                 : last           ? std::string("fit")
                                                  : std::string("frames");
-      if (last && eff.NormalDegree() > eff.degree) {  // the final frames from a higher-degree fit
+      // The final frames from a higher-degree fit, or (noise schedule with final_rings) from
+      // the same degree's fit on the clean stencils, which the final fit's smaller ones keep.
+      if (last && (eff.NormalDegree() > eff.degree || clean_tangent)) {
         FitOptions pre = eff;
         pre.degree = pre.normal_degree = eff.NormalDegree();
         pre.rings = pre.min_points_factor = 0;
+        if (clean_tangent) {
+          pre.noise = NoiseMode::kOff;
+          pre.weight_epsilon = schedule.final_weight_epsilon;
+        }
         const auto pre_nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, *input, RingSpecFor(pre), ctx.threads()));
         SurfaceFits pre_fits;
         if (absl::Status s = FitAll(*input, topo, pre, pre_nb, normals, FitRequest{}, ctx, nullptr, nullptr, "normals",
@@ -388,6 +402,8 @@ class SurfaceFitter {
                                   fixed_tangent.empty() ? nullptr : fixed_tangent.data(), phase, *fits);
           !s.ok())
         return s;
+      if (scheduled && pass == 0 && schedule.local_passes > 0)
+        local_smoothing = LocalSmoothingSteps(*fits, mesh, noise_over_h, ctx.threads());
       // Moderate noise: the smoothing fits above cubic extrapolate the one-sided stencils
       // of the boundary (normal Linf 1.3x there, bench/README.md third round); cubic ones.
       if (eff.noise == NoiseMode::kOn && pass < smoothing && schedule.cubic_near_boundary && has_boundary) {

@@ -10,11 +10,14 @@
 
 namespace geomfit {
 
-Positions ProjectOntoFits(const SurfaceFits& fits, const Positions& positions, int num_threads) {
+Positions ProjectOntoFits(const SurfaceFits& fits, const Positions& positions, int num_threads,
+                          const double* step) {
   Positions out = positions;
   ParallelFor(fits.num_vertices(), num_threads, [&](int64_t v) {
-    if (fits.diagnostics(static_cast<int>(v)).degree_used >= 1)
-      out.row(v) = fits.Jet(static_cast<int>(v)).x.transpose();
+    if (fits.diagnostics(static_cast<int>(v)).degree_used < 1) return;
+    const Eigen::Vector3d x = fits.Jet(static_cast<int>(v)).x;
+    if (!step) out.row(v) = x.transpose();
+    else if (step[v] > 0) out.row(v) += step[v] * (x.transpose() - positions.row(v));
   });
   return out;
 }
@@ -24,13 +27,15 @@ NoiseSchedule NoiseScheduleFor(int degree, double residual_ratio) {
   if (residual_ratio >= kHeavyNoiseResidualRatio) {
     s.smoothing_degree = 3;
     s.final_weight_epsilon = degree >= 4 ? kNoiseWeightEpsilon : 0.01;
-    s.final_clean_stencils = degree == 3;
+    s.final_clean_stencils = degree == 3 && residual_ratio < kVeryHeavyNoiseResidualRatio;
     if (degree >= 3 && residual_ratio < kModerateNoiseResidualRatio)
       s.smoothing_degree = std::min(degree + 2, 5), s.smoothing_passes = 4, s.cubic_near_boundary = true;
   } else {
     s.smoothing_degree = std::min(degree + 2, 5);
     s.final_clean_stencils = true;
     if (degree >= 4) s.final_weight_epsilon = 0.1, s.final_points_factor = 2;
+    if (degree == 3) s.final_rings = 1.5, s.final_points_factor = 1;
+    if (degree >= 3 && residual_ratio >= kLocalSmoothingResidualRatio) s.local_passes = 2;
   }
   return s;
 }
@@ -45,6 +50,27 @@ FitOptions NoiseSmoothingOptions(const FitOptions& options, const NoiseSchedule&
   o.normal_degree = 0;
   o.two_pass = false;
   return o;
+}
+
+std::vector<double> LocalSmoothingSteps(const SurfaceFits& fits, const Mesh& mesh, double noise_over_h,
+                                        int num_threads) {
+  const double h = AverageEdgeLength(mesh), noise = noise_over_h * h;
+  std::vector<double> out(fits.num_vertices(), 0);
+  if (fits.dims() != 1 || !(noise > 0)) return out;
+  ParallelFor(fits.num_vertices(), num_threads, [&](int64_t v) {
+    const int p = fits.diagnostics(static_cast<int>(v)).degree_used;
+    if (p < 1) return;
+    const double* c = fits.coefficients(static_cast<int>(v));
+    double sum = 0, fjk = std::tgamma(p + 1.0);  // j! k! for j = p - k
+    for (int k = 0; k <= p; ++k) {
+      if (k > 0) fjk = fjk / (p - k + 1) * k;
+      const double a = c[TaylorIndex(p - k, k)] / fjk;
+      sum += a * a;
+    }
+    const double q = std::sqrt(sum) * std::pow(h, p) / (kLocalSmoothingSignal * noise);
+    out[v] = 1 / (1 + q * q);
+  });
+  return out;
 }
 
 namespace {

@@ -1,5 +1,6 @@
 #pragma once
 #include <memory>
+#include <vector>
 
 #include "absl/status/statusor.h"
 #include "core/fitting/fit.h"
@@ -33,9 +34,26 @@ struct NoiseSchedule {
   double final_points_factor = 0;     ///< and their growth factor (0: the clean one)
   int smoothing_passes = 2;           ///< passes when FitOptions::smoothing_passes is automatic
   bool cubic_near_boundary = false;   ///< smoothing fits within a ring of the boundary cubic
+  /// Further passes after smoothing_passes, each moving every vertex by its
+  /// LocalSmoothingSteps from the first pass's fits (automatic pass count only).
+  int local_passes = 0;
+  /// The final fit's rings on the clean stencils (0: (d+1)/2); when set, the final fit
+  /// keeps the tangent plane of a fit of its degree on the (d+1)/2-ring clean stencils.
+  double final_rings = 0;
 };
+/// LocalSmoothingSteps: the top-degree part's scale against the noise level.
+inline constexpr double kLocalSmoothingSignal = 0.3;
+/// Light noise from this residual ratio on (O(h^3), alpha 0.5: 0.040-0.048 at n = 64)
+/// gets the local passes; below it (alpha <= 0.2: <= 0.024) the smoothing fits' own bias
+/// outweighs the noise they average.
+inline constexpr double kLocalSmoothingResidualRatio = 0.032;
 /// Residual ratio (NoiseEstimate) from which the noise dominates the truncation error.
 inline constexpr double kHeavyNoiseResidualRatio = 0.2;
+/// From this residual ratio on the degree-3 final fit, too, takes the noise stencils: the
+/// noise then dominates its curvatures (alpha 0.5 h^2 at n = 64: ratio 0.73-0.75, torus K
+/// 0.70 -> 0.60x CGAL; a gmsh torus at h = 0.0127: H / K 0.83 / 0.80 -> 0.67 / 0.64x), while
+/// at 0.44-0.49 (alpha 0.2) the bump's K needs the clean ones (1.00x on the noise stencils).
+inline constexpr double kVeryHeavyNoiseResidualRatio = 0.6;
 /// Below it (and from kHeavyNoiseResidualRatio) the noise is moderate: at degree >= 3 the
 /// truncation error of cubic smoothing still dominates the curvatures.
 inline constexpr double kModerateNoiseResidualRatio = 0.35;
@@ -44,12 +62,17 @@ inline constexpr double kModerateNoiseResidualRatio = 0.35;
 /// the final fit differentiates into O(h) curvature errors) and which average more noise
 /// than quartics on the stencils they need. After smoothing, the final fit uses the text's
 /// steep weights at degrees <= 3, where the truncation error of a large stencil dominates
-/// (at degree 3 also the clean stencils), and flat weights on the noise stencils at degree
+/// (at degree 3 also the clean stencils, below kVeryHeavyNoiseResidualRatio), and flat weights on the noise stencils at degree
 /// >= 4, where the noise still dominates (measured choices, bench/README.md).
 /// Light noise (O(h^3), small O(h^2)): the truncation error dominates, so the smoothing
 /// fits are of degree d + 2 (<= 5) and the final fit is the clean one (clean stencils,
 /// steep weights), approximating, on the smoothed mesh; at degree >= 4 on 2x the
 /// coefficients with eps = 0.1 (its truncation error is small, the noise still counts).
+/// At degree 3 the final fit's Hessian comes from 1.5 rings (>= 1x the coefficients: less
+/// truncation error) in the tangent plane of a degree-3 fit on the clean 2 rings; at
+/// degree >= 3 with residual ratio >= kLocalSmoothingResidualRatio two local passes follow
+/// the two smoothing passes (LocalSmoothingSteps), which the torus wants and the strongly
+/// curved bump's centre does not (bench/README.md, fourth round).
 /// Moderate noise (small O(h^2), residual ratio in [0.2, 0.35)) at degree >= 3: the heavy
 /// schedule's final fit after 4 smoothing passes of degree d + 2 (<= 5), whose foot points
 /// carry no quartic-term bias (which cubic smoothing leaves on a strongly curved surface)
@@ -62,8 +85,19 @@ NoiseSchedule NoiseScheduleFor(int degree, double residual_ratio);
 FitOptions NoiseSmoothingOptions(const FitOptions& options, const NoiseSchedule& schedule);
 
 /// Every vertex moved onto its own fit (the fit's point at its origin, x(0, 0) of
-/// Table 3.1); vertices without a fit keep `positions`.
-Positions ProjectOntoFits(const SurfaceFits& fits, const Positions& positions, int num_threads = 0);
+/// Table 3.1); vertices without a fit, or not marked in `only` (when given), keep `positions`.
+Positions ProjectOntoFits(const SurfaceFits& fits, const Positions& positions, int num_threads = 0,
+                          const double* step = nullptr);
+
+/// The step of the local smoothing passes per vertex: 1 / (1 + q^2) of the way to its
+/// fit's foot point, q = (the fit's top-degree part over one edge length h, |c_jk / (j! k!)|
+/// h^p over j + k = p) / (kLocalSmoothingSignal x the noise level noise_over_h h). Where the
+/// surface shows no high-order content above the noise (q << 1) a further pass averages
+/// noise; where it does (the bump's centre: q up to 10) it would add the bias of the
+/// surface's higher terms, so the vertex stays (a Wiener-like weight: continuous, no
+/// seams between moved and kept vertices). LHF fits only (all 0 otherwise).
+std::vector<double> LocalSmoothingSteps(const SurfaceFits& fits, const Mesh& mesh, double noise_over_h,
+                                        int num_threads = 0);
 
 /// The noise test of NoiseMode::kAuto, on a sample of vertices: approximating degree-2
 /// and degree-4 fits on the same (>= 40-point) stencil. On smooth data the quartic's

@@ -178,7 +178,8 @@ def test_remote_progress_comes_from_the_server(server, tmp_path):
         ("refine", torus, "--output", str(tmp_path / "r.obj"), "--degree", "4"): ["evaluate points"],
         ("curvature", torus, "--degree", "3"): ["fit", "compute"],
         # every pass of the noise-aware fit, from the server
-        ("curvature", torus, "--degree", "4", "--noise", "on"): ["smooth 1/2", "smooth 2/2", "fit"],
+        # (a clean mesh: light noise, two smoothing and two local passes at degree 4)
+        ("curvature", torus, "--degree", "4", "--noise", "on"): ["smooth 1/4", "smooth 2/4", "smooth 4/4", "fit"],
     }
     for args, phases in commands.items():
         shown = run(*args, "--server", address, "--progress")

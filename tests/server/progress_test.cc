@@ -228,14 +228,16 @@ TEST_F(ProgressStreamTest, DifferentialsReportEachSmoothingPassThenTheSameRows) 
   v1::ComputeDifferentialsRequest request;
   request.set_mesh_id(id_);
   request.mutable_options()->set_degree(4);
-  request.mutable_options()->set_noise(v1::NOISE_MODE_ON);  // two smoothing passes, then the fit
+  request.mutable_options()->set_noise(v1::NOISE_MODE_ON);  // light noise at degree 4: two smoothing
+                                                            // and two local passes, then the fit
   request.set_diagnostics(true);
   request.set_chunk_rows(250);
   request.set_progress(true);
   grpc::ClientContext ctx;
   // The smoothing passes' progress before any row; the last pass's among the rows.
   const std::vector<v1::ComputeDifferentialsResponse> with = ResultsAfterProgress(
-      ReadAll(server_.stub().ComputeDifferentials(&ctx, request)), {"smooth 1/2", "smooth 2/2", "fit"}, "fit");
+      ReadAll(server_.stub().ComputeDifferentials(&ctx, request)), {"smooth 1/4", "smooth 2/4", "smooth 3/4", "smooth 4/4", "fit"},
+      "fit");
   ASSERT_EQ(with.size(), static_cast<size_t>((mesh_.NumVertices() + 249) / 250));
   EXPECT_FALSE(with.back().summary().fit_cache_hit());
   // The same computation on a server of its own (not cached), without progress.
