@@ -73,7 +73,8 @@ struct FitOptions {
   NoiseMode noise = NoiseMode::kOff;
   /// Smoothing-by-projection passes before the final fit (§4.2.3: every vertex moves to
   /// its own approximating fit, then all are refitted); -1 = automatic: 0, or with noise the
-  /// schedule's (NoiseScheduleFor: 2, or 4 under moderate noise at degree >= 3).
+  /// schedule's (NoiseScheduleFor: 2, or 4 under moderate noise at degree >= 3, plus two
+  /// per-vertex local passes under light noise at degree >= 3; noise.h).
   int smoothing_passes = -1;
   WlsSolver solver = WlsSolver::kQR;
   /// Degree of a first LHF fit whose normals fix the final fit's tangent planes: the

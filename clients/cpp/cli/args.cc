@@ -201,7 +201,8 @@ void AddCurvatureOptions(ArgParser* p, CurvatureArgs* a) {
               "d/2+1 rings after smoothing passes (on), or where the mesh looks noisy (auto)",
               "off|on|auto")
       .Int("smoothing-passes", &f.smoothing_passes,
-           "smoothing-by-projection passes before the fit; -1 = automatic (2 with --noise on)")
+           "smoothing-by-projection passes before the fit; -1 = automatic (with --noise on: "
+           "2-4, chosen from the measured noise; see the user guide)")
       .Int("normal-degree", &f.normal_degree,
            "normal refinement: a first fit of this degree (> --degree) fixes the tangent "
            "plane (--degree 2 --normal-degree 3: O(h^3) normals); 0 = off")
