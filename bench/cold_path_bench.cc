@@ -19,7 +19,9 @@
 // labels (plain BuildTopology); shuffled:7 and 8 are the same two for the generated
 // torus, shuffled:4 the generated torus renumbered like shuffled:3, and shuffled:9 is
 // shuffled:6 with every row sorted by angle around its vertex from one direction field
-// (the stencils' points in another order: not the CLI's results). `--stats` prints each
+// (the stencils' points in another order); shuffled:10 and 11 are FILE and the generated
+// torus relabelled with RowOrder::kRotational rows (what the CLI fits on since the
+// sixth round; shuffled:5 and 7 use RowOrder::kSource). `--stats` prints each
 // variant's mean stencil size and ring per degree instead of timing.
 //
 // `cold_path_bench --dump=FILE` writes every output (topologies, neighbourhoods at
@@ -83,7 +85,7 @@ struct Variant {
 std::string g_mesh_path;  // --mesh
 
 struct Fixture {
-  Variant v[10];
+  Variant v[12];
   int count = 2;  // variants in --dump and --stats (v[5]-v[9], with --mesh, timed only)
   Fixture() {
     GeneratorOptions g;
@@ -108,7 +110,9 @@ struct Fixture {
       Renumber(v[0], v[count++]);
       // shuffled:5, FILE relabelled as `geomfit curvature --local` does (rows in source order).
       LocalityRelabelling r = RelabelForLocality(x.mesh).value();
-      v[5].topo = BuildTopology(r).value();
+      v[10].topo = BuildTopology(r, RowOrder::kRotational).value();
+      v[10].mesh = r.mesh;
+      v[5].topo = BuildTopology(r, RowOrder::kSource).value();
       v[5].mesh = std::move(r.mesh);
       // shuffled:6, the same relabelled mesh with plain BuildTopology (rows sorted by the
       // new labels): the same memory layout as shuffled:5, other row order.
@@ -116,7 +120,9 @@ struct Fixture {
       v[6].topo = BuildTopology(v[6].mesh).value();
       // shuffled:7 and 8, the same two for the generated torus.
       LocalityRelabelling r2 = RelabelForLocality(v[0].mesh).value();
-      v[7].topo = BuildTopology(r2).value();
+      v[11].topo = BuildTopology(r2, RowOrder::kRotational).value();
+      v[11].mesh = r2.mesh;
+      v[7].topo = BuildTopology(r2, RowOrder::kSource).value();
       v[7].mesh = std::move(r2.mesh);
       v[8].mesh = v[7].mesh;
       v[8].topo = BuildTopology(v[8].mesh).value();
@@ -330,7 +336,7 @@ int main(int argc, char** argv) {
         ->UseRealTime();
     benchmark::RegisterBenchmark("BM_Neighborhoods", BM_Neighborhoods)
         ->ArgNames({"shuffled", "deg", "threads"})
-        ->ArgsProduct({{2, 3, 4, 5, 6, 7, 8, 9}, {2, 4}, {1, 2}})
+        ->ArgsProduct({{2, 3, 4, 5, 6, 7, 8, 9, 10, 11}, {2, 4}, {1, 2}})
         ->Unit(benchmark::kMillisecond)
         ->UseRealTime();
   }

@@ -429,13 +429,88 @@ absl::StatusOr<LocalityRelabelling> RelabelForLocality(const Mesh& mesh) {
   return r;
 }
 
-absl::StatusOr<Topology> BuildTopology(const LocalityRelabelling& relabelled) {
+namespace {
+
+// Rewrites every row of `t` (a topology of `m`) in fan order (RowOrder::kRotational).
+// Per vertex: its faces' spokes (the corners after and before it), each face's successor
+// around the vertex found through `by_next` (spoke -> the local face whose next spoke it
+// is; one array for all vertices, reset after each), then one walk from the fan's start.
+// Linear in the mesh size; the per-vertex scratch only grows.
+void RotationalRows(const Mesh& m, Topology* t) {
+  const int nv = t->num_vertices;
+  const double* P = m.positions.data();
+  const double dx = kRowDirection[0], dy = kRowDirection[1], dz = kRowDirection[2];
+  std::vector<int32_t> by_next(nv, -1);
+  std::vector<int32_t> next, prev, succ, face, spoke;
+  std::vector<uint8_t> has_pred;
+  for (int v = 0; v < nv; ++v) {
+    const int k = t->NumVertexFaces(v);
+    if (k == 0) continue;
+    int32_t* faces = t->vf_faces.data() + t->vf_offsets[v];
+    int32_t* nbrs = t->vv.data() + t->vv_offsets[v];
+    if (static_cast<int>(next.size()) < k) {
+      next.resize(k), prev.resize(k), succ.resize(k), face.resize(k), spoke.resize(k + 1), has_pred.resize(k);
+    }
+    for (int i = 0; i < k; ++i) {
+      const int32_t* row = m.faces.data() + 4 * static_cast<int64_t>(faces[i]);
+      const int n = row[3] < 0 ? 3 : 4;
+      const int c = (row[1] == v) + 2 * (row[2] == v) + 3 * (row[3] == v);
+      next[i] = row[c + 1 < n ? c + 1 : 0];
+      prev[i] = row[c > 0 ? c - 1 : n - 1];
+      by_next[next[i]] = i;
+      has_pred[i] = 0;
+    }
+    for (int i = 0; i < k; ++i) {
+      succ[i] = by_next[prev[i]];  // the face across the edge (v, prev[i]), or -1
+      if (succ[i] >= 0) has_pred[succ[i]] = 1;
+    }
+    for (int i = 0; i < k; ++i) by_next[next[i]] = -1;
+    // The start: an open fan's first face (its next spoke on the boundary); a closed
+    // fan's face whose next spoke is nearest kRowDirection, by cos^2 with its sign.
+    int start = -1;
+    for (int i = 0; i < k && start < 0; ++i)
+      if (!has_pred[i]) start = i;
+    const bool open = start >= 0;
+    if (!open) {
+      const double* x = P + 3 * static_cast<int64_t>(v);
+      double best = -std::numeric_limits<double>::infinity();
+      for (int i = 0; i < k; ++i) {
+        const double* y = P + 3 * static_cast<int64_t>(next[i]);
+        const double s0 = y[0] - x[0], s1 = y[1] - x[1], s2 = y[2] - x[2];
+        const double dot = s0 * dx + s1 * dy + s2 * dz, len2 = s0 * s0 + s1 * s1 + s2 * s2;
+        const double score = dot * std::abs(dot) / len2;
+        if (score > best) best = score, start = i;
+      }
+    }
+    // The walk (a manifold vertex's faces form one path or cycle of successors; the
+    // rows stay as built should a fan not, which BuildTopology's checks exclude).
+    int count = 0, last = start;
+    for (int i = start; i >= 0 && count < k; i = succ[i]) {
+      face[count] = faces[i];
+      spoke[count++] = next[i];
+      last = i;
+      if (succ[i] == start) break;
+    }
+    if (open) spoke[count] = prev[last];
+    if (count != k || count + open != t->NumNeighbors(v)) continue;
+    std::copy_n(face.data(), k, faces);
+    std::copy_n(spoke.data(), k + open, nbrs);
+  }
+}
+
+}  // namespace
+
+absl::StatusOr<Topology> BuildTopology(const LocalityRelabelling& relabelled, RowOrder order) {
   absl::StatusOr<Topology> t = BuildTopology(relabelled.mesh);
   if (!t.ok()) return t;
-  for (int v = 0; v < t->num_vertices; ++v) {
-    SortRowByKey(t->vv.data() + t->vv_offsets[v], t->vv.data() + t->vv_offsets[v + 1], relabelled.vertex_source);
-    SortRowByKey(t->vf_faces.data() + t->vf_offsets[v], t->vf_faces.data() + t->vf_offsets[v + 1],
-                 relabelled.face_source);
+  if (order == RowOrder::kRotational) {
+    RotationalRows(relabelled.mesh, &*t);
+  } else {
+    for (int v = 0; v < t->num_vertices; ++v) {
+      SortRowByKey(t->vv.data() + t->vv_offsets[v], t->vv.data() + t->vv_offsets[v + 1], relabelled.vertex_source);
+      SortRowByKey(t->vf_faces.data() + t->vf_offsets[v], t->vf_faces.data() + t->vf_offsets[v + 1],
+                   relabelled.face_source);
+    }
   }
   t->vertex_faces_ascending = false;
   return t;

@@ -15,7 +15,8 @@ struct Topology {
   bool has_quads = false;
   /// vertex -> incident faces: vf_faces[vf_offsets[v] .. vf_offsets[v+1]).
   std::vector<int32_t> vf_offsets, vf_faces;
-  /// vertex -> vertices sharing an edge, sorted: vv[vv_offsets[v] .. vv_offsets[v+1]).
+  /// vertex -> vertices sharing an edge, sorted: vv[vv_offsets[v] .. vv_offsets[v+1])
+  /// (BuildTopology of a LocalityRelabelling: in its RowOrder instead).
   std::vector<int32_t> vv_offsets, vv;
   std::vector<uint8_t> is_boundary;  ///< 1 for vertices on a boundary edge
   std::vector<uint8_t> is_isolated;  ///< 1 for vertices in no face (allowed, flagged)
@@ -27,7 +28,7 @@ struct Topology {
   int num_isolated = 0;
   /// True when every vf row lists its faces in increasing face index (BuildTopology of a
   /// mesh); false for BuildTopology of a LocalityRelabelling, whose rows follow the
-  /// source's face order. Face-by-face passes that accumulate per vertex match per-fan
+  /// source's face order or the fan's (RowOrder). Face-by-face passes that accumulate per vertex match per-fan
   /// passes only in the first case.
   bool vertex_faces_ascending = true;
 
@@ -82,12 +83,33 @@ bool HasLocalNumbering(const Topology& topo);
 /// (no message worth showing: validate the source for that).
 absl::StatusOr<LocalityRelabelling> RelabelForLocality(const Mesh& mesh);
 
-/// Topology of a relabelled mesh with each row in the source's order: neighbours by
-/// source vertex index, incident faces by source face index. Per-vertex work over it
-/// (stencils, vertex normals) then performs the source's operations in the source's
-/// order, so its results equal the source's bit for bit (in relabelled order). Fails
-/// exactly when BuildTopology(source) fails, with a message naming relabelled indices:
-/// report BuildTopology(source)'s instead.
-absl::StatusOr<Topology> BuildTopology(const LocalityRelabelling& relabelled);
+/// How BuildTopology(LocalityRelabelling) orders each vertex's neighbour and face rows.
+enum class RowOrder {
+  /// The source's order: neighbours by source vertex index, incident faces by source
+  /// face index. Per-vertex work over it (stencils, vertex normals) then performs the
+  /// source's operations in the source's order: results equal the source's bit for bit.
+  kSource,
+  /// Fan order: faces as they follow each other around the vertex (the faces'
+  /// orientation), neighbours as the fan's spokes; a closed fan starts at the spoke
+  /// nearest one fixed direction (kRowDirection), an open one at its boundary edge. The
+  /// same geometric pattern at every vertex, as a generated mesh's index-sorted rows
+  /// have: ring growth's branches predict as well as on a generated mesh, whatever the
+  /// source's numbering (bench/README.md, "Issue 15, sixth round"). Stencils hold the
+  /// same point sets as with kSource in another order, so results equal the source's to
+  /// round-off, not bit for bit.
+  kRotational,
+};
+
+/// The direction a closed fan starts from (RowOrder::kRotational): fixed, generic
+/// (parallel to no axis, so an axis-aligned plane or a surface of revolution about an
+/// axis has it along its normal at isolated points at most).
+inline constexpr double kRowDirection[3] = {0.8, 0.5, 0.33};
+
+/// Topology of a relabelled mesh with its rows in `order` (the relabelled mesh's own
+/// BuildTopology sorts them by relabelled index instead). Fails exactly when
+/// BuildTopology(source) fails, with a message naming relabelled indices: report
+/// BuildTopology(source)'s instead.
+absl::StatusOr<Topology> BuildTopology(const LocalityRelabelling& relabelled,
+                                       RowOrder order = RowOrder::kRotational);
 
 }  // namespace geomfit

@@ -386,7 +386,7 @@ TEST(LocalityRelabellingTest, TopologyRowsFollowTheSource) {
       ASSERT_LE(lowest(f - 1), lowest(f));
     }
     const Topology t = BuildTopology(m).value();
-    const Topology u = BuildTopology(r).value();
+    const Topology u = BuildTopology(r, RowOrder::kSource).value();
     EXPECT_FALSE(u.vertex_faces_ascending);
     EXPECT_TRUE(t.vertex_faces_ascending);
     EXPECT_EQ(u.num_boundary_edges, t.num_boundary_edges);
@@ -403,6 +403,100 @@ TEST(LocalityRelabellingTest, TopologyRowsFollowTheSource) {
       ASSERT_EQ(faces, VertexFaces(t, s)) << v;
     }
   }
+}
+
+// The corners after and before v in face f of m.
+std::array<int32_t, 2> Spokes(const Mesh& m, int f, int v) {
+  int c = 0;
+  while (m.faces(f, c) != v) ++c;
+  return {m.Next(f, c), m.Prev(f, c)};
+}
+
+// A torus with holes: the faces around every 37th vertex removed (that vertex left
+// isolated, a boundary loop around each hole), some holes joined into larger ones.
+Mesh HoledTorus(const GeneratorOptions& g) {
+  const Mesh m = GenerateTorusMesh(g);
+  std::vector<uint8_t> drop(m.NumFaces(), 0);
+  for (int f = 0; f < m.NumFaces(); ++f)
+    for (int c = 0; c < m.FaceSize(f); ++c) drop[f] |= m.faces(f, c) % 37 == 0;
+  std::vector<std::array<int32_t, 4>> kept;
+  for (int f = 0; f < m.NumFaces(); ++f)
+    if (!drop[f]) kept.push_back({m.faces(f, 0), m.faces(f, 1), m.faces(f, 2), m.FaceSize(f) == 4 ? m.faces(f, 3) : -1});
+  Mesh out;
+  out.positions = m.positions;
+  Faces faces(static_cast<int>(kept.size()), 4);
+  for (size_t f = 0; f < kept.size(); ++f) std::copy_n(kept[f].data(), 4, faces.data() + 4 * f);
+  out.faces = std::move(faces);
+  return out;
+}
+
+// RowOrder::kRotational: the source's rows as sets, each vertex's faces in fan order
+// (each face's next spoke the previous face's prev spoke, closing the cycle on a closed
+// fan), its neighbours the fan's spokes; an open fan (a boundary vertex) starts at its
+// boundary edge, a closed one at the spoke nearest kRowDirection. Shuffled numberings,
+// quads, a Delaunay sphere, open meshes with one, two and many boundary loops, isolated
+// vertices.
+TEST(LocalityRelabellingTest, RotationalRowsAreFans) {
+  GeneratorOptions g;
+  g.n = 10;
+  GeneratorOptions q = g;
+  q.quads = true;
+  const Mesh meshes[] = {GenerateTorusMesh(g),        GenerateBumpMesh(q), GenerateTorusMesh(q),
+                         GenerateDelaunaySphereMesh(500, 0.3), GenerateOpenCylinderMesh(g),
+                         HoledTorus(g),               HoledTorus(q)};
+  int open_fans = 0, closed_fans = 0, isolated = 0;
+  for (const Mesh& base : meshes) {
+    const Mesh m = testing_util::ShuffleVertices(base, 5);
+    const LocalityRelabelling r = RelabelForLocality(m).value();
+    const Mesh& rm = r.mesh;
+    const Topology t = BuildTopology(m).value();
+    const Topology u = BuildTopology(r, RowOrder::kRotational).value();
+    const Topology s = BuildTopology(r, RowOrder::kSource).value();
+    EXPECT_FALSE(u.vertex_faces_ascending);
+    EXPECT_EQ(u.num_boundary_edges, t.num_boundary_edges);
+    EXPECT_EQ(u.vv_offsets, s.vv_offsets);
+    EXPECT_EQ(u.vf_offsets, s.vf_offsets);
+    EXPECT_EQ(u.is_boundary, s.is_boundary);
+    EXPECT_EQ(u.locality_order, s.locality_order);
+    for (int v = 0; v < u.num_vertices; ++v) {
+      std::vector<int32_t> nu = Neighbors(u, v), ns = Neighbors(s, v), fu = VertexFaces(u, v), fs = VertexFaces(s, v);
+      std::sort(nu.begin(), nu.end()), std::sort(ns.begin(), ns.end());
+      std::sort(fu.begin(), fu.end()), std::sort(fs.begin(), fs.end());
+      ASSERT_EQ(nu, ns) << v;
+      ASSERT_EQ(fu, fs) << v;
+      const int k = u.NumVertexFaces(v);
+      if (k == 0) {
+        ++isolated;
+        continue;
+      }
+      const bool open = u.is_boundary[v];
+      ASSERT_EQ(u.NumNeighbors(v), k + open) << v;
+      for (int i = 0; i < k; ++i) {
+        const auto sp = Spokes(rm, u.VertexFaces(v)[i], v);
+        ASSERT_EQ(u.Neighbors(v)[i], sp[0]) << v;
+        if (i + 1 < k) ASSERT_EQ(Spokes(rm, u.VertexFaces(v)[i + 1], v)[0], sp[1]) << v;
+      }
+      const int32_t last_prev = Spokes(rm, u.VertexFaces(v)[k - 1], v)[1];
+      if (open) {
+        ++open_fans;
+        ASSERT_EQ(u.Neighbors(v)[k], last_prev) << v;
+        for (int i = 0; i < k; ++i)  // the first spoke is on the boundary: no face precedes
+          ASSERT_NE(Spokes(rm, u.VertexFaces(v)[i], v)[1], u.Neighbors(v)[0]) << v;
+      } else {
+        ++closed_fans;
+        ASSERT_EQ(last_prev, u.Neighbors(v)[0]) << v;
+        const Eigen::Vector3d d(kRowDirection[0], kRowDirection[1], kRowDirection[2]);
+        auto cosine = [&](int w) {
+          const Eigen::Vector3d e = (rm.positions.row(w) - rm.positions.row(v)).transpose();
+          return e.dot(d) / e.norm() / d.norm();
+        };
+        for (int i = 1; i < k; ++i) ASSERT_LE(cosine(u.Neighbors(v)[i]), cosine(u.Neighbors(v)[0]) + 1e-12) << v;
+      }
+    }
+  }
+  EXPECT_GT(open_fans, 200);  // 247
+  EXPECT_GT(closed_fans, 2000);  // 2396
+  EXPECT_EQ(isolated, 18);  // the holed tori's
 }
 
 // A generator's numbering is local; a shuffled one of a large mesh is not.
