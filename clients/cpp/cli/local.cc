@@ -74,15 +74,17 @@ void ToSourceOrder(const std::vector<int32_t>& source, M* m) {
 /// Whether to fit on the mesh relabelled for locality: when its numbering is scattered
 /// (a generator's local numbering gains nothing), and only if the fit's results depend
 /// on the numbering through the topology's row orders alone, which
-/// BuildTopology(LocalityRelabelling) keeps (the parametric comparison methods read face
-/// rows themselves; the noise estimate of `--noise on|auto` samples vertices by index).
+/// BuildTopology(LocalityRelabelling) sets in fan order (RowOrder::kRotational: the
+/// source's stencils in another order, results equal to round-off; the parametric
+/// comparison methods read face rows themselves; the noise estimate of
+/// `--noise on|auto` samples vertices by index).
 bool RelabelForFit(const Mesh& mesh, const FitOptions& o) {
   return (o.method == FitMethod::kLHF || o.method == FitMethod::kLOP) && o.noise == NoiseMode::kOff &&
          !HasLocalNumbering(mesh);
 }
 
 /// Fit and quantities of every vertex, computed on the mesh relabelled for locality
-/// when that pays and gives the same numbers (RelabelForFit): an external mesher's
+/// when that pays and gives the same numbers to round-off (RelabelForFit): an external mesher's
 /// scattered numbering then costs no cache misses. Results in the mesh's own order.
 /// `validated` is set once the mesh has passed validation (the "read" phase's end).
 absl::StatusOr<Differentials> FitLocal(const Mesh& mesh, const std::string& path, const FitOptions& o,
