@@ -20,8 +20,9 @@
 // torus, shuffled:4 the generated torus renumbered like shuffled:3, and shuffled:9 is
 // shuffled:6 with every row sorted by angle around its vertex from one direction field
 // (the stencils' points in another order); shuffled:10 and 11 are FILE and the generated
-// torus relabelled with RowOrder::kRotational rows (what the CLI fits on since the
-// sixth round; shuffled:5 and 7 use RowOrder::kSource). `--stats` prints each
+// torus relabelled with RowOrder::kRotational (what the CLI fits on since the sixth
+// round; shuffled:5 and 7 use RowOrder::kSource), shuffled:12 FILE with kRotational's
+// topology rows over face rows in their source rotation. `--stats` prints each
 // variant's mean stencil size and ring per degree instead of timing.
 //
 // `cold_path_bench --dump=FILE` writes every output (topologies, neighbourhoods at
@@ -85,8 +86,8 @@ struct Variant {
 std::string g_mesh_path;  // --mesh
 
 struct Fixture {
-  Variant v[12];
-  int count = 2;  // variants in --dump and --stats (v[5]-v[9], with --mesh, timed only)
+  Variant v[13];
+  int count = 2;  // variants in --dump and --stats (v[5]-v[12], with --mesh, timed only)
   Fixture() {
     GeneratorOptions g;
     g.n = kTorusN;
@@ -109,21 +110,28 @@ struct Fixture {
       Renumber(x, v[count++]);
       Renumber(v[0], v[count++]);
       // shuffled:5, FILE relabelled as `geomfit curvature --local` does (rows in source order).
-      LocalityRelabelling r = RelabelForLocality(x.mesh).value();
-      v[10].topo = BuildTopology(r, RowOrder::kRotational).value();
-      v[10].mesh = r.mesh;
-      v[5].topo = BuildTopology(r, RowOrder::kSource).value();
-      v[5].mesh = std::move(r.mesh);
+      LocalityRelabelling r = RelabelForLocality(x.mesh, RowOrder::kSource).value();
+      v[5].topo = BuildTopology(r).value();
+      v[5].mesh = r.mesh;
+      // shuffled:10, FILE relabelled as the CLI does since the sixth round (kRotational);
+      // shuffled:12, fan-ordered rows over face rows in their source rotation.
+      LocalityRelabelling rot = RelabelForLocality(x.mesh, RowOrder::kRotational).value();
+      v[10].topo = BuildTopology(rot).value();
+      v[10].mesh = std::move(rot.mesh);
+      r.order = RowOrder::kRotational;
+      v[12].topo = BuildTopology(r).value();
+      v[12].mesh = std::move(r.mesh);
       // shuffled:6, the same relabelled mesh with plain BuildTopology (rows sorted by the
       // new labels): the same memory layout as shuffled:5, other row order.
       v[6].mesh = v[5].mesh;
       v[6].topo = BuildTopology(v[6].mesh).value();
       // shuffled:7 and 8, the same two for the generated torus.
-      LocalityRelabelling r2 = RelabelForLocality(v[0].mesh).value();
-      v[11].topo = BuildTopology(r2, RowOrder::kRotational).value();
-      v[11].mesh = r2.mesh;
-      v[7].topo = BuildTopology(r2, RowOrder::kSource).value();
+      LocalityRelabelling r2 = RelabelForLocality(v[0].mesh, RowOrder::kSource).value();
+      v[7].topo = BuildTopology(r2).value();
       v[7].mesh = std::move(r2.mesh);
+      LocalityRelabelling rot2 = RelabelForLocality(v[0].mesh, RowOrder::kRotational).value();
+      v[11].topo = BuildTopology(rot2).value();
+      v[11].mesh = std::move(rot2.mesh);
       v[8].mesh = v[7].mesh;
       v[8].topo = BuildTopology(v[8].mesh).value();
       // shuffled:9, shuffled:6 with rows in the same geometric pattern at every vertex.
@@ -336,7 +344,7 @@ int main(int argc, char** argv) {
         ->UseRealTime();
     benchmark::RegisterBenchmark("BM_Neighborhoods", BM_Neighborhoods)
         ->ArgNames({"shuffled", "deg", "threads"})
-        ->ArgsProduct({{2, 3, 4, 5, 6, 7, 8, 9, 10, 11}, {2, 4}, {1, 2}})
+        ->ArgsProduct({{2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12}, {2, 4}, {1, 2}})
         ->Unit(benchmark::kMillisecond)
         ->UseRealTime();
   }

@@ -357,7 +357,7 @@ bool HasLocalNumbering(const Topology& t) {
   return IsLocalIndexGap(gap, static_cast<int64_t>(t.vv.size()));
 }
 
-absl::StatusOr<LocalityRelabelling> RelabelForLocality(const Mesh& mesh) {
+absl::StatusOr<LocalityRelabelling> RelabelForLocality(const Mesh& mesh, RowOrder order) {
   const int nv = mesh.NumVertices(), nf = mesh.NumFaces();
   if (nv == 0 || nf == 0) return absl::InvalidArgumentError("empty mesh");
   // Vertices by the Morton code of their cell in a 1024^3 grid over the bounding box
@@ -403,7 +403,8 @@ absl::StatusOr<LocalityRelabelling> RelabelForLocality(const Mesh& mesh) {
   for (int v = 0; v < nv; ++v) r.mesh.positions.row(v) = mesh.positions.row(r.vertex_source[v]);
 
   // Faces by their lowest relabelled vertex (a counting sort, stable), corners relabelled
-  // in place (rotation kept).
+  // in place (rotation kept), then for kRotational rotated to their corner furthest
+  // along kRowDirection (the first of equals).
   Faces rows(nf, 4);
   std::vector<int32_t> start(nv + 1, 0);
   for (int f = 0; f < nf; ++f) {
@@ -424,6 +425,25 @@ absl::StatusOr<LocalityRelabelling> RelabelForLocality(const Mesh& mesh) {
     const int32_t g = start[std::min({in[0], in[1], in[2], in[3] < 0 ? in[0] : in[3]})]++;
     r.face_source[g] = f;
     std::copy_n(in, 4, faces.data() + 4 * static_cast<int64_t>(g));
+  }
+  r.order = order;
+  if (order == RowOrder::kRotational) {
+    const double* Q = r.mesh.positions.data();
+    auto along = [&](int32_t v) {
+      const double* x = Q + 3 * static_cast<int64_t>(v);
+      return x[0] * kRowDirection[0] + x[1] * kRowDirection[1] + x[2] * kRowDirection[2];
+    };
+    for (int f = 0; f < nf; ++f) {
+      int32_t* row = faces.data() + 4 * static_cast<int64_t>(f);
+      const int n = row[3] < 0 ? 3 : 4;
+      int first = 0;
+      double best = along(row[0]);
+      for (int c = 1; c < n; ++c) {
+        const double a = along(row[c]);
+        if (a > best) best = a, first = c;
+      }
+      std::rotate(row, row + first, row + n);
+    }
   }
   r.mesh.faces = std::move(faces);
   return r;
@@ -500,10 +520,10 @@ void RotationalRows(const Mesh& m, Topology* t) {
 
 }  // namespace
 
-absl::StatusOr<Topology> BuildTopology(const LocalityRelabelling& relabelled, RowOrder order) {
+absl::StatusOr<Topology> BuildTopology(const LocalityRelabelling& relabelled) {
   absl::StatusOr<Topology> t = BuildTopology(relabelled.mesh);
   if (!t.ok()) return t;
-  if (order == RowOrder::kRotational) {
+  if (relabelled.order == RowOrder::kRotational) {
     RotationalRows(relabelled.mesh, &*t);
   } else {
     for (int v = 0; v < t->num_vertices; ++v) {

@@ -117,12 +117,12 @@ TEST(FitTest, RelabelledMeshGivesTheSourcesResultsToRoundOff) {
   for (const Mesh& base : {GenerateTorusMesh(g), GenerateBumpMesh(q), GenerateDelaunaySphereMesh(400, 0.3),
                            GenerateOpenCylinderMesh(g)}) {
     const Mesh mesh = testing_util::ShuffleVertices(base, 9);
-    const LocalityRelabelling r = RelabelForLocality(mesh).value();
-    const std::vector<int32_t>& src = r.vertex_source;
     const Topology t = BuildTopology(mesh).value();
     for (RowOrder order : {RowOrder::kSource, RowOrder::kRotational}) {
       const bool exact = order == RowOrder::kSource;
-      const Topology u = BuildTopology(r, order).value();
+      const LocalityRelabelling r = RelabelForLocality(mesh, order).value();
+      const std::vector<int32_t>& src = r.vertex_source;
+      const Topology u = BuildTopology(r).value();
       // |a - b| <= tol x scale, and exactly equal for kSource.
       auto near = [&](double a, double b, double scale, double tol, int slot) {
         if (!exact) worst[slot] = std::max(worst[slot], std::abs(a - b) / scale);

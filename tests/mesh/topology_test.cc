@@ -361,7 +361,7 @@ TEST(LocalityRelabellingTest, TopologyRowsFollowTheSource) {
                          with_isolated};
   for (const Mesh& base : meshes) {
     const Mesh m = testing_util::ShuffleVertices(base, 11);
-    const LocalityRelabelling r = RelabelForLocality(m).value();
+    const LocalityRelabelling r = RelabelForLocality(m, RowOrder::kSource).value();
     const int nv = m.NumVertices(), nf = m.NumFaces();
     ASSERT_EQ(r.mesh.NumVertices(), nv);
     ASSERT_EQ(r.mesh.NumFaces(), nf);
@@ -386,7 +386,7 @@ TEST(LocalityRelabellingTest, TopologyRowsFollowTheSource) {
       ASSERT_LE(lowest(f - 1), lowest(f));
     }
     const Topology t = BuildTopology(m).value();
-    const Topology u = BuildTopology(r, RowOrder::kSource).value();
+    const Topology u = BuildTopology(r).value();
     EXPECT_FALSE(u.vertex_faces_ascending);
     EXPECT_TRUE(t.vertex_faces_ascending);
     EXPECT_EQ(u.num_boundary_edges, t.num_boundary_edges);
@@ -430,7 +430,9 @@ Mesh HoledTorus(const GeneratorOptions& g) {
   return out;
 }
 
-// RowOrder::kRotational: the source's rows as sets, each vertex's faces in fan order
+// RowOrder::kRotational: the source's labels and face rows up to rotation (each starting
+// at its corner furthest along kRowDirection); the topology's rows the source's as sets,
+// each vertex's faces in fan order
 // (each face's next spoke the previous face's prev spoke, closing the cycle on a closed
 // fan), its neighbours the fan's spokes; an open fan (a boundary vertex) starts at its
 // boundary edge, a closed one at the spoke nearest kRowDirection. Shuffled numberings,
@@ -447,11 +449,31 @@ TEST(LocalityRelabellingTest, RotationalRowsAreFans) {
   int open_fans = 0, closed_fans = 0, isolated = 0;
   for (const Mesh& base : meshes) {
     const Mesh m = testing_util::ShuffleVertices(base, 5);
-    const LocalityRelabelling r = RelabelForLocality(m).value();
+    const LocalityRelabelling r = RelabelForLocality(m).value();  // kRotational
+    const LocalityRelabelling rs = RelabelForLocality(m, RowOrder::kSource).value();
     const Mesh& rm = r.mesh;
+    ASSERT_EQ(r.vertex_source, rs.vertex_source);
+    ASSERT_EQ(r.face_source, rs.face_source);
+    ASSERT_EQ(rm.positions, rs.mesh.positions);
+    // Each face row a rotation of the source's, starting at its corner furthest along
+    // kRowDirection.
+    auto along = [&](int32_t v) {
+      return rm.positions(v, 0) * kRowDirection[0] + rm.positions(v, 1) * kRowDirection[1] +
+             rm.positions(v, 2) * kRowDirection[2];
+    };
+    for (int f = 0; f < rm.NumFaces(); ++f) {
+      const int n = rm.FaceSize(f);
+      ASSERT_EQ(rs.mesh.FaceSize(f), n);
+      int shift = 0;
+      while (rs.mesh.faces(f, shift) != rm.faces(f, 0)) ++shift;
+      for (int c = 0; c < n; ++c) {
+        ASSERT_EQ(rm.faces(f, c), rs.mesh.faces(f, (c + shift) % n)) << "face " << f;
+        ASSERT_LE(along(rm.faces(f, c)), along(rm.faces(f, 0))) << "face " << f;
+      }
+    }
     const Topology t = BuildTopology(m).value();
-    const Topology u = BuildTopology(r, RowOrder::kRotational).value();
-    const Topology s = BuildTopology(r, RowOrder::kSource).value();
+    const Topology u = BuildTopology(r).value();
+    const Topology s = BuildTopology(rs).value();
     EXPECT_FALSE(u.vertex_faces_ascending);
     EXPECT_EQ(u.num_boundary_edges, t.num_boundary_edges);
     EXPECT_EQ(u.vv_offsets, s.vv_offsets);
@@ -526,8 +548,10 @@ TEST(LocalityRelabellingTest, FailsWhereTheSourceFails) {
   };
   for (const Mesh& m : bad) {
     ASSERT_FALSE(BuildTopology(m).ok());
-    const LocalityRelabelling r = RelabelForLocality(m).value();
-    EXPECT_EQ(BuildTopology(r).status().code(), absl::StatusCode::kInvalidArgument);
+    for (RowOrder order : {RowOrder::kSource, RowOrder::kRotational}) {
+      const LocalityRelabelling r = RelabelForLocality(m, order).value();
+      EXPECT_EQ(BuildTopology(r).status().code(), absl::StatusCode::kInvalidArgument);
+    }
   }
   const Mesh out_of_range = testing_util::MakeMesh({{0, 0, 0}, {1, 0, 0}, {0, 1, 0}}, {{0, 1, 3}});
   EXPECT_EQ(RelabelForLocality(out_of_range).status().code(), absl::StatusCode::kInvalidArgument);
