@@ -109,9 +109,10 @@ bool HasLocalNumbering(const Topology& topo);
 absl::StatusOr<LocalityRelabelling> RelabelForLocality(const Mesh& mesh, RowOrder order = RowOrder::kRotational);
 
 /// Topology of a relabelled mesh with its rows in `relabelled.order` (the relabelled
-/// mesh's own BuildTopology sorts them by relabelled index instead). Fails exactly when
-/// BuildTopology(source) fails, with a message naming relabelled indices: report
-/// BuildTopology(source)'s instead.
+/// mesh's own BuildTopology sorts them by relabelled index instead), built vertex by
+/// vertex from each fan, with no half-edge sort. Fails exactly when
+/// BuildTopology(source) fails, with a message naming relabelled indices (and for
+/// edges and fans the kind of error only): report BuildTopology(source)'s instead.
 absl::StatusOr<Topology> BuildTopology(const LocalityRelabelling& relabelled);
 
 }  // namespace geomfit

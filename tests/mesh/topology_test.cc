@@ -4,6 +4,7 @@
 #include <array>
 #include <cmath>
 #include <limits>
+#include <random>
 #include <string>
 #include <vector>
 
@@ -479,7 +480,6 @@ TEST(LocalityRelabellingTest, RotationalRowsAreFans) {
     EXPECT_EQ(u.vv_offsets, s.vv_offsets);
     EXPECT_EQ(u.vf_offsets, s.vf_offsets);
     EXPECT_EQ(u.is_boundary, s.is_boundary);
-    EXPECT_EQ(u.locality_order, s.locality_order);
     for (int v = 0; v < u.num_vertices; ++v) {
       std::vector<int32_t> nu = Neighbors(u, v), ns = Neighbors(s, v), fu = VertexFaces(u, v), fs = VertexFaces(s, v);
       std::sort(nu.begin(), nu.end()), std::sort(ns.begin(), ns.end());
@@ -519,6 +519,77 @@ TEST(LocalityRelabellingTest, RotationalRowsAreFans) {
   EXPECT_GT(open_fans, 200);  // 247
   EXPECT_GT(closed_fans, 2000);  // 2396
   EXPECT_EQ(isolated, 18);  // the holed tori's
+}
+
+// BuildTopology of a relabelling (built from each vertex's fan, no half-edge sort)
+// succeeds exactly when BuildTopology of the source does, with the same boundary,
+// isolated vertices and row sets: small meshes with random damage (faces flipped,
+// duplicated, removed, re-cornered, added between random vertices), both row orders.
+TEST(LocalityRelabellingTest, FanTopologyFailsExactlyWhereTheSourceFails) {
+  GeneratorOptions g;
+  g.n = 4;
+  GeneratorOptions q = g;
+  q.quads = true;
+  const Mesh bases[] = {GenerateTorusMesh(g), GenerateBumpMesh(q), GenerateDelaunaySphereMesh(40, 0.3),
+                        GenerateOpenCylinderMesh(g)};
+  std::mt19937_64 rng(7);
+  int ok = 0, failed = 0;
+  for (int trial = 0; trial < 2000; ++trial) {
+    const Mesh& base = bases[trial % 4];
+    const int nv = base.NumVertices();
+    std::vector<std::array<int32_t, 4>> rows;
+    for (int f = 0; f < base.NumFaces(); ++f)
+      rows.push_back({base.faces(f, 0), base.faces(f, 1), base.faces(f, 2), base.FaceSize(f) == 4 ? base.faces(f, 3) : -1});
+    auto pick = [&](int n) { return static_cast<int>(rng() % n); };
+    for (int damage = pick(3); damage >= 0; --damage) {
+      const int f = pick(static_cast<int>(rows.size()));
+      const int n = rows[f][3] < 0 ? 3 : 4;
+      switch (pick(8)) {
+        case 0: std::reverse(rows[f].begin(), rows[f].begin() + n); break;
+        case 1: rows.push_back(rows[f]); break;
+        case 2: rows[f][pick(n)] = pick(nv); break;
+        case 3: rows.push_back({pick(nv), pick(nv), pick(nv), -1}); break;
+        default: if (rows.size() > 1) rows.erase(rows.begin() + f);  // holes, bow ties
+      }
+    }
+    Mesh m;
+    m.positions = base.positions;
+    Faces faces(static_cast<int>(rows.size()), 4);
+    for (size_t f = 0; f < rows.size(); ++f) std::copy_n(rows[f].data(), 4, faces.data() + 4 * f);
+    m.faces = std::move(faces);
+    m = testing_util::ShuffleVertices(m, trial);
+    const absl::StatusOr<Topology> t = BuildTopology(m);
+    (t.ok() ? ok : failed)++;
+    for (RowOrder order : {RowOrder::kSource, RowOrder::kRotational}) {
+      const absl::StatusOr<LocalityRelabelling> r = RelabelForLocality(m, order);
+      if (!r.ok()) {  // an index out of range: the source fails too
+        ASSERT_FALSE(t.ok());
+        continue;
+      }
+      const absl::StatusOr<Topology> u = BuildTopology(*r);
+      ASSERT_EQ(u.ok(), t.ok()) << "trial " << trial << ": " << t.status() << " vs " << u.status();
+      if (!t.ok()) {
+        EXPECT_EQ(u.status().code(), absl::StatusCode::kInvalidArgument);
+        continue;
+      }
+      ASSERT_EQ(u->num_boundary_edges, t->num_boundary_edges) << "trial " << trial;
+      ASSERT_EQ(u->num_isolated, t->num_isolated);
+      ASSERT_EQ(u->has_quads, t->has_quads);
+      for (int v = 0; v < u->num_vertices; ++v) {
+        const int s = r->vertex_source[v];
+        ASSERT_EQ(u->is_boundary[v], t->is_boundary[s]) << "trial " << trial << " vertex " << v;
+        ASSERT_EQ(u->is_isolated[v], t->is_isolated[s]);
+        std::vector<int32_t> nu, fu;
+        for (int32_t w : Neighbors(*u, v)) nu.push_back(r->vertex_source[w]);
+        for (int32_t f : VertexFaces(*u, v)) fu.push_back(r->face_source[f]);
+        if (order == RowOrder::kRotational) std::sort(nu.begin(), nu.end()), std::sort(fu.begin(), fu.end());
+        ASSERT_EQ(nu, Neighbors(*t, s)) << "trial " << trial << " vertex " << v;
+        ASSERT_EQ(fu, VertexFaces(*t, s));
+      }
+    }
+  }
+  EXPECT_GT(ok, 500);
+  EXPECT_GT(failed, 500);
 }
 
 // A generator's numbering is local; a shuffled one of a large mesh is not.
