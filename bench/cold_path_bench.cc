@@ -22,7 +22,9 @@
 // (the stencils' points in another order); shuffled:10 and 11 are FILE and the generated
 // torus relabelled with RowOrder::kRotational (what the CLI fits on since the sixth
 // round; shuffled:5 and 7 use RowOrder::kSource), shuffled:12 FILE with kRotational's
-// topology rows over face rows in their source rotation. `--stats` prints each
+// topology rows over face rows in their source rotation. BM_RelabelledTopology/
+// shuffled:<1|2>/order:<0|1> times RelabelForLocality + BuildTopology of the shuffled
+// torus or FILE, RowOrder::kSource or kRotational. `--stats` prints each
 // variant's mean stencil size and ring per degree instead of timing.
 //
 // `cold_path_bench --dump=FILE` writes every output (topologies, neighbourhoods at
@@ -199,6 +201,20 @@ void BM_Topology(benchmark::State& state) {
   state.counters["verts"] = x.mesh.NumVertices();
 }
 
+// RelabelForLocality(mesh, order) + BuildTopology of it: the CLI's topology of a
+// scattered numbering (order 0 kSource, 1 kRotational).
+void BM_RelabelledTopology(benchmark::State& state) {
+  const Variant& x = F().v[state.range(0)];
+  const RowOrder order = state.range(1) ? RowOrder::kRotational : RowOrder::kSource;
+  for (auto _ : state) {
+    LocalityRelabelling r = RelabelForLocality(x.mesh, order).value();
+    Topology t = BuildTopology(r).value();
+    benchmark::DoNotOptimize(t.vv.data());
+    benchmark::ClobberMemory();
+  }
+  state.counters["verts"] = x.mesh.NumVertices();
+}
+
 void BM_Neighborhoods(benchmark::State& state) {
   const Variant& x = F().v[state.range(0)];
   FitOptions o;
@@ -340,6 +356,11 @@ int main(int argc, char** argv) {
     benchmark::RegisterBenchmark("BM_Topology", BM_Topology)
         ->ArgName("shuffled")
         ->DenseRange(2, 3)
+        ->Unit(benchmark::kMillisecond)
+        ->UseRealTime();
+    benchmark::RegisterBenchmark("BM_RelabelledTopology", BM_RelabelledTopology)
+        ->ArgNames({"shuffled", "order"})
+        ->ArgsProduct({{1, 2}, {0, 1}})
         ->Unit(benchmark::kMillisecond)
         ->UseRealTime();
     benchmark::RegisterBenchmark("BM_Neighborhoods", BM_Neighborhoods)
