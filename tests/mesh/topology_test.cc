@@ -346,7 +346,8 @@ TEST(TopologyTest, LocalityOrderIsABreadthFirstPermutation) {
 namespace geomfit {
 namespace {
 
-// A mesh relabelled for locality: the same mesh under the recorded relabelling, and a
+// A mesh relabelled for locality with RowOrder::kSource: the same mesh under the
+// recorded relabelling (face rows in their source rotation), and a
 // topology whose rows list the source's neighbours and faces in the source's order (so
 // stencils and vertex normals repeat the source's operations). Shuffled numberings,
 // quads, open and closed meshes, an isolated vertex.
