@@ -19,7 +19,12 @@
 // labels (plain BuildTopology); shuffled:7 and 8 are the same two for the generated
 // torus, shuffled:4 the generated torus renumbered like shuffled:3, and shuffled:9 is
 // shuffled:6 with every row sorted by angle around its vertex from one direction field
-// (the stencils' points in another order: not the CLI's results). `--stats` prints each
+// (the stencils' points in another order); shuffled:10 and 11 are FILE and the generated
+// torus relabelled with RowOrder::kRotational (what the CLI fits on since the sixth
+// round; shuffled:5 and 7 use RowOrder::kSource), shuffled:12 FILE with kRotational's
+// topology rows over face rows in their source rotation. BM_RelabelledTopology/
+// shuffled:<1|2>/order:<0|1> times RelabelForLocality + BuildTopology of the shuffled
+// torus or FILE, RowOrder::kSource or kRotational. `--stats` prints each
 // variant's mean stencil size and ring per degree instead of timing.
 //
 // `cold_path_bench --dump=FILE` writes every output (topologies, neighbourhoods at
@@ -83,8 +88,8 @@ struct Variant {
 std::string g_mesh_path;  // --mesh
 
 struct Fixture {
-  Variant v[10];
-  int count = 2;  // variants in --dump and --stats (v[5]-v[9], with --mesh, timed only)
+  Variant v[13];
+  int count = 2;  // variants in --dump and --stats (v[5]-v[12], with --mesh, timed only)
   Fixture() {
     GeneratorOptions g;
     g.n = kTorusN;
@@ -107,17 +112,28 @@ struct Fixture {
       Renumber(x, v[count++]);
       Renumber(v[0], v[count++]);
       // shuffled:5, FILE relabelled as `geomfit curvature --local` does (rows in source order).
-      LocalityRelabelling r = RelabelForLocality(x.mesh).value();
+      LocalityRelabelling r = RelabelForLocality(x.mesh, RowOrder::kSource).value();
       v[5].topo = BuildTopology(r).value();
-      v[5].mesh = std::move(r.mesh);
+      v[5].mesh = r.mesh;
+      // shuffled:10, FILE relabelled as the CLI does since the sixth round (kRotational);
+      // shuffled:12, fan-ordered rows over face rows in their source rotation.
+      LocalityRelabelling rot = RelabelForLocality(x.mesh, RowOrder::kRotational).value();
+      v[10].topo = BuildTopology(rot).value();
+      v[10].mesh = std::move(rot.mesh);
+      r.order = RowOrder::kRotational;
+      v[12].topo = BuildTopology(r).value();
+      v[12].mesh = std::move(r.mesh);
       // shuffled:6, the same relabelled mesh with plain BuildTopology (rows sorted by the
       // new labels): the same memory layout as shuffled:5, other row order.
       v[6].mesh = v[5].mesh;
       v[6].topo = BuildTopology(v[6].mesh).value();
       // shuffled:7 and 8, the same two for the generated torus.
-      LocalityRelabelling r2 = RelabelForLocality(v[0].mesh).value();
+      LocalityRelabelling r2 = RelabelForLocality(v[0].mesh, RowOrder::kSource).value();
       v[7].topo = BuildTopology(r2).value();
       v[7].mesh = std::move(r2.mesh);
+      LocalityRelabelling rot2 = RelabelForLocality(v[0].mesh, RowOrder::kRotational).value();
+      v[11].topo = BuildTopology(rot2).value();
+      v[11].mesh = std::move(rot2.mesh);
       v[8].mesh = v[7].mesh;
       v[8].topo = BuildTopology(v[8].mesh).value();
       // shuffled:9, shuffled:6 with rows in the same geometric pattern at every vertex.
@@ -179,6 +195,20 @@ void BM_Topology(benchmark::State& state) {
   const Variant& x = F().v[state.range(0)];
   for (auto _ : state) {
     Topology t = BuildTopology(x.mesh).value();
+    benchmark::DoNotOptimize(t.vv.data());
+    benchmark::ClobberMemory();
+  }
+  state.counters["verts"] = x.mesh.NumVertices();
+}
+
+// RelabelForLocality(mesh, order) + BuildTopology of it: the CLI's topology of a
+// scattered numbering (order 0 kSource, 1 kRotational).
+void BM_RelabelledTopology(benchmark::State& state) {
+  const Variant& x = F().v[state.range(0)];
+  const RowOrder order = state.range(1) ? RowOrder::kRotational : RowOrder::kSource;
+  for (auto _ : state) {
+    LocalityRelabelling r = RelabelForLocality(x.mesh, order).value();
+    Topology t = BuildTopology(r).value();
     benchmark::DoNotOptimize(t.vv.data());
     benchmark::ClobberMemory();
   }
@@ -328,9 +358,14 @@ int main(int argc, char** argv) {
         ->DenseRange(2, 3)
         ->Unit(benchmark::kMillisecond)
         ->UseRealTime();
+    benchmark::RegisterBenchmark("BM_RelabelledTopology", BM_RelabelledTopology)
+        ->ArgNames({"shuffled", "order"})
+        ->ArgsProduct({{1, 2}, {0, 1}})
+        ->Unit(benchmark::kMillisecond)
+        ->UseRealTime();
     benchmark::RegisterBenchmark("BM_Neighborhoods", BM_Neighborhoods)
         ->ArgNames({"shuffled", "deg", "threads"})
-        ->ArgsProduct({{2, 3, 4, 5, 6, 7, 8, 9}, {2, 4}, {1, 2}})
+        ->ArgsProduct({{2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12}, {2, 4}, {1, 2}})
         ->Unit(benchmark::kMillisecond)
         ->UseRealTime();
   }

@@ -42,6 +42,26 @@ int Find(std::vector<int>& parent, int i) {
   return i;
 }
 
+// Locality order: breadth-first (Cuthill-McKee) sweeps over the edges from the lowest
+// unvisited vertex, so vertices near in the order are near on the surface whatever the
+// file's numbering.
+void FillLocalityOrder(Topology* t) {
+  const int nv = t->num_vertices;
+  t->locality_order.resize(nv);
+  std::vector<uint8_t> seen(nv, 0);
+  int head = 0, tail = 0;
+  for (int s = 0; s < nv; ++s) {
+    if (seen[s]) continue;
+    seen[s] = 1;
+    t->locality_order[tail++] = s;
+    for (; head < tail; ++head) {
+      const int v = t->locality_order[head];
+      for (int i = t->vv_offsets[v]; i < t->vv_offsets[v + 1]; ++i)
+        if (!seen[t->vv[i]]) seen[t->vv[i]] = 1, t->locality_order[tail++] = t->vv[i];
+    }
+  }
+}
+
 }  // namespace
 
 size_t Topology::Bytes() const {
@@ -50,21 +70,28 @@ size_t Topology::Bytes() const {
          is_boundary.size() + is_isolated.size();
 }
 
-absl::StatusOr<Topology> BuildTopology(const Mesh& mesh) {
+namespace {
+
+// Passes 1 and 2 of both builds (BuildTopology of a mesh, FanTopology of a relabelling).
+// Pass 1 checks the faces (the index errors BuildTopology reports) and counts faces per
+// vertex (t->vf_offsets) and, if `bucket` is given, half-edges per lower endpoint.
+// Pass 2 files the faces under their vertices in face order, with each face filed under
+// vertex a its corners after and before a (the "spokes" of the fan checks, which then
+// read no face), and, with `bucket`, the half-edges under their lower endpoint (a
+// counting sort: linear) into `edges`.
+absl::Status FileFaces(const Mesh& mesh, Topology* t, std::vector<int32_t>* bucket, std::vector<HalfEdge>* edges,
+                       std::vector<std::array<int32_t, 2>>* spokes) {
   const int nv = mesh.NumVertices(), nf = mesh.NumFaces();
   if (nv == 0) return absl::InvalidArgumentError("mesh has no vertices");
   if (nf == 0) return absl::InvalidArgumentError("mesh has no faces");
-
-  Topology t;
-  t.num_vertices = nv;
-  t.num_faces = nf;
-  // Pass 1: check the faces; count half-edges per lower endpoint and faces per vertex.
-  std::vector<int32_t> bucket(nv + 1, 0);
-  t.vf_offsets.assign(nv + 1, 0);
+  t->num_vertices = nv;
+  t->num_faces = nf;
+  if (bucket) bucket->assign(nv + 1, 0);
+  t->vf_offsets.assign(nv + 1, 0);
   for (int f = 0; f < nf; ++f) {
     const int32_t* idx = mesh.faces.data() + 4 * static_cast<int64_t>(f);
     const int n = idx[3] < 0 ? 3 : 4;
-    if (n == 4) t.has_quads = true;
+    if (n == 4) t->has_quads = true;
     for (int i = 0; i < n; ++i) {
       const int32_t a = idx[i];
       if (a < 0 || a >= nv)
@@ -76,36 +103,43 @@ absl::StatusOr<Topology> BuildTopology(const Mesh& mesh) {
               absl::StrFormat("face %d: vertex %d appears twice", f, a));
     }
     for (int i = 0; i < n; ++i) {
-      const int32_t a = idx[i], b = idx[i + 1 < n ? i + 1 : 0];
-      ++bucket[std::min(a, b) + 1];
-      ++t.vf_offsets[a + 1];
+      const int32_t a = idx[i];
+      if (bucket) ++(*bucket)[std::min(a, idx[i + 1 < n ? i + 1 : 0]) + 1];
+      ++t->vf_offsets[a + 1];
     }
   }
-  std::partial_sum(bucket.begin(), bucket.end(), bucket.begin());
-  std::partial_sum(t.vf_offsets.begin(), t.vf_offsets.end(), t.vf_offsets.begin());
+  if (bucket) std::partial_sum(bucket->begin(), bucket->end(), bucket->begin());
+  std::partial_sum(t->vf_offsets.begin(), t->vf_offsets.end(), t->vf_offsets.begin());
 
-  // Pass 2: file the half-edges under their lower endpoint (a counting sort: linear)
-  // and the faces under their vertices, both in face order.
-  // With each face filed under vertex a go its corners after and before a (the
-  // "spokes" of the fan check below, which then reads no face).
-  std::vector<HalfEdge> edges(bucket[nv]);
-  t.vf_faces.resize(t.vf_offsets[nv]);
-  std::vector<std::array<int32_t, 2>> spokes(t.vf_offsets[nv]);
-  {
-    std::vector<int32_t> fill(bucket.begin(), bucket.end() - 1);
-    std::vector<int32_t> vf_fill(t.vf_offsets.begin(), t.vf_offsets.end() - 1);
-    for (int f = 0; f < nf; ++f) {
-      const int32_t* idx = mesh.faces.data() + 4 * static_cast<int64_t>(f);
-      const int n = idx[3] < 0 ? 3 : 4;
-      for (int i = 0; i < n; ++i) {
-        const int32_t a = idx[i], b = idx[i + 1 < n ? i + 1 : 0];
-        edges[fill[std::min(a, b)]++] = {std::max(a, b), f, a < b};
-        const int32_t k = vf_fill[a]++;
-        t.vf_faces[k] = f;
-        spokes[k] = {b, idx[i > 0 ? i - 1 : n - 1]};
-      }
+  if (bucket) edges->resize((*bucket)[nv]);
+  t->vf_faces.resize(t->vf_offsets[nv]);
+  spokes->resize(t->vf_offsets[nv]);
+  std::vector<int32_t> fill;
+  if (bucket) fill.assign(bucket->begin(), bucket->end() - 1);
+  std::vector<int32_t> vf_fill(t->vf_offsets.begin(), t->vf_offsets.end() - 1);
+  for (int f = 0; f < nf; ++f) {
+    const int32_t* idx = mesh.faces.data() + 4 * static_cast<int64_t>(f);
+    const int n = idx[3] < 0 ? 3 : 4;
+    for (int i = 0; i < n; ++i) {
+      const int32_t a = idx[i], b = idx[i + 1 < n ? i + 1 : 0];
+      if (bucket) (*edges)[fill[std::min(a, b)]++] = {std::max(a, b), f, a < b};
+      const int32_t k = vf_fill[a]++;
+      t->vf_faces[k] = f;
+      (*spokes)[k] = {b, idx[i > 0 ? i - 1 : n - 1]};
     }
   }
+  return absl::OkStatus();
+}
+
+}  // namespace
+
+absl::StatusOr<Topology> BuildTopology(const Mesh& mesh) {
+  Topology t;
+  std::vector<int32_t> bucket;
+  std::vector<HalfEdge> edges;
+  std::vector<std::array<int32_t, 2>> spokes;
+  if (absl::Status s = FileFaces(mesh, &t, &bucket, &edges, &spokes); !s.ok()) return s;
+  const int nv = t.num_vertices;
   // Buckets sorted by (hi, face): the half-edges are now in (lo, hi, face) order.
   for (int v = 0; v < nv; ++v) SortBucket(edges.data() + bucket[v], edges.data() + bucket[v + 1]);
 
@@ -195,24 +229,7 @@ absl::StatusOr<Topology> BuildTopology(const Mesh& mesh) {
           "non-manifold vertex %d: its %d faces form %d separate fans", v, k, fans));
   }
 
-  // Locality order: breadth-first (Cuthill-McKee) sweeps over the edges from the lowest
-  // unvisited vertex, so vertices near in the order are near on the surface whatever
-  // the file's numbering.
-  t.locality_order.resize(nv);
-  {
-    std::vector<uint8_t> seen(nv, 0);
-    int head = 0, tail = 0;
-    for (int s = 0; s < nv; ++s) {
-      if (seen[s]) continue;
-      seen[s] = 1;
-      t.locality_order[tail++] = s;
-      for (; head < tail; ++head) {
-        const int v = t.locality_order[head];
-        for (int i = t.vv_offsets[v]; i < t.vv_offsets[v + 1]; ++i)
-          if (!seen[t.vv[i]]) seen[t.vv[i]] = 1, t.locality_order[tail++] = t.vv[i];
-      }
-    }
-  }
+  FillLocalityOrder(&t);
   return t;
 }
 
@@ -357,7 +374,7 @@ bool HasLocalNumbering(const Topology& t) {
   return IsLocalIndexGap(gap, static_cast<int64_t>(t.vv.size()));
 }
 
-absl::StatusOr<LocalityRelabelling> RelabelForLocality(const Mesh& mesh) {
+absl::StatusOr<LocalityRelabelling> RelabelForLocality(const Mesh& mesh, RowOrder order) {
   const int nv = mesh.NumVertices(), nf = mesh.NumFaces();
   if (nv == 0 || nf == 0) return absl::InvalidArgumentError("empty mesh");
   // Vertices by the Morton code of their cell in a 1024^3 grid over the bounding box
@@ -403,7 +420,8 @@ absl::StatusOr<LocalityRelabelling> RelabelForLocality(const Mesh& mesh) {
   for (int v = 0; v < nv; ++v) r.mesh.positions.row(v) = mesh.positions.row(r.vertex_source[v]);
 
   // Faces by their lowest relabelled vertex (a counting sort, stable), corners relabelled
-  // in place (rotation kept).
+  // in place (rotation kept), then for kRotational rotated to their corner furthest
+  // along kRowDirection (the first of equals).
   Faces rows(nf, 4);
   std::vector<int32_t> start(nv + 1, 0);
   for (int f = 0; f < nf; ++f) {
@@ -425,20 +443,138 @@ absl::StatusOr<LocalityRelabelling> RelabelForLocality(const Mesh& mesh) {
     r.face_source[g] = f;
     std::copy_n(in, 4, faces.data() + 4 * static_cast<int64_t>(g));
   }
+  r.order = order;
+  if (order == RowOrder::kRotational) {
+    const double* Q = r.mesh.positions.data();
+    auto along = [&](int32_t v) {
+      const double* x = Q + 3 * static_cast<int64_t>(v);
+      return x[0] * kRowDirection[0] + x[1] * kRowDirection[1] + x[2] * kRowDirection[2];
+    };
+    for (int f = 0; f < nf; ++f) {
+      int32_t* row = faces.data() + 4 * static_cast<int64_t>(f);
+      const int n = row[3] < 0 ? 3 : 4;
+      int first = 0;
+      double best = along(row[0]);
+      for (int c = 1; c < n; ++c) {
+        const double a = along(row[c]);
+        if (a > best) best = a, first = c;
+      }
+      std::rotate(row, row + first, row + n);
+    }
+  }
   r.mesh.faces = std::move(faces);
   return r;
 }
 
-absl::StatusOr<Topology> BuildTopology(const LocalityRelabelling& relabelled) {
-  absl::StatusOr<Topology> t = BuildTopology(relabelled.mesh);
-  if (!t.ok()) return t;
-  for (int v = 0; v < t->num_vertices; ++v) {
-    SortRowByKey(t->vv.data() + t->vv_offsets[v], t->vv.data() + t->vv_offsets[v + 1], relabelled.vertex_source);
-    SortRowByKey(t->vf_faces.data() + t->vf_offsets[v], t->vf_faces.data() + t->vf_offsets[v + 1],
-                 relabelled.face_source);
+namespace {
+
+// BuildTopology(LocalityRelabelling): the relabelled mesh's topology from each vertex's
+// fan alone, with no half-edge sort. BuildTopology's checks, vertex by vertex: an edge
+// in more than two faces, or in two traversing it the same way, is a directed edge
+// (v, b) in two faces, found at v as two faces with the same next spoke; otherwise each
+// face has at most one successor around v (the face whose next spoke is its prev
+// spoke) and one predecessor, so the faces form paths and cycles, joined exactly where
+// BuildTopology's fan check joins them: one fan is one walk over all of them. A vertex
+// is on the boundary exactly when its fan is open (its first face's next spoke is a
+// boundary edge, counted there once). Errors name relabelled vertices only by kind.
+// Per vertex: successors through `by_next` (spoke -> the local face whose next spoke it
+// is; one array for all vertices, reset after each), then one walk from the fan's
+// start (RowOrder::kRotational), its faces and spokes written back in fan order; rows
+// then sorted by source index for kSource. Linear; the per-vertex scratch only grows.
+absl::StatusOr<Topology> FanTopology(const LocalityRelabelling& r) {
+  const Mesh& m = r.mesh;
+  Topology t;
+  std::vector<std::array<int32_t, 2>> spokes;
+  if (absl::Status s = FileFaces(m, &t, nullptr, nullptr, &spokes); !s.ok()) return s;
+  const int nv = t.num_vertices;
+  const double* P = m.positions.data();
+  const double dx = kRowDirection[0], dy = kRowDirection[1], dz = kRowDirection[2];
+  const bool rotational = r.order == RowOrder::kRotational;
+  t.is_boundary.assign(nv, 0);
+  t.is_isolated.assign(nv, 0);
+  t.vv_offsets.assign(nv + 1, 0);
+  std::vector<int32_t> by_next(nv, -1), succ, face;
+  std::vector<std::array<int32_t, 2>> fan;
+  std::vector<uint8_t> has_pred;
+  for (int v = 0; v < nv; ++v) {
+    const int k = t.NumVertexFaces(v);
+    if (k == 0) {
+      t.is_isolated[v] = 1;
+      ++t.num_isolated;
+      continue;
+    }
+    int32_t* faces = t.vf_faces.data() + t.vf_offsets[v];
+    std::array<int32_t, 2>* sp = spokes.data() + t.vf_offsets[v];
+    if (static_cast<int>(succ.size()) < k) succ.resize(k), face.resize(k), fan.resize(k), has_pred.resize(k);
+    bool clash = false;
+    for (int i = 0; i < k; ++i) {
+      int32_t& slot = by_next[sp[i][0]];
+      clash |= slot >= 0;
+      slot = i;
+      has_pred[i] = 0;
+    }
+    for (int i = 0; i < k; ++i) {
+      succ[i] = by_next[sp[i][1]];  // the face across the edge (v, prev spoke), or -1
+      if (succ[i] >= 0) has_pred[succ[i]] = 1;
+    }
+    for (int i = 0; i < k; ++i) by_next[sp[i][0]] = -1;
+    if (clash)
+      return absl::InvalidArgumentError(
+          absl::StrFormat("vertex %d: two faces traverse one of its edges the same way", v));
+    // The start: an open fan's first face (no predecessor); a closed fan's face whose
+    // next spoke is nearest kRowDirection (cos^2 with its sign; kSource: any).
+    int start = -1;
+    for (int i = 0; i < k && start < 0; ++i)
+      if (!has_pred[i]) start = i;
+    const bool open = start >= 0;
+    if (!open && !rotational) start = 0;
+    if (!open && rotational) {
+      const double* x = P + 3 * static_cast<int64_t>(v);
+      double best = -std::numeric_limits<double>::infinity();
+      start = 0;
+      for (int i = 0; i < k; ++i) {
+        const double* y = P + 3 * static_cast<int64_t>(sp[i][0]);
+        const double s0 = y[0] - x[0], s1 = y[1] - x[1], s2 = y[2] - x[2];
+        const double dot = s0 * dx + s1 * dy + s2 * dz, len2 = s0 * s0 + s1 * s1 + s2 * s2;
+        const double score = dot * std::abs(dot) / len2;
+        if (score > best) best = score, start = i;
+      }
+    }
+    int count = 0;
+    for (int i = start; i >= 0 && count < k; i = succ[i]) {
+      face[count] = faces[i];
+      fan[count++] = sp[i];
+      if (succ[i] == start) break;
+    }
+    if (count != k)
+      return absl::InvalidArgumentError(absl::StrFormat("non-manifold vertex %d: its faces form several fans", v));
+    std::copy_n(face.data(), k, faces);
+    std::copy_n(fan.data(), k, sp);
+    t.is_boundary[v] = open;
+    t.num_boundary_edges += open;
+    t.vv_offsets[v + 1] = k + open;
   }
-  t->vertex_faces_ascending = false;
+  std::partial_sum(t.vv_offsets.begin(), t.vv_offsets.end(), t.vv_offsets.begin());
+  t.vv.resize(t.vv_offsets[nv]);
+  for (int v = 0; v < nv; ++v) {
+    const int k = t.NumVertexFaces(v);
+    const std::array<int32_t, 2>* sp = spokes.data() + t.vf_offsets[v];
+    int32_t* out = t.vv.data() + t.vv_offsets[v];
+    for (int i = 0; i < k; ++i) out[i] = sp[i][0];
+    if (t.is_boundary[v]) out[k] = sp[k - 1][1];  // an open fan's last spoke
+  }
+  if (!rotational)
+    for (int v = 0; v < nv; ++v) {
+      SortRowByKey(t.vv.data() + t.vv_offsets[v], t.vv.data() + t.vv_offsets[v + 1], r.vertex_source);
+      SortRowByKey(t.vf_faces.data() + t.vf_offsets[v], t.vf_faces.data() + t.vf_offsets[v + 1], r.face_source);
+    }
+  FillLocalityOrder(&t);
+  t.vertex_faces_ascending = false;
   return t;
 }
+
+}  // namespace
+
+absl::StatusOr<Topology> BuildTopology(const LocalityRelabelling& relabelled) { return FanTopology(relabelled); }
 
 }  // namespace geomfit

@@ -15,7 +15,8 @@ struct Topology {
   bool has_quads = false;
   /// vertex -> incident faces: vf_faces[vf_offsets[v] .. vf_offsets[v+1]).
   std::vector<int32_t> vf_offsets, vf_faces;
-  /// vertex -> vertices sharing an edge, sorted: vv[vv_offsets[v] .. vv_offsets[v+1]).
+  /// vertex -> vertices sharing an edge, sorted: vv[vv_offsets[v] .. vv_offsets[v+1])
+  /// (BuildTopology of a LocalityRelabelling: in its RowOrder instead).
   std::vector<int32_t> vv_offsets, vv;
   std::vector<uint8_t> is_boundary;  ///< 1 for vertices on a boundary edge
   std::vector<uint8_t> is_isolated;  ///< 1 for vertices in no face (allowed, flagged)
@@ -27,7 +28,7 @@ struct Topology {
   int num_isolated = 0;
   /// True when every vf row lists its faces in increasing face index (BuildTopology of a
   /// mesh); false for BuildTopology of a LocalityRelabelling, whose rows follow the
-  /// source's face order. Face-by-face passes that accumulate per vertex match per-fan
+  /// source's face order or the fan's (RowOrder). Face-by-face passes that accumulate per vertex match per-fan
   /// passes only in the first case.
   bool vertex_faces_ascending = true;
 
@@ -53,14 +54,39 @@ absl::Status ValidateGeometry(const Mesh& mesh, int num_threads = 0);
 /// BuildTopology + ValidateGeometry.
 absl::StatusOr<Topology> ValidateMesh(const Mesh& mesh, int num_threads = 0);
 
+/// The order of a LocalityRelabelling's face rows and of its topology's rows.
+enum class RowOrder {
+  /// The source's order: face rows keep their source rotation; each vertex's neighbours
+  /// by source vertex index, its incident faces by source face index. Per-vertex work
+  /// (stencils, vertex normals) then performs the source's operations in the source's
+  /// order: results equal the source's bit for bit.
+  kSource,
+  /// One geometric pattern at every vertex and face, as a generated mesh's numbering
+  /// gives: each face row rotated to start at its corner furthest along kRowDirection;
+  /// each vertex's faces in fan order (as they follow each other around it, by the
+  /// faces' orientation), its neighbours as the fan's spokes, a closed fan starting at
+  /// the spoke nearest kRowDirection, an open one at its boundary edge. Ring growth's
+  /// branches then predict as well as on a generated mesh, whatever the source's
+  /// numbering (bench/README.md, "Issue 15, sixth round"). Stencils hold the source's
+  /// point sets in another order: results equal the source's to round-off, not bit for
+  /// bit. Linear in the mesh size.
+  kRotational,
+};
+
+/// The direction of RowOrder::kRotational: fixed, generic (parallel to no axis, so an
+/// axis-aligned plane or a surface of revolution about an axis has it along its normal
+/// at isolated points at most).
+inline constexpr double kRowDirection[3] = {0.8, 0.5, 0.33};
+
 /// A mesh relabelled for memory locality: vertices in spatial (Morton) order, faces
-/// ordered by their lowest new vertex (ties in source order), each face row keeping its
-/// source rotation. Work over it reads nearby memory wherever the source's numbering
-/// put its vertices and faces (a mesher's output is often scattered).
+/// ordered by their lowest new vertex (ties in source order), each face row a rotation
+/// of its source row (per `order`). Work over it reads nearby memory wherever the
+/// source's numbering put its vertices and faces (a mesher's output is often scattered).
 struct LocalityRelabelling {
   Mesh mesh;                           ///< the relabelled mesh
   std::vector<int32_t> vertex_source;  ///< relabelled vertex -> source vertex
   std::vector<int32_t> face_source;    ///< relabelled face -> source face
+  RowOrder order = RowOrder::kRotational;  ///< of the face rows here, of BuildTopology's rows
 };
 
 /// Mean index distance along edges up to which a numbering counts as local: the data of
@@ -78,16 +104,15 @@ bool HasLocalNumbering(const Mesh& mesh);
 /// The same over the topology's edges (each row entry once).
 bool HasLocalNumbering(const Topology& topo);
 
-/// Relabels `mesh`. INVALID_ARGUMENT for an empty mesh or a vertex index out of range
-/// (no message worth showing: validate the source for that).
-absl::StatusOr<LocalityRelabelling> RelabelForLocality(const Mesh& mesh);
+/// Relabels `mesh`, its face rows in `order`. INVALID_ARGUMENT for an empty mesh or a
+/// vertex index out of range (no message worth showing: validate the source for that).
+absl::StatusOr<LocalityRelabelling> RelabelForLocality(const Mesh& mesh, RowOrder order = RowOrder::kRotational);
 
-/// Topology of a relabelled mesh with each row in the source's order: neighbours by
-/// source vertex index, incident faces by source face index. Per-vertex work over it
-/// (stencils, vertex normals) then performs the source's operations in the source's
-/// order, so its results equal the source's bit for bit (in relabelled order). Fails
-/// exactly when BuildTopology(source) fails, with a message naming relabelled indices:
-/// report BuildTopology(source)'s instead.
+/// Topology of a relabelled mesh with its rows in `relabelled.order` (the relabelled
+/// mesh's own BuildTopology sorts them by relabelled index instead), built vertex by
+/// vertex from each fan, with no half-edge sort. Fails exactly when
+/// BuildTopology(source) fails, with a message naming relabelled indices (and for
+/// edges and fans the kind of error only): report BuildTopology(source)'s instead.
 absl::StatusOr<Topology> BuildTopology(const LocalityRelabelling& relabelled);
 
 }  // namespace geomfit

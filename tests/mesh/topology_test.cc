@@ -4,6 +4,7 @@
 #include <array>
 #include <cmath>
 #include <limits>
+#include <random>
 #include <string>
 #include <vector>
 
@@ -345,7 +346,8 @@ TEST(TopologyTest, LocalityOrderIsABreadthFirstPermutation) {
 namespace geomfit {
 namespace {
 
-// A mesh relabelled for locality: the same mesh under the recorded relabelling, and a
+// A mesh relabelled for locality with RowOrder::kSource: the same mesh under the
+// recorded relabelling (face rows in their source rotation), and a
 // topology whose rows list the source's neighbours and faces in the source's order (so
 // stencils and vertex normals repeat the source's operations). Shuffled numberings,
 // quads, open and closed meshes, an isolated vertex.
@@ -361,7 +363,7 @@ TEST(LocalityRelabellingTest, TopologyRowsFollowTheSource) {
                          with_isolated};
   for (const Mesh& base : meshes) {
     const Mesh m = testing_util::ShuffleVertices(base, 11);
-    const LocalityRelabelling r = RelabelForLocality(m).value();
+    const LocalityRelabelling r = RelabelForLocality(m, RowOrder::kSource).value();
     const int nv = m.NumVertices(), nf = m.NumFaces();
     ASSERT_EQ(r.mesh.NumVertices(), nv);
     ASSERT_EQ(r.mesh.NumFaces(), nf);
@@ -405,6 +407,192 @@ TEST(LocalityRelabellingTest, TopologyRowsFollowTheSource) {
   }
 }
 
+// The corners after and before v in face f of m.
+std::array<int32_t, 2> Spokes(const Mesh& m, int f, int v) {
+  int c = 0;
+  while (m.faces(f, c) != v) ++c;
+  return {m.Next(f, c), m.Prev(f, c)};
+}
+
+// A torus with holes: the faces around every 37th vertex removed (that vertex left
+// isolated, a boundary loop around each hole), some holes joined into larger ones.
+Mesh HoledTorus(const GeneratorOptions& g) {
+  const Mesh m = GenerateTorusMesh(g);
+  std::vector<uint8_t> drop(m.NumFaces(), 0);
+  for (int f = 0; f < m.NumFaces(); ++f)
+    for (int c = 0; c < m.FaceSize(f); ++c) drop[f] |= m.faces(f, c) % 37 == 0;
+  std::vector<std::array<int32_t, 4>> kept;
+  for (int f = 0; f < m.NumFaces(); ++f)
+    if (!drop[f]) kept.push_back({m.faces(f, 0), m.faces(f, 1), m.faces(f, 2), m.FaceSize(f) == 4 ? m.faces(f, 3) : -1});
+  Mesh out;
+  out.positions = m.positions;
+  Faces faces(static_cast<int>(kept.size()), 4);
+  for (size_t f = 0; f < kept.size(); ++f) std::copy_n(kept[f].data(), 4, faces.data() + 4 * f);
+  out.faces = std::move(faces);
+  return out;
+}
+
+// RowOrder::kRotational: the source's labels and face rows up to rotation (each starting
+// at its corner furthest along kRowDirection); the topology's rows the source's as sets,
+// each vertex's faces in fan order
+// (each face's next spoke the previous face's prev spoke, closing the cycle on a closed
+// fan), its neighbours the fan's spokes; an open fan (a boundary vertex) starts at its
+// boundary edge, a closed one at the spoke nearest kRowDirection. Shuffled numberings,
+// quads, a Delaunay sphere, open meshes with one, two and many boundary loops, isolated
+// vertices.
+TEST(LocalityRelabellingTest, RotationalRowsAreFans) {
+  GeneratorOptions g;
+  g.n = 10;
+  GeneratorOptions q = g;
+  q.quads = true;
+  const Mesh meshes[] = {GenerateTorusMesh(g),        GenerateBumpMesh(q), GenerateTorusMesh(q),
+                         GenerateDelaunaySphereMesh(500, 0.3), GenerateOpenCylinderMesh(g),
+                         HoledTorus(g),               HoledTorus(q)};
+  int open_fans = 0, closed_fans = 0, isolated = 0;
+  for (const Mesh& base : meshes) {
+    const Mesh m = testing_util::ShuffleVertices(base, 5);
+    const LocalityRelabelling r = RelabelForLocality(m).value();  // kRotational
+    const LocalityRelabelling rs = RelabelForLocality(m, RowOrder::kSource).value();
+    const Mesh& rm = r.mesh;
+    ASSERT_EQ(r.vertex_source, rs.vertex_source);
+    ASSERT_EQ(r.face_source, rs.face_source);
+    ASSERT_EQ(rm.positions, rs.mesh.positions);
+    // Each face row a rotation of the source's, starting at its corner furthest along
+    // kRowDirection.
+    auto along = [&](int32_t v) {
+      return rm.positions(v, 0) * kRowDirection[0] + rm.positions(v, 1) * kRowDirection[1] +
+             rm.positions(v, 2) * kRowDirection[2];
+    };
+    for (int f = 0; f < rm.NumFaces(); ++f) {
+      const int n = rm.FaceSize(f);
+      ASSERT_EQ(rs.mesh.FaceSize(f), n);
+      int shift = 0;
+      while (rs.mesh.faces(f, shift) != rm.faces(f, 0)) ++shift;
+      for (int c = 0; c < n; ++c) {
+        ASSERT_EQ(rm.faces(f, c), rs.mesh.faces(f, (c + shift) % n)) << "face " << f;
+        ASSERT_LE(along(rm.faces(f, c)), along(rm.faces(f, 0))) << "face " << f;
+      }
+    }
+    const Topology t = BuildTopology(m).value();
+    const Topology u = BuildTopology(r).value();
+    const Topology s = BuildTopology(rs).value();
+    EXPECT_FALSE(u.vertex_faces_ascending);
+    EXPECT_EQ(u.num_boundary_edges, t.num_boundary_edges);
+    EXPECT_EQ(u.vv_offsets, s.vv_offsets);
+    EXPECT_EQ(u.vf_offsets, s.vf_offsets);
+    EXPECT_EQ(u.is_boundary, s.is_boundary);
+    for (int v = 0; v < u.num_vertices; ++v) {
+      std::vector<int32_t> nu = Neighbors(u, v), ns = Neighbors(s, v), fu = VertexFaces(u, v), fs = VertexFaces(s, v);
+      std::sort(nu.begin(), nu.end()), std::sort(ns.begin(), ns.end());
+      std::sort(fu.begin(), fu.end()), std::sort(fs.begin(), fs.end());
+      ASSERT_EQ(nu, ns) << v;
+      ASSERT_EQ(fu, fs) << v;
+      const int k = u.NumVertexFaces(v);
+      if (k == 0) {
+        ++isolated;
+        continue;
+      }
+      const bool open = u.is_boundary[v];
+      ASSERT_EQ(u.NumNeighbors(v), k + open) << v;
+      for (int i = 0; i < k; ++i) {
+        const auto sp = Spokes(rm, u.VertexFaces(v)[i], v);
+        ASSERT_EQ(u.Neighbors(v)[i], sp[0]) << v;
+        if (i + 1 < k) ASSERT_EQ(Spokes(rm, u.VertexFaces(v)[i + 1], v)[0], sp[1]) << v;
+      }
+      const int32_t last_prev = Spokes(rm, u.VertexFaces(v)[k - 1], v)[1];
+      if (open) {
+        ++open_fans;
+        ASSERT_EQ(u.Neighbors(v)[k], last_prev) << v;
+        for (int i = 0; i < k; ++i)  // the first spoke is on the boundary: no face precedes
+          ASSERT_NE(Spokes(rm, u.VertexFaces(v)[i], v)[1], u.Neighbors(v)[0]) << v;
+      } else {
+        ++closed_fans;
+        ASSERT_EQ(last_prev, u.Neighbors(v)[0]) << v;
+        const Eigen::Vector3d d(kRowDirection[0], kRowDirection[1], kRowDirection[2]);
+        auto cosine = [&](int w) {
+          const Eigen::Vector3d e = (rm.positions.row(w) - rm.positions.row(v)).transpose();
+          return e.dot(d) / e.norm() / d.norm();
+        };
+        for (int i = 1; i < k; ++i) ASSERT_LE(cosine(u.Neighbors(v)[i]), cosine(u.Neighbors(v)[0]) + 1e-12) << v;
+      }
+    }
+  }
+  EXPECT_GT(open_fans, 200);  // 247
+  EXPECT_GT(closed_fans, 2000);  // 2396
+  EXPECT_EQ(isolated, 18);  // the holed tori's
+}
+
+// BuildTopology of a relabelling (built from each vertex's fan, no half-edge sort)
+// succeeds exactly when BuildTopology of the source does, with the same boundary,
+// isolated vertices and row sets: small meshes with random damage (faces flipped,
+// duplicated, removed, re-cornered, added between random vertices), both row orders.
+TEST(LocalityRelabellingTest, FanTopologyFailsExactlyWhereTheSourceFails) {
+  GeneratorOptions g;
+  g.n = 4;
+  GeneratorOptions q = g;
+  q.quads = true;
+  const Mesh bases[] = {GenerateTorusMesh(g), GenerateBumpMesh(q), GenerateDelaunaySphereMesh(40, 0.3),
+                        GenerateOpenCylinderMesh(g)};
+  std::mt19937_64 rng(7);
+  int ok = 0, failed = 0;
+  for (int trial = 0; trial < 2000; ++trial) {
+    const Mesh& base = bases[trial % 4];
+    const int nv = base.NumVertices();
+    std::vector<std::array<int32_t, 4>> rows;
+    for (int f = 0; f < base.NumFaces(); ++f)
+      rows.push_back({base.faces(f, 0), base.faces(f, 1), base.faces(f, 2), base.FaceSize(f) == 4 ? base.faces(f, 3) : -1});
+    auto pick = [&](int n) { return static_cast<int>(rng() % n); };
+    for (int damage = pick(3); damage >= 0; --damage) {
+      const int f = pick(static_cast<int>(rows.size()));
+      const int n = rows[f][3] < 0 ? 3 : 4;
+      switch (pick(8)) {
+        case 0: std::reverse(rows[f].begin(), rows[f].begin() + n); break;
+        case 1: rows.push_back(rows[f]); break;
+        case 2: rows[f][pick(n)] = pick(nv); break;
+        case 3: rows.push_back({pick(nv), pick(nv), pick(nv), -1}); break;
+        default: if (rows.size() > 1) rows.erase(rows.begin() + f);  // holes, bow ties
+      }
+    }
+    Mesh m;
+    m.positions = base.positions;
+    Faces faces(static_cast<int>(rows.size()), 4);
+    for (size_t f = 0; f < rows.size(); ++f) std::copy_n(rows[f].data(), 4, faces.data() + 4 * f);
+    m.faces = std::move(faces);
+    m = testing_util::ShuffleVertices(m, trial);
+    const absl::StatusOr<Topology> t = BuildTopology(m);
+    (t.ok() ? ok : failed)++;
+    for (RowOrder order : {RowOrder::kSource, RowOrder::kRotational}) {
+      const absl::StatusOr<LocalityRelabelling> r = RelabelForLocality(m, order);
+      if (!r.ok()) {  // an index out of range: the source fails too
+        ASSERT_FALSE(t.ok());
+        continue;
+      }
+      const absl::StatusOr<Topology> u = BuildTopology(*r);
+      ASSERT_EQ(u.ok(), t.ok()) << "trial " << trial << ": " << t.status() << " vs " << u.status();
+      if (!t.ok()) {
+        EXPECT_EQ(u.status().code(), absl::StatusCode::kInvalidArgument);
+        continue;
+      }
+      ASSERT_EQ(u->num_boundary_edges, t->num_boundary_edges) << "trial " << trial;
+      ASSERT_EQ(u->num_isolated, t->num_isolated);
+      ASSERT_EQ(u->has_quads, t->has_quads);
+      for (int v = 0; v < u->num_vertices; ++v) {
+        const int s = r->vertex_source[v];
+        ASSERT_EQ(u->is_boundary[v], t->is_boundary[s]) << "trial " << trial << " vertex " << v;
+        ASSERT_EQ(u->is_isolated[v], t->is_isolated[s]);
+        std::vector<int32_t> nu, fu;
+        for (int32_t w : Neighbors(*u, v)) nu.push_back(r->vertex_source[w]);
+        for (int32_t f : VertexFaces(*u, v)) fu.push_back(r->face_source[f]);
+        if (order == RowOrder::kRotational) std::sort(nu.begin(), nu.end()), std::sort(fu.begin(), fu.end());
+        ASSERT_EQ(nu, Neighbors(*t, s)) << "trial " << trial << " vertex " << v;
+        ASSERT_EQ(fu, VertexFaces(*t, s));
+      }
+    }
+  }
+  EXPECT_GT(ok, 500);
+  EXPECT_GT(failed, 500);
+}
+
 // A generator's numbering is local; a shuffled one of a large mesh is not.
 TEST(LocalityRelabellingTest, LocalNumbering) {
   GeneratorOptions g;
@@ -432,8 +620,10 @@ TEST(LocalityRelabellingTest, FailsWhereTheSourceFails) {
   };
   for (const Mesh& m : bad) {
     ASSERT_FALSE(BuildTopology(m).ok());
-    const LocalityRelabelling r = RelabelForLocality(m).value();
-    EXPECT_EQ(BuildTopology(r).status().code(), absl::StatusCode::kInvalidArgument);
+    for (RowOrder order : {RowOrder::kSource, RowOrder::kRotational}) {
+      const LocalityRelabelling r = RelabelForLocality(m, order).value();
+      EXPECT_EQ(BuildTopology(r).status().code(), absl::StatusCode::kInvalidArgument);
+    }
   }
   const Mesh out_of_range = testing_util::MakeMesh({{0, 0, 0}, {1, 0, 0}, {0, 1, 0}}, {{0, 1, 3}});
   EXPECT_EQ(RelabelForLocality(out_of_range).status().code(), absl::StatusCode::kInvalidArgument);

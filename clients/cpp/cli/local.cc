@@ -65,8 +65,10 @@ void PrepareHeap(int64_t file_bytes) {
 /// Whether to fit on the mesh relabelled for locality: when its numbering is scattered
 /// (a generator's local numbering gains nothing), and only if the fit's results depend
 /// on the numbering through the topology's row orders alone, which
-/// BuildTopology(LocalityRelabelling) keeps (the parametric comparison methods read face
-/// rows themselves; the noise estimate of `--noise on|auto` samples vertices by index).
+/// BuildTopology(LocalityRelabelling) sets in fan order (RowOrder::kRotational: the
+/// source's stencils in another order, results equal to round-off; the parametric
+/// comparison methods read face rows themselves; the noise estimate of
+/// `--noise on|auto` samples vertices by index).
 bool RelabelForFit(const Mesh& mesh, const FitOptions& o) {
   return (o.method == FitMethod::kLHF || o.method == FitMethod::kLOP) && o.noise == NoiseMode::kOff &&
          !HasLocalNumbering(mesh);
@@ -79,7 +81,7 @@ struct LocalFit {
 };
 
 /// Fit and `quantities` of every vertex, computed on the mesh relabelled for locality
-/// when that pays and gives the same numbers (RelabelForFit): an external mesher's
+/// when that pays and gives the same numbers to round-off (RelabelForFit): an external mesher's
 /// scattered numbering then costs no cache misses. The rows stay in the relabelled
 /// order (LocalFit::source maps them back: WriteRelabelledDifferentials).
 /// `validated` is set once the mesh has passed validation (the "read" phase's end).
