@@ -160,15 +160,19 @@ void FitHermiteHessian(int v, const FitInput& in, const FitOutput& out, const Wl
   out.coefficients[TaylorIndex(0, 2)] = c(2);
 }
 
-// Diagnostics and stencil rows of a solved vertex; `op` is SolveWls's operator.
-void FinishVertex(int v, const FitInput& in, const FitOutput& out, const WlsProblem& P,
-                  const WlsSolution& sol, const double* op) {
-  VertexDiagnostics& diag = *out.diag;
+// A solution's diagnostics.
+void SetDiagnostics(const WlsSolution& sol, VertexDiagnostics& diag) {
   diag.degree_used = static_cast<int8_t>(sol.degree_used);
   diag.rank = static_cast<int16_t>(sol.rank);
   diag.condition = static_cast<float>(sol.condition);
   if (sol.condition_downgraded || sol.degree_used < 1) diag.flags |= kFlagDowngraded;
   if (sol.oscillation_downgraded) diag.flags |= kFlagOscillation;
+}
+
+// Diagnostics and stencil rows of a solved vertex; `op` is SolveWls's operator.
+void FinishVertex(int v, const FitInput& in, const FitOutput& out, const WlsProblem& P,
+                  const WlsSolution& sol, const double* op) {
+  SetDiagnostics(sol, *out.diag);
   if (in.fixed_tangent && in.fixed_tangent[v] && sol.degree_used >= 1)  // normal refinement
     out.coefficients[TaylorIndex(1, 0)] = out.coefficients[TaylorIndex(0, 1)] = 0;
   if (in.hermite && in.fixed_tangent && in.fixed_tangent[v] && sol.degree_used >= 2) FitHermiteHessian(v, in, out, P);
@@ -213,6 +217,37 @@ struct FitBatch {
       if (!(solved >> l & 1))
         sol[l] = svd ? SolveWlsSvd(problems[l], S, coef[l], op[l]) : SolveWls(problems[l], S, coef[l], op[l]);
       FinishVertex(vertex[l], in, outs[l], problems[l], sol[l], op[l]);
+    }
+    count = 0;
+  }
+};
+
+// Height fits (LHF, no stencils) set up in the kernel's lanes by FitHeightsBatch,
+// kWlsLanes vertices at a time; the lanes it leaves are set up again by SetUpVertex and
+// go to `batch` (SolveWlsBatch's QR, SolveWls): the same results as without this queue.
+struct HeightQueue {
+  HeightLane lanes[kWlsLanes];
+  FitOutput outs[kWlsLanes];
+  int count = 0;
+
+  void Flush(const FitInput& in, const HeightLanesInput& hin, const WlsSettings& S, FitBatch& batch) {
+    WlsSolution sol[kWlsLanes];
+    int used[kWlsLanes];
+    const int solved = count > 0 ? FitHeightsBatch(hin, lanes, count, S, sol, used, batch.work) : 0;
+    const int ncoef = NumCoefficients(in.o.degree);
+    for (int l = 0; l < count; ++l) {
+      if (solved >> l & 1) {
+        VertexDiagnostics& diag = *outs[l].diag;
+        diag.points = static_cast<int16_t>(used[l]);
+        if (used[l] < ncoef) diag.flags |= kFlagTooFewPoints;
+        SetDiagnostics(sol[l], diag);
+        continue;
+      }
+      const int slot = batch.count;
+      SetUpVertex(lanes[l].vertex, in, outs[l], batch.problems[slot]);  // not isolated: queued
+      batch.outs[slot] = outs[l];
+      batch.vertex[slot] = lanes[l].vertex;
+      if (++batch.count == kWlsLanes) batch.Flush(in, S, true);
     }
     count = 0;
   }
@@ -461,10 +496,17 @@ class SurfaceFitter {
                       xyzn.data(), local_order ? rank.data() : nullptr, fixed_tangent,
                       fixed_tangent != nullptr && o.HermiteHessian()};
     const WlsSettings settings = SettingsFor(o, f.stencil_rows_);
+    // Height fits without stencils, refinement or comparison solvers are set up in the
+    // batched kernel's lanes (FitHeightsBatch).
+    const bool lane_setup = req.batched_kernel && req.lane_setup && o.method == FitMethod::kLHF && !req.stencils &&
+                            o.solver != WlsSolver::kSVD && !o.oscillation_safeguard && fixed_tangent == nullptr &&
+                            WlsBatchNormalEquations();
+    const HeightLanesInput hin{in.xyzn, in.rank, in.cos_cut};
     constexpr int64_t kGrain = 512;
     return ParallelFor((nv + kGrain - 1) / kGrain, ctx, [&](int64_t chunk) {
       const int64_t end = std::min<int64_t>(nv, (chunk + 1) * kGrain);
       std::unique_ptr<FitBatch> batch(new FitBatch);  // default-initialized: no 800 KB memset
+      HeightQueue heights;
       const auto vertex_at = [&](int64_t k) -> int64_t { return local_order ? topo.locality_order[k] : k; };
       for (int64_t k = chunk * kGrain; k < end; ++k) {
         // Prefetch: the CSR offsets 16 vertices ahead, the stencil indices 8 ahead and
@@ -496,12 +538,24 @@ class SurfaceFitter {
         const FitOutput out{&f.frames_[v], f.coefficients_.data() + v * f.dims() * f.num_coefficients(),
                             &f.diagnostics_[v], req.stencils ? f.stencils_.data() + f.stencil_offsets_[v] : nullptr,
                             f.stencil_rows_};
+        if (lane_setup) {
+          const double* self = in.xyzn + 6 * static_cast<int64_t>(in.Slot(static_cast<int>(v)));
+          if (Eigen::Map<const Eigen::Vector3d>(self + 3).squaredNorm() != 0) {  // else isolated: below
+            out.diag->degree_requested = static_cast<int8_t>(o.degree);
+            heights.lanes[heights.count] = HeightLane{static_cast<int>(v), nb->Points(static_cast<int>(v)),
+                                                      nb->Size(static_cast<int>(v)), out.frame, out.coefficients};
+            heights.outs[heights.count] = out;
+            if (++heights.count == kWlsLanes) heights.Flush(in, hin, settings, *batch);
+            continue;
+          }
+        }
         const int slot = batch->count;
         if (!SetUpVertex(static_cast<int>(v), in, out, batch->problems[slot])) continue;
         batch->outs[slot] = out;
         batch->vertex[slot] = static_cast<int>(v);
         if (++batch->count == kWlsLanes) batch->Flush(in, settings, req.batched_kernel);
       }
+      heights.Flush(in, hin, settings, *batch);
       batch->Flush(in, settings, req.batched_kernel);
       if (on_fitted && *on_fitted) (*on_fitted)(f, chunk * kGrain, end);
     }, 1, phase);

@@ -103,6 +103,10 @@ struct FitRequest {
   /// Solve kWlsLanes vertices at once with the batched SIMD kernel (wls_batch.h); false
   /// solves every vertex with the scalar SolveWls (same results to round-off).
   bool batched_kernel = true;
+  /// Height fits (LHF) without stencils set up in the batched kernel's lanes
+  /// (FitHeightsBatch, wls_batch.h); false sets every vertex up as a WlsProblem first
+  /// (tests: the same bits).
+  bool lane_setup = true;
 };
 
 /// Without this callback vertices are fitted in Topology::locality_order; with it, in

@@ -1,6 +1,7 @@
 #include "core/fitting/wls_batch.h"
 
 #include <cstdint>
+#include <type_traits>
 
 #include "core/fitting/fit.h"
 
@@ -19,6 +20,7 @@ struct Lanes {
 };
 
 #define GEOMFIT_INLINE inline __attribute__((always_inline))
+#define GEOMFIT_INLINE_LAMBDA __attribute__((always_inline))
 
 template <class V>
 GEOMFIT_INLINE V Splat(double x) { return V{} + x; }
@@ -32,6 +34,15 @@ template <class V>
 GEOMFIT_INLINE V Abs(V x) { return x < 0 ? -x : x; }
 template <class V>
 GEOMFIT_INLINE V Max(V a, V b) { return a < b ? b : a; }
+
+// (p[0][c], p[1][c], ...) built in registers (lane by lane stores go through the stack).
+template <class V>
+GEOMFIT_INLINE V Gather(const double* const* p, int c, V /*type*/) {
+  if constexpr (sizeof(V) == 8 * sizeof(double))
+    return V{p[0][c], p[1][c], p[2][c], p[3][c], p[4][c], p[5][c], p[6][c], p[7][c]};
+  else
+    return V{p[0][c], p[1][c], p[2][c], p[3][c]};
+}
 
 constexpr double Factorial(int n) { return n <= 1 ? 1.0 : n * Factorial(n - 1); }
 
@@ -481,17 +492,138 @@ GEOMFIT_INLINE int Solve(const WlsProblem* const problems[], int count, const Wl
   return mask | done;
 }
 
-template <int W, int First>
-GEOMFIT_INLINE int SolveDegree(const WlsProblem* const problems[], int count, const WlsSettings& S,
-                               double* const coefficients[], double* const ops[], WlsSolution solutions[],
-                               WlsBatchWorkspace& work) {
+
+// FitHeightsBatch at degree D with the first First Taylor columns fixed, for up to W
+// lanes: fit.cc's SetUpVertex (FrameFromNormal, then per stencil point u, v, the height
+// and the safeguard factor, each with Eigen's operations in Eigen's order: a dot product
+// of 3-vectors is (x0 y0 + x1 y1) + x2 y2), then Solve's row compaction and radius, then
+// SolveNormal. Rows are not compacted: a row with gamma 0 has weight 0, so it adds
+// exact zeros to every moment (sums that start at +0 never become -0) and the lane's
+// bits are those of the compacted rows.
+template <int W, int D, int First>
+GEOMFIT_INLINE int FitHeights(const HeightLanesInput& in, const HeightLane* lanes, int count, const WlsSettings& S,
+                              WlsSolution solutions[], int used[], WlsBatchWorkspace& work) {
+  using V = typename Lanes<W>::V;
+  constexpr int kCols = NumCoefficients(D) - First;
+  const auto slot = [&](int p) -> int64_t { return 6 * static_cast<int64_t>(in.rank ? in.rank[p] : p); };
+  int64_t self[W];
+  const int32_t* pts[W];
+  int nrows[W];
+  int m = 0;
+  for (int l = 0; l < W; ++l) {
+    const HeightLane& L = lanes[l < count ? l : 0];
+    self[l] = slot(L.vertex);
+    pts[l] = L.points + First;
+    nrows[l] = l < count ? L.size - First : 0;
+    m = m < nrows[l] ? nrows[l] : m;
+  }
+  const V one = Splat<V>(1);
+  V x0[3], n[3];
+  {
+    const double* at[W];
+    for (int l = 0; l < W; ++l) at[l] = in.xyzn + self[l];
+    for (int c = 0; c < 3; ++c) x0[c] = Gather(at, c, one), n[c] = Gather(at, 3 + c, one);
+  }
+  // FrameFromNormal (frames.h), lane by lane.
+  V t1[3], t2[3];
+  {
+    const V a0 = Abs(n[0]), a1 = Abs(n[1]), a2 = Abs(n[2]);
+    // One comparison per select, masks combined in 0/1 arithmetic (exact): GCC 12 turns
+    // nested selects and combined comparison masks into scalar code.
+    const V c10 = a1 < a0 ? one : V{}, c21 = a2 < a1 ? one : V{}, c20 = a2 < a0 ? one : V{};
+    const V is2 = c10 * c21 + (one - c10) * c20;
+    const V is1 = c10 * (one - c21);
+    const V is0 = one - is1 - is2;
+    const V s12 = is1 != 0 ? n[1] : n[2];
+    const V s = is0 != 0 ? n[0] : s12;
+    const V e0 = is0 - s * n[0], e1 = is1 - s * n[1], e2 = is2 - s * n[2];
+    const V z = e0 * e0 + e1 * e1 + e2 * e2;
+    const V r = z > 0 ? Sqrt(z) : one;
+    t1[0] = z > 0 ? e0 / r : e0;
+    t1[1] = z > 0 ? e1 / r : e1;
+    t1[2] = z > 0 ? e2 / r : e2;
+    t2[0] = n[1] * t1[2] - n[2] * t1[1];
+    t2[1] = n[2] * t1[0] - n[0] * t1[2];
+    t2[2] = n[0] * t1[1] - n[1] * t1[0];
+  }
+  for (int l = 0; l < count; ++l) {
+    LocalFrame& fr = *lanes[l].frame;
+    fr.origin = Eigen::Vector3d(x0[0][l], x0[1][l], x0[2][l]);
+    fr.t1 = Eigen::Vector3d(t1[0][l], t1[1][l], t1[2][l]);
+    fr.t2 = Eigen::Vector3d(t2[0][l], t2[1][l], t2[2][l]);
+    fr.normal = Eigen::Vector3d(n[0][l], n[1][l], n[2][l]);
+  }
+
+  // Rows in lanes; padded rows (past a lane's stencil) read the lane's own centre and
+  // get gamma 0.
+  V* gu = reinterpret_cast<V*>(work.data);
+  V* gv = gu + m;
+  V* gg = gv + m;
+  V* grhs = gg + m;
+  V* r = grhs + m;  // kCols^2 vectors: SolveNormal's scratch
+  V kept = V{}, radius2 = V{};
+  const V cos_cut = Splat<V>(in.cos_cut);
+  V rows;
+  for (int l = 0; l < W; ++l) rows[l] = nrows[l];
+  for (int i = 0; i < m; ++i) {
+    const double* at[W];
+    for (int l = 0; l < W; ++l) at[l] = in.xyzn + (i < nrows[l] ? slot(pts[l][i]) : self[l]);
+    V q[6];
+    for (int c = 0; c < 6; ++c) q[c] = Gather(at, c, one);
+    const V d0 = q[0] - x0[0], d1 = q[1] - x0[1], d2 = q[2] - x0[2];
+    const V u = d0 * t1[0] + d1 * t1[1] + d2 * t1[2];
+    const V v = d0 * t2[0] + d1 * t2[1] + d2 * t2[2];
+    const V g = First == 0 && i == 0 ? one : q[3] * n[0] + q[4] * n[1] + q[5] * n[2];
+    const V cut = g >= cos_cut ? g : V{};
+    const V gamma = Splat<V>(i) < rows ? cut : V{};
+    gu[i] = u;
+    gv[i] = v;
+    gg[i] = gamma;
+    grhs[i] = d0 * n[0] + d1 * n[1] + d2 * n[2];
+    kept += gamma > 0 ? one : V{};
+    const V dd = u * u + v * v;
+    const V kept_dd = gamma > 0 ? dd : V{};  // radius2 >= 0: the kept rows' maximum
+    radius2 = radius2 < kept_dd ? kept_dd : radius2;
+  }
+  int mask = 0;
+  double h[W];
+  V hv;
+  double* coefficients[W];
+  for (int l = 0; l < W; ++l) {
+    coefficients[l] = lanes[l < count ? l : 0].coefficients;
+    if (l < count) used[l] = static_cast<int>(kept[l]) + First;
+    const bool plain = l < count && kept[l] >= kCols && radius2[l] != 0;
+    h[l] = plain ? __builtin_sqrt(radius2[l]) : 1.0;
+    hv[l] = h[l];
+    mask |= plain << l;
+  }
+  if (mask == 0) return 0;
+  return SolveNormal<W, D, First>(gu, gv, gg, grhs, m, 1, hv, h, mask, S, coefficients, solutions, r);
+}
+
+// f(integral_constant<D>, integral_constant<First>) at the settings' degree, interpolating or not.
+template <int D>
+using Int = std::integral_constant<int, D>;
+template <class F>
+GEOMFIT_INLINE int ForDegree(const WlsSettings& S, F&& f) {
+  if (S.interpolate) {
+    switch (S.degree) {
+      case 1: return f(Int<1>{}, Int<1>{});
+      case 2: return f(Int<2>{}, Int<1>{});
+      case 3: return f(Int<3>{}, Int<1>{});
+      case 4: return f(Int<4>{}, Int<1>{});
+      case 5: return f(Int<5>{}, Int<1>{});
+      case 6: return f(Int<6>{}, Int<1>{});
+      default: return 0;
+    }
+  }
   switch (S.degree) {
-    case 1: return Solve<W, 1, First>(problems, count, S, coefficients, ops, solutions, work);
-    case 2: return Solve<W, 2, First>(problems, count, S, coefficients, ops, solutions, work);
-    case 3: return Solve<W, 3, First>(problems, count, S, coefficients, ops, solutions, work);
-    case 4: return Solve<W, 4, First>(problems, count, S, coefficients, ops, solutions, work);
-    case 5: return Solve<W, 5, First>(problems, count, S, coefficients, ops, solutions, work);
-    case 6: return Solve<W, 6, First>(problems, count, S, coefficients, ops, solutions, work);
+    case 1: return f(Int<1>{}, Int<0>{});
+    case 2: return f(Int<2>{}, Int<0>{});
+    case 3: return f(Int<3>{}, Int<0>{});
+    case 4: return f(Int<4>{}, Int<0>{});
+    case 5: return f(Int<5>{}, Int<0>{});
+    case 6: return f(Int<6>{}, Int<0>{});
     default: return 0;
   }
 }
@@ -505,8 +637,27 @@ GEOMFIT_INLINE int SolveAny(const WlsProblem* const problems[], int count, const
   int mask = 0;
   for (int g = 0; g < count; g += W) {
     const int n = count - g < W ? count - g : W;
-    mask |= (S.interpolate ? SolveDegree<W, 1>(problems + g, n, S, coefficients + g, ops + g, solutions + g, work)
-                           : SolveDegree<W, 0>(problems + g, n, S, coefficients + g, ops + g, solutions + g, work))
+    mask |= ForDegree(S, [&](auto d, auto first) GEOMFIT_INLINE_LAMBDA {
+              return Solve<W, decltype(d)::value, decltype(first)::value>(problems + g, n, S, coefficients + g,
+                                                                          ops + g, solutions + g, work);
+            })
+            << g;
+  }
+  return mask;
+}
+
+// The height fits in groups of W lanes.
+template <int W>
+GEOMFIT_INLINE int FitHeightsAny(const HeightLanesInput& in, const HeightLane lanes[], int count,
+                                 const WlsSettings& S, WlsSolution solutions[], int used[], WlsBatchWorkspace& work) {
+  if (count <= 0 || count > kWlsLanes || S.oscillation_safeguard || !NormalEquationsEnabled()) return 0;
+  int mask = 0;
+  for (int g = 0; g < count; g += W) {
+    const int n = count - g < W ? count - g : W;
+    mask |= ForDegree(S, [&](auto d, auto first) GEOMFIT_INLINE_LAMBDA {
+              return FitHeights<W, decltype(d)::value, decltype(first)::value>(in, lanes + g, n, S, solutions + g,
+                                                                               used + g, work);
+            })
             << g;
   }
   return mask;
@@ -517,6 +668,11 @@ __attribute__((flatten)) int SolvePortable(const WlsProblem* const problems[], i
                                            double* const coefficients[], double* const ops[],
                                            WlsSolution solutions[], WlsBatchWorkspace& work) {
   return SolveAny<4>(problems, count, S, coefficients, ops, solutions, work);
+}
+__attribute__((flatten)) int FitHeightsPortable(const HeightLanesInput& in, const HeightLane lanes[], int count,
+                                                const WlsSettings& S, WlsSolution solutions[], int used[],
+                                                WlsBatchWorkspace& work) {
+  return FitHeightsAny<4>(in, lanes, count, S, solutions, used, work);
 }
 
 #if defined(__x86_64__) && defined(__GNUC__)
@@ -532,32 +688,47 @@ __attribute__((flatten, target("avx512f,avx512dq,avx512vl,avx512bw,prefer-vector
     double* const ops[], WlsSolution solutions[], WlsBatchWorkspace& work) {
   return SolveAny<8>(problems, count, S, coefficients, ops, solutions, work);
 }
+__attribute__((flatten, target("avx2"))) int FitHeightsAvx2(const HeightLanesInput& in, const HeightLane lanes[],
+                                                            int count, const WlsSettings& S,
+                                                            WlsSolution solutions[], int used[],
+                                                            WlsBatchWorkspace& work) {
+  return FitHeightsAny<4>(in, lanes, count, S, solutions, used, work);
+}
+__attribute__((flatten, target("avx512f,avx512dq,avx512vl,avx512bw,prefer-vector-width=512"))) int FitHeightsAvx512(
+    const HeightLanesInput& in, const HeightLane lanes[], int count, const WlsSettings& S, WlsSolution solutions[],
+    int used[], WlsBatchWorkspace& work) {
+  return FitHeightsAny<8>(in, lanes, count, S, solutions, used, work);
+}
 #endif
 
 using Kernel = int (*)(const WlsProblem* const[], int, const WlsSettings&, double* const[], double* const[],
                        WlsSolution[], WlsBatchWorkspace&);
 
+using HeightsKernel = int (*)(const HeightLanesInput&, const HeightLane[], int, const WlsSettings&, WlsSolution[],
+                              int[], WlsBatchWorkspace&);
+
 struct Isa {
   const char* name;
   Kernel kernel;
+  HeightsKernel heights;
   bool (*supported)();
 };
 
 const Isa kIsas[] = {
 #ifdef GEOMFIT_HAVE_X86_KERNELS
-    {"avx512", SolveAvx512,
+    {"avx512", SolveAvx512, FitHeightsAvx512,
      [] {
        __builtin_cpu_init();
        return __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512dq") &&
               __builtin_cpu_supports("avx512vl") && __builtin_cpu_supports("avx512bw");
      }},
-    {"avx2", SolveAvx2,
+    {"avx2", SolveAvx2, FitHeightsAvx2,
      [] {
        __builtin_cpu_init();
        return static_cast<bool>(__builtin_cpu_supports("avx2"));
      }},
 #endif
-    {"portable", SolvePortable, [] { return true; }},
+    {"portable", SolvePortable, FitHeightsPortable, [] { return true; }},
 };
 
 // The best kernel this CPU runs (first supported in kIsas), unless SetWlsBatchIsa chose.
@@ -577,6 +748,13 @@ int SolveWlsBatch(const WlsProblem* const problems[], int count, const WlsSettin
                   WlsBatchWorkspace& work) {
   return Selected()->kernel(problems, count, settings, coefficients, ops, solutions, work);
 }
+
+int FitHeightsBatch(const HeightLanesInput& in, const HeightLane lanes[], int count, const WlsSettings& settings,
+                    WlsSolution solutions[], int used[], WlsBatchWorkspace& work) {
+  return Selected()->heights(in, lanes, count, settings, solutions, used, work);
+}
+
+bool WlsBatchNormalEquations() { return NormalEquationsEnabled(); }
 
 const char* WlsBatchIsa() { return Selected()->name; }
 

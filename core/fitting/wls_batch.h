@@ -4,6 +4,7 @@
 #include <string_view>
 #include <vector>
 
+#include "core/fitting/frames.h"
 #include "core/fitting/wls.h"
 
 namespace geomfit {
@@ -40,6 +41,38 @@ struct WlsBatchWorkspace {
 int SolveWlsBatch(const WlsProblem* const problems[], int count, const WlsSettings& settings,
                   double* const coefficients[], double* const ops[], WlsSolution solutions[],
                   WlsBatchWorkspace& work);
+
+/// Where FitHeightsBatch reads its stencils: position and normal of vertex p at
+/// xyzn[6 * slot(p)], slot(p) = rank[p] (or p when rank is null).
+struct HeightLanesInput {
+  const double* xyzn;
+  const int32_t* rank;
+  double cos_cut;  ///< cos(safeguard angle): rows whose normals turn further get gamma 0 (2.2.1)
+};
+
+/// One vertex of FitHeightsBatch: its stencil (centre first) and where its fit goes.
+struct HeightLane {
+  int vertex;
+  const int32_t* points;
+  int size;
+  LocalFrame* frame;     ///< written for every lane
+  double* coefficients;  ///< NumCoefficients(degree) doubles, written for solved lanes
+};
+
+/// Height-function fits (LHF) without operator rows for up to kWlsLanes non-isolated
+/// vertices, set up in the SIMD lanes themselves: frame (FrameFromNormal), the stencil
+/// points' (u, v, height) and safeguard factors (2.2.1) as fit.cc's SetUpVertex computes
+/// them, 8 (or 4) vertices per vector, then solved by the normal equations as
+/// SolveWlsBatch does (its SolveNormal: the same bits). `used[l]` gets the vertex's count
+/// of rows with a positive safeguard factor (the centre counted); frames are written for
+/// every lane. Returns the mask of lanes solved; the others (too few rows, a condition
+/// the normal equations leave to the QR, ...) are for SolveWlsBatch / SolveWls. Returns 0
+/// with the normal equations off (SetWlsBatchNormalEquations) or a degree above 6.
+int FitHeightsBatch(const HeightLanesInput& in, const HeightLane lanes[], int count, const WlsSettings& settings,
+                    WlsSolution solutions[], int used[], WlsBatchWorkspace& work);
+
+/// Whether SolveWlsBatch and FitHeightsBatch use the normal equations (the default).
+bool WlsBatchNormalEquations();
 
 /// Tests and benchmarks: whether SolveWlsBatch may solve well-conditioned lanes without
 /// operator rows by the normal equations (the default) or always by the QR (not

@@ -198,6 +198,50 @@ TEST(WlsBatchTest, NormalEquationsGiveTheScalarPathsNormalsAndCurvatures) {
   EXPECT_GT(differ, total / 2);
 }
 
+// Height fits set up in the kernel's lanes (FitRequest::lane_setup, FitHeightsBatch)
+// against the same fits set up vertex by vertex (SetUpVertex, SolveWlsBatch): frames,
+// coefficients and diagnostics bit for bit, on the test meshes and a jittered torus with
+// shuffled numbering, with the default safeguard angle and a narrow one (rows dropped
+// inside stencils: gamma 0 rows are not compacted in the lanes), every kernel.
+TEST_P(WlsBatchIsaTest, LaneSetUpGivesTheSameFitsBitForBit) {
+  std::vector<Case> cases = Meshes();
+  GeneratorOptions g;
+  g.n = 12;
+  g.jitter = 0.4;
+  cases.push_back({"shuffled torus", testing_util::ShuffleVertices(GenerateTorusMesh(g), 11)});
+  int dropped = 0;
+  for (const Case& c : cases) {
+    const Topology t = BuildTopology(c.mesh).value();
+    for (const double angle : {70.0, 25.0})
+      for (int degree = 1; degree <= kMaxDegree; ++degree)
+        for (const bool interpolate : {true, false}) {
+          SCOPED_TRACE(::testing::Message() << c.name << " degree " << degree << " interpolate " << interpolate
+                                            << " angle " << angle);
+          FitOptions o;
+          o.degree = degree;
+          o.interpolate = interpolate;
+          o.safeguard_angle_deg = angle;
+          FitRequest problems;
+          problems.lane_setup = false;
+          const auto a = FitSurface(c.mesh, t, o, nullptr, {}).value();
+          const auto b = FitSurface(c.mesh, t, o, nullptr, problems).value();
+          const int nc = a->num_coefficients();
+          for (int v = 0; v < c.mesh.NumVertices(); ++v) {
+            const VertexDiagnostics &da = a->diagnostics(v), &db = b->diagnostics(v);
+            ASSERT_EQ(da.degree_requested, db.degree_requested) << "vertex " << v;
+            ASSERT_TRUE(SameDiagnostics(da, db, 0)) << "vertex " << v;
+            ASSERT_EQ(da.condition, db.condition) << "vertex " << v;
+            for (int i = 0; i < nc; ++i) ASSERT_EQ(a->coefficients(v)[i], b->coefficients(v)[i]) << "vertex " << v;
+            const LocalFrame &fa = a->frame(v), &fb = b->frame(v);
+            ASSERT_TRUE(fa.origin == fb.origin && fa.t1 == fb.t1 && fa.t2 == fb.t2 && fa.normal == fb.normal)
+                << "vertex " << v;
+            dropped += da.points < a->neighborhoods().Size(v);
+          }
+        }
+  }
+  EXPECT_GT(dropped, 0);  // the narrow angle dropped rows
+}
+
 // A random stencil of `rows` points on a paraboloid, every row with weight 1.
 WlsProblem RandomProblem(int rows, std::mt19937& rng) {
   std::uniform_real_distribution<double> uni(-1, 1);
