@@ -36,10 +36,11 @@ void Verbose(bool on, const std::string& line) {
 /// the parser's growing arrays, the mesh): what RunHeap commits before reading.
 size_t ReadHeapBytes(int64_t file_bytes) { return static_cast<size_t>(2.3 * static_cast<double>(file_bytes)); }
 
-/// Heap bytes the rest of a `curvature --local` run peaks at for `vertices` at `degree`
-/// (measured on the gmsh torus, 87k vertices, one thread: degree 1 to 6 peak at 450 to
-/// 890 B per vertex; mostly the stencils, frames, coefficients and outputs). An
-/// estimate: memory beyond it faults in on use.
+/// Heap bytes the rest of a `curvature --local` run spans for `vertices` at `degree`
+/// (the fit's: stencils, frames, coefficients, positions and normals in locality order,
+/// mesh and topology; measured on the gmsh torus, 87k vertices, one thread: 475, 500,
+/// 555, 660, 780 and 915 B per vertex at degrees 1 to 6). An estimate: what it leaves
+/// out faults in on use.
 size_t FitHeapBytes(int vertices, int degree) {
   return static_cast<size_t>(vertices) * (400 + 18 * NumCoefficients(std::clamp(degree, 1, 8)));
 }
@@ -82,14 +83,19 @@ absl::StatusOr<LocalFit> FitLocal(Mesh* source_mesh, bool keep_mesh, const std::
       if (!keep_mesh) *source_mesh = Mesh();
       std::vector<int32_t>().swap(r->face_source);  // BuildTopology's alone
       GF_ASSIGN_OR_RETURN(const auto fits, FitSurface(r->mesh, *topo, o, nullptr, {}, ctx));
+      // The fits hold all the quantities need: the outputs reuse this memory.
+      *topo = Topology();
+      r->mesh = Mesh();
       GF_ASSIGN_OR_RETURN(Differentials d, ComputeDifferentials(*fits, quantities, ctx));
       return LocalFit{std::move(d), std::move(r->vertex_source)};
     }
   }
-  const absl::StatusOr<Topology> topo = ValidateMesh(mesh, ctx.threads());
+  absl::StatusOr<Topology> topo = ValidateMesh(mesh, ctx.threads());
   GF_RETURN_IF_ERROR(WithPrefix(topo.status(), path));
   validated();
   GF_ASSIGN_OR_RETURN(const auto fits, FitSurface(mesh, *topo, o, nullptr, {}, ctx));
+  *topo = Topology();
+  if (!keep_mesh) *source_mesh = Mesh();
   GF_ASSIGN_OR_RETURN(Differentials d, ComputeDifferentials(*fits, quantities, ctx));
   return LocalFit{std::move(d), {}};
 }

@@ -1,6 +1,7 @@
 #include "clients/cpp/cli/run_heap.h"
 
 #include <algorithm>
+#include <climits>
 #include <cstdint>
 #include <cstdlib>
 
@@ -19,9 +20,8 @@ namespace {
 #define MADV_POPULATE_WRITE 23  // Linux 5.14; older kernels refuse it (EINVAL)
 #endif
 
-constexpr size_t kHuge = size_t{2} << 20;
-constexpr size_t kBlock = size_t{30} << 20;  // below the 32 MB mmap threshold
-constexpr int kMaxBlocks = 64;
+constexpr size_t kHuge = size_t{2} << 20, kSmall = 4096;
+constexpr size_t kMaxReserve = size_t{4} << 30;
 
 double ThreadCpuMs() {
   timespec t;
@@ -35,29 +35,24 @@ double ThreadCpuMs() {
 void RunHeap::Reserve(size_t bytes) {
 #if defined(GEOMFIT_RUN_HEAP)
   if (begin_ != nullptr || bytes == 0) return;
-  mallopt(M_MMAP_THRESHOLD, 32 << 20);
-  mallopt(M_TRIM_THRESHOLD, 1 << 30);
-  // Blocks below the mmap threshold come from the heap's top, one after the other;
-  // freed, they merge into its top chunk, from which later allocations are carved
-  // upwards.
-  const int blocks = static_cast<int>(std::min<size_t>(kMaxBlocks, (bytes + kHuge + kBlock - 1) / kBlock));
-  void* held[kMaxBlocks];
-  int n = 0;
-  uintptr_t lo = UINTPTR_MAX, hi = 0;
-  for (; n < blocks; ++n) {
-    if ((held[n] = std::malloc(kBlock)) == nullptr) break;
-    lo = std::min(lo, reinterpret_cast<uintptr_t>(held[n]));
-    hi = std::max(hi, reinterpret_cast<uintptr_t>(held[n]) + kBlock);
+  // Every allocation from the heap (none mmapped, whatever its size); nothing given back.
+  mallopt(M_MMAP_MAX, 0);
+  mallopt(M_TRIM_THRESHOLD, INT_MAX);
+  // One block from the heap's top: malloc writes headers just below and above it, so
+  // no page from its first 2 MB boundary on is touched (a touched 4 KB page would keep
+  // its 2 MB page from being huge). Freed, it merges into the top chunk, from which
+  // later allocations are carved upwards: from its header's page on.
+  bytes = std::min(bytes, kMaxReserve);
+  char* block = static_cast<char*>(std::malloc(bytes + 2 * kHuge));
+  if (block == nullptr) return;
+  const uintptr_t at = reinterpret_cast<uintptr_t>(block);
+  const uintptr_t lo = (at + kHuge - 1) & ~(kHuge - 1), hi = (at + bytes + 2 * kHuge) & ~(kHuge - 1);
+  if (madvise(reinterpret_cast<void*>(lo), hi - lo, MADV_HUGEPAGE) == 0) {
+    begin_ = next_ = reinterpret_cast<char*>((at - 2 * sizeof(size_t)) & ~(kSmall - 1));
+    huge_ = reinterpret_cast<char*>(lo);
+    stats_.reserved = hi - reinterpret_cast<uintptr_t>(begin_);
   }
-  lo = (lo + kHuge - 1) & ~(kHuge - 1);
-  hi &= ~(kHuge - 1);
-  // Consecutive (else the heap could not grow in place: keep glibc's behaviour).
-  if (n > 0 && hi > lo && hi - lo <= static_cast<size_t>(n) * (kBlock + 4096) &&
-      madvise(reinterpret_cast<void*>(lo), hi - lo, MADV_HUGEPAGE) == 0) {
-    begin_ = reinterpret_cast<char*>(lo);
-    stats_.reserved = hi - lo;
-  }
-  for (int i = 0; i < n; ++i) std::free(held[i]);
+  std::free(block);
 #else
   (void)bytes;
 #endif
@@ -65,25 +60,34 @@ void RunHeap::Reserve(size_t bytes) {
 
 void RunHeap::Commit(size_t bytes) {
 #if defined(GEOMFIT_RUN_HEAP)
-  const size_t target = std::min((bytes + kHuge - 1) & ~(kHuge - 1), stats_.reserved);
-  if (stats_.committed >= target) return;
+  char* const end = begin_ + stats_.reserved;
+  char* target = begin_ + std::min(bytes, stats_.reserved);
+  if (target > huge_) target = huge_ + ((target - huge_ + kHuge - 1) & ~(kHuge - 1));
+  if (next_ >= target || !ok_) return;
   const double start = ThreadCpuMs();
-  while (stats_.committed < target) {
-    char* p = begin_ + stats_.committed;
+  // Below the first 2 MB boundary: the heap's older part, small pages.
+  if (next_ < huge_) {
+    char* const to = std::min(huge_, target);
+    ok_ = madvise(next_, to - next_, MADV_POPULATE_WRITE) == 0;
+    if (ok_) next_ = to;
+  }
+  while (ok_ && next_ < target) {
     if (stats_.small_pages) {
-      if (madvise(p, target - stats_.committed, MADV_POPULATE_WRITE) != 0) break;
-      stats_.committed = target;
+      ok_ = madvise(next_, target - next_, MADV_POPULATE_WRITE) == 0;
+      if (ok_) next_ = target;
       break;
     }
     const double t = ThreadCpuMs();
-    if (madvise(p, kHuge, MADV_POPULATE_WRITE) != 0) break;  // then pages fault in on use
-    stats_.committed += kHuge;
+    ok_ = madvise(next_, kHuge, MADV_POPULATE_WRITE) == 0;  // else pages fault in on use
+    if (!ok_) break;
+    next_ += kHuge;
     stats_.huge_bytes += kHuge;
-    if (ThreadCpuMs() - t > slow_ms_ && stats_.committed < stats_.reserved) {
+    if (ThreadCpuMs() - t > slow_ms_ && next_ < end) {
       stats_.small_pages = true;
-      madvise(p + kHuge, stats_.reserved - stats_.committed, MADV_NOHUGEPAGE);
+      madvise(next_, end - next_, MADV_NOHUGEPAGE);
     }
   }
+  stats_.committed = next_ - begin_;
   stats_.commit_ms += ThreadCpuMs() - start;
 #else
   (void)bytes;

@@ -35,23 +35,28 @@ class RunHeap {
   RunHeap(const RunHeap&) = delete;
   RunHeap& operator=(const RunHeap&) = delete;
 
-  /// Keeps arrays of up to 32 MB (glibc's largest threshold) on the heap and the heap
-  /// untrimmed, and reserves `bytes` (whole 2 MB pages, at most 1.9 GB) of address
-  /// space at its top: nothing is touched. Once per RunHeap.
+  /// Makes malloc take every array from the heap (none mmapped) and never trim it, and
+  /// reserves at least `bytes` (at most 4 GB) of address space at its top, from its
+  /// first 2 MB boundary on for 2 MB pages: nothing is touched. Once per RunHeap.
   void Reserve(size_t bytes);
-  /// Backs the reservation's first `bytes` (clamped to it) with memory; what is already
-  /// backed is skipped. Allocations made after Reserve() are carved from the span's
+  /// Backs the reservation's first `bytes` (clamped to it; beyond the 2 MB boundary,
+  /// whole 2 MB pages) with memory; what is already backed is skipped. Allocations made after Reserve() are carved from the span's
   /// start upwards, so this is "the next `bytes` the run allocates".
   void Commit(size_t bytes);
 
   const RunHeapStats& stats() const { return stats_; }
-  /// The reserved span [begin, end) (null when nothing was reserved).
+  /// The reserved span [begin, end) (null when nothing was reserved) and its first
+  /// 2 MB boundary.
   const char* begin() const { return begin_; }
   const char* end() const { return begin_ + stats_.reserved; }
+  const char* huge_begin() const { return huge_; }
 
  private:
   const double slow_ms_;
-  char* begin_ = nullptr;
+  char* begin_ = nullptr;  ///< the span: from the top chunk's first page
+  char* huge_ = nullptr;   ///< its first 2 MB boundary (2 MB pages from there)
+  char* next_ = nullptr;   ///< the first byte not committed
+  bool ok_ = true;         ///< MADV_POPULATE_WRITE works (Linux 5.14+)
   RunHeapStats stats_;
 };
 
