@@ -120,12 +120,13 @@ absl::Status RunCurvature(const std::vector<std::string>& argv) {
   ProgressBar& bar = ProgressBar::Get();
   Stopwatch read_timer;
   bar.Begin("read");
-  // Address space for ~16x the file (a degree-4 run's peak on an OBJ), backed ahead of
-  // use: for reading, then for the fit once the vertices are known.
+  // Address space (free until used) for 32x the file, at least 64 MB: a degree-6 run
+  // peaks at ~9x an OBJ and ~24x a binary PLY. Backed ahead of use: for reading, then
+  // for the fit once the vertices are known.
   RunHeap heap;
   struct stat st;
   if (stat(a.mesh.c_str(), &st) == 0 && st.st_size > 0) {
-    heap.Reserve(16 * static_cast<size_t>(st.st_size));
+    heap.Reserve(std::max<size_t>(32 * static_cast<size_t>(st.st_size), size_t{64} << 20));
     heap.Commit(ReadHeapBytes(st.st_size));
   }
   GF_ASSIGN_OR_RETURN(Mesh mesh, ReadMesh(a.mesh));
