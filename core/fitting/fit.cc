@@ -423,6 +423,8 @@ class SurfaceFitter {
           pre.noise = NoiseMode::kOff;
           pre.weight_epsilon = schedule.final_weight_epsilon;
         }
+        if (eff.noise == NoiseMode::kOn && !clean_tangent)  // one-sided stencils: more points (noise.h)
+          pre.boundary_points_factor = std::max(pre.boundary_points_factor, kNoiseNormalBoundaryPointsFactor);
         const auto pre_nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, *input, RingSpecFor(pre), ctx.threads()));
         SurfaceFits pre_fits;
         if (absl::Status s = FitAll(*input, topo, pre, pre_nb, normals, FitRequest{}, ctx, nullptr, nullptr, "normals",

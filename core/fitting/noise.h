@@ -112,6 +112,10 @@ std::vector<double> LocalSmoothingSteps(const SurfaceFits& fits, const Mesh& mes
 /// Below the bound the large stencils' bias dominates everywhere (torus alpha 0.1 h^2 at
 /// n = 64, ratio 0.245: 0.42 -> 0.59x with them).
 inline constexpr double kHeavyNoiseNormalPointsFactor = 8;
+/// The noise mode's normal pre-fits grow boundary vertices' (one-sided) stencils to this
+/// factor x the coefficients (twice the interior's 3): bump d2 at 0.5 h^2, n = 64, normal
+/// Linf 0.85 -> 0.50x CGAL (at boundary vertices), L2 0.39 -> 0.33; no cell got worse.
+inline constexpr double kNoiseNormalBoundaryPointsFactor = 6;
 /// `normals` (rows marked in `adopted`: the small-stencil pre-fit's, n_s) blended with the
 /// large-stencil fits' normals n_L (a Lepski-like choice of the stencil): per vertex
 /// n = (w n_L + (1 - w) n_s) / |.|, w = 1 / (1 + (d / tau)^2), d = |n_L - n_s|,
