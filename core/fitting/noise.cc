@@ -30,6 +30,7 @@ NoiseSchedule NoiseScheduleFor(int degree, double residual_ratio) {
     s.final_clean_stencils = degree == 3 && residual_ratio < kVeryHeavyNoiseResidualRatio;
     if (degree >= 3 && residual_ratio < kModerateNoiseResidualRatio)
       s.smoothing_degree = std::min(degree + 2, 5), s.smoothing_passes = 4, s.cubic_near_boundary = true;
+    if (residual_ratio >= kVeryHeavyNoiseResidualRatio) s.smoothing_passes = 3, s.local_passes = 1;
   } else {
     s.smoothing_degree = std::min(degree + 2, 5);
     s.final_clean_stencils = true;

@@ -57,6 +57,10 @@ inline constexpr double kHeavyNoiseResidualRatio = 0.2;
 /// noise then dominates its curvatures (alpha 0.5 h^2 at n = 64: ratio 0.73-0.75, torus K
 /// 0.70 -> 0.60x CGAL; a gmsh torus at h = 0.0127: H / K 0.83 / 0.80 -> 0.67 / 0.64x), while
 /// at 0.44-0.49 (alpha 0.2) the bump's K needs the clean ones (1.00x on the noise stencils).
+/// There, at every degree, the smoothing is 3 cubic passes and one local pass
+/// (LocalSmoothingSteps) instead of 2 passes: marching-cubes torus (raw vertices, 192^3)
+/// d3 K 0.71 -> 0.56x CGAL, d4 normal Linf 0.76 -> 0.68x; gmsh torus 0.5 h^2 d3 H 0.67 -> 0.47x
+/// (4 global passes: 0.45x, but bump d3 K Linf 0.78 -> 0.94x: the local pass spares its centre).
 inline constexpr double kVeryHeavyNoiseResidualRatio = 0.6;
 /// Below it (and from kHeavyNoiseResidualRatio) the noise is moderate: at degree >= 3 the
 /// truncation error of cubic smoothing still dominates the curvatures.
