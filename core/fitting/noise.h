@@ -110,7 +110,8 @@ std::vector<double> LocalSmoothingSteps(const SurfaceFits& fits, const Mesh& mes
 /// Heavy noise at degree 2 (residual ratio >= kModerateNoiseResidualRatio): the cubic normal
 /// pre-fit's slope carries an O(h) noise term on O(h^2) noise (noise / stencil radius), which
 /// a stencil of 8x the coefficients (~80 points, radius ~1.6x) cuts ~2.5x at ~4x the O(h^3)
-/// bias: gmsh torus at h = 0.0127, 0.5 h^2, normal 0.84 -> 0.57x CGAL; but inside the
+/// bias: gmsh torus at h = 0.0127, 0.5 h^2, normal 0.84 -> 0.57x CGAL (0.49x with the very
+/// heavy passes); but inside the
 /// strongly curved bump the bias dominates (alpha 0.2 at n = 64: 0.30 -> 0.48x), so the two
 /// pre-fits are blended per vertex (BlendLargeStencilNormals; bench/README.md, fifth round).
 /// Below the bound the large stencils' bias dominates everywhere (torus alpha 0.1 h^2 at
