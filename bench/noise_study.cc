@@ -7,6 +7,10 @@
 //
 // Usage: noise_study [surfaces=torus,bump] [powers=2,3] [degrees=2,3,4] [n list=16,32,64]
 //                    [alpha=0.1] [smoothing passes list=-1]
+// A surface may also name external meshes, one per entry of the n list (printf patterns):
+// `torus@/dir/gmsh_L%d.obj` perturbs the mesh read (vertices on the surface), and
+// `torus@/dir/mc%d_raw.obj@/dir/mc%d_proj.obj` fits the first (alpha = 0: as read) and
+// measures at the second's vertices (same numbering, on the surface).
 // Overrides of the noise mode's fit (experiments): NOISE_MPF (min points factor),
 // NOISE_RINGS, NOISE_ND (normal_degree: a normal pre-fit after smoothing). NOISE_DIAG=1
 // prints the errors within 3 rings of the boundary and inside separately.
@@ -22,9 +26,11 @@
 #include "bench/bench_args.h"
 #include "core/fitting/fit.h"
 #include "core/fitting/noise.h"
+#include "core/mesh/io.h"
 #include "core/mesh/topology.h"
 #include "core/surfaces/analytic.h"
 #include "core/surfaces/errors.h"
+#include "core/util/timer.h"
 
 using namespace geomfit;
 
@@ -102,7 +108,17 @@ int main(int argc, char** argv) {
   std::printf("columns per level: normal L2, normal Linf, H L2, K L2; orders in the same order; "
               "alpha = %g\n", alpha);
   for (const std::string& name : surfaces) {
-    auto surface = NamedSurface(name).value();
+    std::vector<std::string> parts;  // surface[@fit pattern[@measure pattern]]
+    {
+      std::stringstream ss(name);
+      for (std::string s; std::getline(ss, s, '@');) parts.push_back(s);
+    }
+    auto surface = NamedSurface(parts[0]).value();
+    auto load = [&](const std::string& pattern, const std::string& n) {
+      char path[1024];
+      std::snprintf(path, sizeof path, pattern.c_str(), std::atoi(n.c_str()));
+      return ReadMesh(path).value();
+    };
     for (const std::string& pw : powers) {
       for (const std::string& ds : degrees) {
         const int k = std::atoi(pw.c_str()), d = std::atoi(ds.c_str());
@@ -115,13 +131,16 @@ int main(int argc, char** argv) {
         for (const std::string& n : ns) {
           GeneratorOptions g;
           g.n = std::atoi(n.c_str());
-          const Mesh clean = GenerateNamedMesh(name, g).value();
-          const Mesh mesh = PerturbAlongNormals(clean, *surface, alpha, k);
+          const Mesh clean = parts.size() > 1 ? load(parts.back(), n) : GenerateNamedMesh(name, g).value();
+          const Mesh base = parts.size() > 2 ? load(parts[1], n) : clean;
+          const Mesh mesh = alpha > 0 ? PerturbAlongNormals(base, *surface, alpha, k) : base;
           const Topology topo = BuildTopology(mesh).value();
           hs.push_back(AverageEdgeLength(clean));
           FitOptions o;
           o.degree = d;
+          Stopwatch watch;
           const Differentials def = ComputeDifferentials(*FitSurface(mesh, topo, o).value());
+          std::vector<double> secs = {watch.Seconds()};
           series[0].errors.push_back(MeasureErrors(clean, *surface, def));
           for (size_t i = 0; i < passes.size(); ++i) {
             FitOptions on = o;
@@ -130,7 +149,9 @@ int main(int argc, char** argv) {
             if (const char* e = std::getenv("NOISE_MPF")) on.min_points_factor = std::atof(e);
             if (const char* e = std::getenv("NOISE_RINGS")) on.rings = std::atof(e);
             if (const char* e = std::getenv("NOISE_ND")) on.normal_degree = std::atoi(e);
+            watch = Stopwatch();
             const Differentials dn = ComputeDifferentials(*FitSurface(mesh, topo, on).value());
+            secs.push_back(watch.Seconds());
             series[1 + i].errors.push_back(MeasureErrors(clean, *surface, dn));
             if (std::getenv("NOISE_DIAG")) Diagnose("noise", clean, *surface, dn, topo);
           }
@@ -145,8 +166,10 @@ int main(int argc, char** argv) {
           series.back().errors.push_back(MeasureErrors(clean, *surface, CgalDifferentials(mesh, nbd, d, def.normals, &few)));
           const Positions normals = ApproximateVertexNormals(mesh, topo, NormalWeighting::kArea);
           const NoiseEstimate est = EstimateNoise(mesh, topo, normals).value();
-          std::printf("%s O(h^%d) d=%d n=%s: noise estimate ratio %.3f level/h %.2e -> %s\n", name.c_str(), k, d,
+          std::printf("%s O(h^%d) d=%d n=%s: noise estimate ratio %.3f level/h %.2e -> %s; fit s", name.c_str(), k, d,
                       n.c_str(), est.residual_ratio, est.noise_over_h, est.noisy ? "noisy" : "clean");
+          for (double t : secs) std::printf(" %.2f", t);
+          std::printf("\n");
         }
         std::printf("%s, O(h^%d) perturbation, degree %d\n", name.c_str(), k, d);
         const Series& cgal = series[series.size() - 2];

@@ -423,6 +423,8 @@ class SurfaceFitter {
           pre.noise = NoiseMode::kOff;
           pre.weight_epsilon = schedule.final_weight_epsilon;
         }
+        if (eff.noise == NoiseMode::kOn && !clean_tangent)  // one-sided stencils: more points (noise.h)
+          pre.boundary_points_factor = std::max(pre.boundary_points_factor, kNoiseNormalBoundaryPointsFactor);
         const auto pre_nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, *input, RingSpecFor(pre), ctx.threads()));
         SurfaceFits pre_fits;
         if (absl::Status s = FitAll(*input, topo, pre, pre_nb, normals, FitRequest{}, ctx, nullptr, nullptr, "normals",
@@ -431,6 +433,16 @@ class SurfaceFitter {
           return s;
         fixed_tangent.assign(mesh.NumVertices(), 0);
         adopt_normals(pre_fits, &fixed_tangent);
+        if (eff.noise == NoiseMode::kOn && schedule.normal_points_factor > 0) {  // heavy noise: noise.h
+          pre.min_points_factor = schedule.normal_points_factor;
+          SurfaceFits large;
+          const auto large_nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, *input, RingSpecFor(pre), ctx.threads()));
+          if (absl::Status s = FitAll(*input, topo, pre, large_nb, normals, FitRequest{}, ctx, nullptr, nullptr, "normals",
+                                      large);
+              !s.ok())
+            return s;
+          BlendLargeStencilNormals(large, fixed_tangent, &normals, ctx.threads());
+        }
       }
       fits = std::make_shared<SurfaceFits>();
       if (absl::Status s = FitAll(*input, topo, pass_options, pass_nb, normals, req, ctx, last ? &on_fitted : nullptr,

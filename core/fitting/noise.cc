@@ -30,6 +30,7 @@ NoiseSchedule NoiseScheduleFor(int degree, double residual_ratio) {
     s.final_clean_stencils = degree == 3 && residual_ratio < kVeryHeavyNoiseResidualRatio;
     if (degree >= 3 && residual_ratio < kModerateNoiseResidualRatio)
       s.smoothing_degree = std::min(degree + 2, 5), s.smoothing_passes = 4, s.cubic_near_boundary = true;
+    if (residual_ratio >= kVeryHeavyNoiseResidualRatio) s.smoothing_passes = 3, s.local_passes = 1;
   } else {
     s.smoothing_degree = std::min(degree + 2, 5);
     s.final_clean_stencils = true;
@@ -37,6 +38,7 @@ NoiseSchedule NoiseScheduleFor(int degree, double residual_ratio) {
     if (degree == 3) s.final_rings = 1.5, s.final_points_factor = 1;
     if (degree >= 3 && residual_ratio >= kLocalSmoothingResidualRatio) s.local_passes = 2;
   }
+  if (degree == 2 && residual_ratio >= kModerateNoiseResidualRatio) s.normal_points_factor = kHeavyNoiseNormalPointsFactor;
   return s;
 }
 
@@ -71,6 +73,34 @@ std::vector<double> LocalSmoothingSteps(const SurfaceFits& fits, const Mesh& mes
     out[v] = 1 / (1 + q * q);
   });
   return out;
+}
+
+void BlendLargeStencilNormals(const SurfaceFits& large, const std::vector<uint8_t>& adopted, Positions* normals,
+                              int num_threads) {
+  const int nv = large.num_vertices();
+  Positions nl = *normals;
+  std::vector<double> d(nv, -1);
+  ParallelFor(nv, num_threads, [&](int64_t v) {
+    if (!adopted[v] || large.diagnostics(static_cast<int>(v)).degree_used < 1) return;
+    const SurfaceJet jet = large.Jet(static_cast<int>(v));
+    Eigen::Vector3d n = jet.J.col(0).cross(jet.J.col(1));
+    if (n.dot(normals->row(v)) < 0) n = -n;
+    if (n.norm() == 0) return;
+    nl.row(v) = n.normalized().transpose();
+    d[v] = (nl.row(v) - normals->row(v)).norm();
+  });
+  std::vector<double> x;
+  for (double a : d)
+    if (a >= 0) x.push_back(a);
+  if (x.empty()) return;
+  std::nth_element(x.begin(), x.begin() + x.size() / 2, x.end());
+  const double tau = kNormalBlendSpread * x[x.size() / 2];
+  ParallelFor(nv, num_threads, [&](int64_t v) {
+    if (d[v] < 0) return;
+    const double w = tau > 0 ? 1 / (1 + (d[v] / tau) * (d[v] / tau)) : 1;
+    const Eigen::Vector3d n = w * nl.row(v).transpose() + (1 - w) * normals->row(v).transpose();
+    normals->row(v) = n.normalized().transpose();
+  });
 }
 
 namespace {

@@ -19,7 +19,8 @@ namespace geomfit {
 /// first runs smoothing-by-projection passes (§4.2.3): every vertex moves to its own
 /// (cubic, flat-weighted) fit's foot point, which averages the noise of its stencil away,
 /// and the mesh is refitted; (4) at degree 2 the final fit keeps the tangent plane of a
-/// cubic pre-fit on the smoothed mesh (the normal refinement of FitOptions::normal_degree).
+/// cubic pre-fit on the smoothed mesh (the normal refinement of FitOptions::normal_degree),
+/// under heavy noise blended with a cubic pre-fit on larger stencils.
 
 /// The weights' eps of (2.2.1) in the noise mode's smoothing fits (and the final fit at
 /// degree >= 4): nearly uniform weights (1 to 2^(-d/4) across the stencil) average the
@@ -40,6 +41,9 @@ struct NoiseSchedule {
   /// The final fit's rings on the clean stencils (0: (d+1)/2); when set, the final fit
   /// keeps the tangent plane of a fit of its degree on the (d+1)/2-ring clean stencils.
   double final_rings = 0;
+  /// Degree-2 normals: a second cubic pre-fit on stencils grown to this factor x the
+  /// coefficients (0: none), blended in by BlendLargeStencilNormals.
+  double normal_points_factor = 0;
 };
 /// LocalSmoothingSteps: the top-degree part's scale against the noise level.
 inline constexpr double kLocalSmoothingSignal = 0.3;
@@ -53,6 +57,10 @@ inline constexpr double kHeavyNoiseResidualRatio = 0.2;
 /// noise then dominates its curvatures (alpha 0.5 h^2 at n = 64: ratio 0.73-0.75, torus K
 /// 0.70 -> 0.60x CGAL; a gmsh torus at h = 0.0127: H / K 0.83 / 0.80 -> 0.67 / 0.64x), while
 /// at 0.44-0.49 (alpha 0.2) the bump's K needs the clean ones (1.00x on the noise stencils).
+/// There, at every degree, the smoothing is 3 cubic passes and one local pass
+/// (LocalSmoothingSteps) instead of 2 passes: marching-cubes torus (raw vertices, 192^3)
+/// d3 K 0.71 -> 0.56x CGAL, d4 normal Linf 0.76 -> 0.68x; gmsh torus 0.5 h^2 d3 H 0.67 -> 0.47x
+/// (4 global passes: 0.45x, but bump d3 K Linf 0.78 -> 0.94x: the local pass spares its centre).
 inline constexpr double kVeryHeavyNoiseResidualRatio = 0.6;
 /// Below it (and from kHeavyNoiseResidualRatio) the noise is moderate: at degree >= 3 the
 /// truncation error of cubic smoothing still dominates the curvatures.
@@ -98,6 +106,30 @@ Positions ProjectOntoFits(const SurfaceFits& fits, const Positions& positions, i
 /// seams between moved and kept vertices). LHF fits only (all 0 otherwise).
 std::vector<double> LocalSmoothingSteps(const SurfaceFits& fits, const Mesh& mesh, double noise_over_h,
                                         int num_threads = 0);
+
+/// Heavy noise at degree 2 (residual ratio >= kModerateNoiseResidualRatio): the cubic normal
+/// pre-fit's slope carries an O(h) noise term on O(h^2) noise (noise / stencil radius), which
+/// a stencil of 8x the coefficients (~80 points, radius ~1.6x) cuts ~2.5x at ~4x the O(h^3)
+/// bias: gmsh torus at h = 0.0127, 0.5 h^2, normal 0.84 -> 0.57x CGAL (0.49x with the very
+/// heavy passes); but inside the
+/// strongly curved bump the bias dominates (alpha 0.2 at n = 64: 0.30 -> 0.48x), so the two
+/// pre-fits are blended per vertex (BlendLargeStencilNormals; bench/README.md, fifth round).
+/// Below the bound the large stencils' bias dominates everywhere (torus alpha 0.1 h^2 at
+/// n = 64, ratio 0.245: 0.42 -> 0.59x with them).
+inline constexpr double kHeavyNoiseNormalPointsFactor = 8;
+/// The noise mode's normal pre-fits grow boundary vertices' (one-sided) stencils to this
+/// factor x the coefficients (twice the interior's 3): bump d2 at 0.5 h^2, n = 64, normal
+/// Linf 0.85 -> 0.50x CGAL (at boundary vertices), L2 0.39 -> 0.33; no cell got worse.
+inline constexpr double kNoiseNormalBoundaryPointsFactor = 6;
+/// `normals` (rows marked in `adopted`: the small-stencil pre-fit's, n_s) blended with the
+/// large-stencil fits' normals n_L (a Lepski-like choice of the stencil): per vertex
+/// n = (w n_L + (1 - w) n_s) / |.|, w = 1 / (1 + (d / tau)^2), d = |n_L - n_s|,
+/// tau = kNormalBlendSpread x the median of d. Where the noise dominates, d is n_s's noise,
+/// about its median, and n_L (less noise) wins; where d is far above it (the large
+/// stencil's bias: the bump's centre), n_s stays.
+inline constexpr double kNormalBlendSpread = 4;
+void BlendLargeStencilNormals(const SurfaceFits& large, const std::vector<uint8_t>& adopted, Positions* normals,
+                              int num_threads = 0);
 
 /// The noise test of NoiseMode::kAuto, on a sample of vertices: approximating degree-2
 /// and degree-4 fits on the same (>= 40-point) stencil. On smooth data the quartic's
