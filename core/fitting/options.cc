@@ -86,6 +86,7 @@ FitOptionsBits FitOptionsIdentity(const FitOptions& o) {
   b[16 + kMaxDegree] = static_cast<uint64_t>(o.solver);
   b[17 + kMaxDegree] = static_cast<uint64_t>(o.NormalDegree());
   b[18 + kMaxDegree] = o.HermiteHessian();
+  b[19 + kMaxDegree] = o.SlopeRefinement();
   return b;
 }
 
@@ -98,6 +99,7 @@ std::string FitOptionsKey(const FitOptions& o) {
   for (int d = 1; d <= kMaxDegree; ++d) absl::StrAppendFormat(&key, " c%g", o.cond_threshold[d]);
   absl::StrAppendFormat(&key, " n%s sp%d %s nd%d hh%d", NoiseModeName(o.noise), o.SmoothingPasses(),
                         WlsSolverName(o.solver), o.NormalDegree(), o.HermiteHessian());
+  if (o.SlopeRefinement()) key += " sr1";
   return key;
 }
 

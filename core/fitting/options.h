@@ -92,11 +92,25 @@ struct FitOptions {
   /// the normal refinement (normal_degree 3 when unset), which supplies O(h^3) normals at
   /// every vertex; the stencil operators stay the plain fit's. Not for noisy input.
   bool hermite_hessian = false;
+  /// Slope refinement (degree-2 interpolating LHF fits with the QR solver, when neither
+  /// normal_degree nor hermite_hessian asks for the pre-fit; ignored otherwise and by the
+  /// GFD operators): two passes over the fit's own stencils with the neighbours' fitted
+  /// normals (core/fitting/slopes.h). Normals from h_j - p_j.G_j/3, in which the cubic term
+  /// cancels (0.03-0.47x CGAL's normal error at degree 2), then the Hermite Hessian of
+  /// hermite_hessian in the refined frame (H and K 0.03-0.63x CGAL's). ~2-3x a plain
+  /// degree-2 fit (no second neighbourhood build, no degree-3 fit; bench/README.md).
+  /// Not for noisy input.
+  bool slope_refinement = false;
 
   /// Whether the Hermite curvatures apply (see hermite_hessian).
   bool HermiteHessian() const {
     return hermite_hessian && degree == 2 && method == FitMethod::kLHF && solver == WlsSolver::kQR &&
            Interpolates();
+  }
+  /// Whether the slope refinement applies (see slope_refinement).
+  bool SlopeRefinement() const {
+    return slope_refinement && degree == 2 && method == FitMethod::kLHF && solver == WlsSolver::kQR &&
+           Interpolates() && NormalDegree() == degree;
   }
   /// The normal pre-fit's degree actually used; equal to `degree` when there is none
   /// (the noise mode at degree 2 always refines its normals with a cubic, noise.h).
@@ -135,7 +149,7 @@ std::string FitOptionsKey(const FitOptions& options);
 /// as exact bit patterns: two option sets give identical fits iff their bits are equal.
 /// Cache keys are built from these, never from formatted text (`%g` aliases 1.5 and
 /// 1.5000001).
-using FitOptionsBits = std::array<uint64_t, 19 + kMaxDegree>;
+using FitOptionsBits = std::array<uint64_t, 20 + kMaxDegree>;
 FitOptionsBits FitOptionsIdentity(const FitOptions& options);
 
 const char* FitMethodName(FitMethod m);
