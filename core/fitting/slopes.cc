@@ -14,31 +14,31 @@ inline double Dot(const double* a, const double* b) { return a[0] * b[0] + a[1] 
 // Solves the symmetric positive definite N x N system (upper triangle of `a` used) in place
 // by Cholesky; false when a pivot is not positive relative to the diagonal (`rel`).
 template <int N>
-bool SolveSpd(double (&a)[N][N], double (&b)[N], double rel) {
+__attribute__((always_inline)) inline bool SolveSpd(double (&a)[N][N], double (&b)[N], double rel) {
   double scale = 0;
   for (int i = 0; i < N; ++i) scale = std::max(scale, a[i][i]);
   if (!(scale > 0)) return false;
+  double inv[N];  // 1 / R_kk
   for (int k = 0; k < N; ++k) {
     double d = a[k][k];
     for (int p = 0; p < k; ++p) d -= a[p][k] * a[p][k];
     if (!(d > rel * scale)) return false;
-    const double r = std::sqrt(d);
-    a[k][k] = r;
+    inv[k] = 1 / std::sqrt(d);
     for (int j = k + 1; j < N; ++j) {
       double s = a[k][j];
       for (int p = 0; p < k; ++p) s -= a[p][k] * a[p][j];
-      a[k][j] = s / r;
+      a[k][j] = s * inv[k];
     }
   }
   for (int k = 0; k < N; ++k) {  // R^T y = b
     double s = b[k];
     for (int p = 0; p < k; ++p) s -= a[p][k] * b[p];
-    b[k] = s / a[k][k];
+    b[k] = s * inv[k];
   }
   for (int k = N - 1; k >= 0; --k) {  // R x = y
     double s = b[k];
     for (int p = k + 1; p < N; ++p) s -= a[k][p] * b[p];
-    b[k] = s / a[k][k];
+    b[k] = s * inv[k];
   }
   return true;
 }
@@ -51,99 +51,141 @@ struct Slots {
   double* At(int v) { return xn.data() + 6 * static_cast<int64_t>(slot[v]); }
 };
 
+// A stencil's points relative to its centre (d) and their normals (n), in lanes of
+// kLanes: the passes below run on whole lanes (vector instructions) and sum each lane
+// separately, then the lanes in a fixed order, so every instruction set gives the same bits.
+constexpr int kLanes = 8;
+struct alignas(64) Stencil {
+  int count = 0;  // points (the centre excluded)
+  double dx[kMaxStencil + kLanes], dy[kMaxStencil + kLanes], dz[kMaxStencil + kLanes];
+  double nx[kMaxStencil + kLanes], ny[kMaxStencil + kLanes], nz[kMaxStencil + kLanes];
+  double live[kMaxStencil + kLanes];  // 1 for the points, 0 for the padding
+};
+
+__attribute__((always_inline)) inline void Gather(int v, const Neighborhoods& nb, const Slots& s, Stencil& st) {
+  const int32_t* pts = nb.Points(v);
+  const int n = std::min(nb.Size(v), kMaxStencil);
+  const double* self = s.At(v);
+  st.count = n - 1;
+  for (int i = 1; i < n; ++i) {
+    const double* q = s.At(pts[i]);
+    st.dx[i - 1] = q[0] - self[0], st.dy[i - 1] = q[1] - self[1], st.dz[i - 1] = q[2] - self[2];
+    st.nx[i - 1] = q[3], st.ny[i - 1] = q[4], st.nz[i - 1] = q[5], st.live[i - 1] = 1;
+  }
+  for (int i = n - 1; i < (n - 1 + kLanes - 1) / kLanes * kLanes; ++i)
+    st.dx[i] = st.dy[i] = st.dz[i] = st.nx[i] = st.ny[i] = st.nz[i] = st.live[i] = 0;
+}
+
+// Sum of the kLanes partial sums, in a fixed order.
+inline double LaneSum(const double* a) {
+  return ((a[0] + a[4]) + (a[2] + a[6])) + ((a[1] + a[5]) + (a[3] + a[7]));
+}
+
 // Pass 1 at vertex v (see slopes.h): the refined normal, written to `out` (3 doubles), and
 // the stencil's squared radius; false (out untouched) when the fit is ill-posed. The 5x5
 // normal equations are built from the 12 moments of (u, w) of degrees 2-4.
-__attribute__((always_inline)) inline bool SlopeNormal(int v, const Neighborhoods& nb, const Slots& s, double cos_cut,
+__attribute__((always_inline)) inline bool SlopeNormal(const double* self, const Stencil& st, double cos_cut,
                                                        double* out, double* radius2) {
-  const int32_t* pts = nb.Points(v);
-  const int n = nb.Size(v);
-  const double* self = s.At(v);
   const LocalFrame fr = FrameFromNormal(Eigen::Vector3d(self[0], self[1], self[2]),
                                         Eigen::Vector3d(self[3], self[4], self[5]));
-  const double t1[3] = {fr.t1[0], fr.t1[1], fr.t1[2]}, t2[3] = {fr.t2[0], fr.t2[1], fr.t2[2]};
-  const double* m = self + 3;
-  double m20 = 0, m11 = 0, m02 = 0, m30 = 0, m21 = 0, m12 = 0, m03 = 0, m40 = 0, m31 = 0, m22 = 0, m13 = 0, m04 = 0;
-  double b0 = 0, b1 = 0, b2 = 0, b3 = 0, b4 = 0;
-  double r2max = 0, scale = 0;
-  for (int i = 1; i < n; ++i) {
-    const double* q = s.At(pts[i]);
-    const double d[3] = {q[0] - self[0], q[1] - self[1], q[2] - self[2]};
-    if (scale == 0) {  // lengths in units of the first neighbour's distance (conditioning)
-      const double l2 = Dot(d, d);
-      if (l2 == 0) continue;
-      scale = 1 / std::sqrt(l2);
-    }
-    const double nm = Dot(q + 3, m);
-    if (!(nm >= cos_cut)) continue;
-    const double u = Dot(d, t1) * scale, w = Dot(d, t2) * scale, h = Dot(d, m) * scale;
-    const double r2 = u * u + w * w;
-    r2max = std::max(r2max, r2);
-    // h - p.G / 3 with G = -(n.t1, n.t2) / n.m
-    const double rhs = h + (u * Dot(q + 3, t1) + w * Dot(q + 3, t2)) / (3 * nm);
-    const double wt = nm / (r2 + 0.01);  // (2.2.1)'s degree-2 weights, squared
-    const double uu = u * u, uw = u * w, ww = w * w;
-    const double wu = wt * u, wv = wt * w, wuu = wt * uu, wuw = wt * uw, www = wt * ww;
-    m20 += wu * u, m11 += wu * w, m02 += wv * w;
-    m30 += wuu * u, m21 += wuu * w, m12 += wuw * w, m03 += www * w;
-    m40 += wuu * uu, m31 += wuu * uw, m22 += wuu * ww, m13 += wuw * ww, m04 += www * ww;
-    b0 += wu * rhs, b1 += wv * rhs, b2 += wuu * rhs, b3 += wuw * rhs, b4 += www * rhs;
+  const double t1x = fr.t1[0], t1y = fr.t1[1], t1z = fr.t1[2], t2x = fr.t2[0], t2y = fr.t2[1], t2z = fr.t2[2];
+  const double mx = self[3], my = self[4], mz = self[5];
+  double scale = 0;  // lengths in units of the first neighbour's distance (conditioning)
+  for (int i = 0; i < st.count && scale == 0; ++i) {
+    const double l2 = st.dx[i] * st.dx[i] + st.dy[i] * st.dy[i] + st.dz[i] * st.dz[i];
+    if (l2 > 0) scale = 1 / std::sqrt(l2);
   }
-  if (r2max == 0) return false;
+  if (scale == 0) return false;
+  enum { k20, k11, k02, k30, k21, k12, k03, k40, k31, k22, k13, k04, kb0, kb1, kb2, kb3, kb4, kSums };
+  alignas(64) double acc[kSums][kLanes] = {};
+  alignas(64) double r2max[kLanes] = {};
+  for (int b = 0; b < st.count; b += kLanes) {
+#pragma omp simd
+    for (int l = 0; l < kLanes; ++l) {
+      const int i = b + l;
+      const double dx = st.dx[i], dy = st.dy[i], dz = st.dz[i], nx = st.nx[i], ny = st.ny[i], nz = st.nz[i];
+      const double nm = nx * mx + ny * my + nz * mz;
+      const double ok = nm >= cos_cut ? st.live[i] : 0.0;  // the safeguard gamma of (2.2.1), 0 or 1
+      const double u = (dx * t1x + dy * t1y + dz * t1z) * scale, w = (dx * t2x + dy * t2y + dz * t2z) * scale,
+                   h = (dx * mx + dy * my + dz * mz) * scale;
+      const double r2 = u * u + w * w;
+      // h - p.G / 3 with G = -(n.t1, n.t2) / n.m
+      const double rhs = h + (u * (nx * t1x + ny * t1y + nz * t1z) + w * (nx * t2x + ny * t2y + nz * t2z)) /
+                                 (3 * (ok > 0 ? nm : 1.0));
+      const double wt = ok * nm / (r2 + 0.01);  // (2.2.1)'s degree-2 weights, squared
+      r2max[l] = std::max(r2max[l], ok * r2);
+      const double uu = u * u, uw = u * w, ww = w * w;
+      const double wu = wt * u, wv = wt * w, wuu = wt * uu, wuw = wt * uw, www = wt * ww;
+      acc[k20][l] += wu * u, acc[k11][l] += wu * w, acc[k02][l] += wv * w;
+      acc[k30][l] += wuu * u, acc[k21][l] += wuu * w, acc[k12][l] += wuw * w, acc[k03][l] += www * w;
+      acc[k40][l] += wuu * uu, acc[k31][l] += wuu * uw, acc[k22][l] += wuu * ww, acc[k13][l] += wuw * ww;
+      acc[k04][l] += www * ww;
+      acc[kb0][l] += wu * rhs, acc[kb1][l] += wv * rhs, acc[kb2][l] += wuu * rhs, acc[kb3][l] += wuw * rhs;
+      acc[kb4][l] += www * rhs;
+    }
+  }
+  double r2m = 0;
+  for (int l = 0; l < kLanes; ++l) r2m = std::max(r2m, r2max[l]);
+  if (r2m == 0) return false;
+  double m[kSums];
+  for (int k = 0; k < kSums; ++k) m[k] = LaneSum(acc[k]);
   // Columns u, w, u^2/2, uw, w^2/2 (Taylor).
-  double a[5][5] = {{m20, m11, 0.5 * m30, m21, 0.5 * m12},
-                    {0, m02, 0.5 * m21, m12, 0.5 * m03},
-                    {0, 0, 0.25 * m40, 0.5 * m31, 0.25 * m22},
-                    {0, 0, 0, m22, 0.5 * m13},
-                    {0, 0, 0, 0, 0.25 * m04}};
-  double b[5] = {b0, b1, 0.5 * b2, b3, 0.5 * b4};
-  if (!SolveSpd<5>(a, b, 1e-10)) return false;
+  double a[5][5] = {{m[k20], m[k11], 0.5 * m[k30], m[k21], 0.5 * m[k12]},
+                    {0, m[k02], 0.5 * m[k21], m[k12], 0.5 * m[k03]},
+                    {0, 0, 0.25 * m[k40], 0.5 * m[k31], 0.25 * m[k22]},
+                    {0, 0, 0, m[k22], 0.5 * m[k13]},
+                    {0, 0, 0, 0, 0.25 * m[k04]}};
+  double rhs[5] = {m[kb0], m[kb1], 0.5 * m[kb2], m[kb3], 0.5 * m[kb4]};
+  if (!SolveSpd<5>(a, rhs, 1e-10)) return false;
   // The fitted linear term itself (2/3 of the gradient it estimates): see slopes.h.
-  double nn[3];
-  for (int c = 0; c < 3; ++c) nn[c] = m[c] - b[0] * t1[c] - b[1] * t2[c];
+  const double nn[3] = {mx - rhs[0] * t1x - rhs[1] * t2x, my - rhs[0] * t1y - rhs[1] * t2y,
+                        mz - rhs[0] * t1z - rhs[1] * t2z};
   const double len = std::sqrt(Dot(nn, nn));
   if (!(len > 0) || !std::isfinite(len)) return false;
   for (int c = 0; c < 3; ++c) out[c] = nn[c] / len;
-  *radius2 = r2max / (scale * scale);
+  *radius2 = r2m / (scale * scale);
   return true;
 }
 
-// Pass 2 at vertex v: the Hermite Hessian (c20, c11, c02) in `fr`, the refined frame;
+// Pass 2 at a vertex: the Hermite Hessian (c20, c11, c02) in `fr`, the refined frame;
 // false when the directions are too few or too clustered.
-__attribute__((always_inline)) inline bool HermiteHessian(int v, const Neighborhoods& nb, const Slots& s,
-                                                          const LocalFrame& fr, double radius2, double cos_cut,
-                                                          double* hess) {
-  const int32_t* pts = nb.Points(v);
-  const int n = nb.Size(v);
-  const double* self = s.At(v);
-  const double t1[3] = {fr.t1[0], fr.t1[1], fr.t1[2]}, t2[3] = {fr.t2[0], fr.t2[1], fr.t2[2]},
-               m[3] = {fr.normal[0], fr.normal[1], fr.normal[2]};
+__attribute__((always_inline)) inline bool HermiteHessian(const Stencil& st, const LocalFrame& fr, double radius2,
+                                                          double cos_cut, double* hess) {
+  const double t1x = fr.t1[0], t1y = fr.t1[1], t1z = fr.t1[2], t2x = fr.t2[0], t2y = fr.t2[1], t2z = fr.t2[2];
+  const double mx = fr.normal[0], my = fr.normal[1], mz = fr.normal[2];
   // Row weights s / (s + 0.1)^2.5 in s = r^2 / radius^2, as FitOptions::hermite_hessian.
   constexpr double kEps = 0.1;
   const double inv_radius2 = 1 / radius2;
-  double a00 = 0, a01 = 0, a02 = 0, a11 = 0, a12 = 0, a22 = 0, b0 = 0, b1 = 0, b2 = 0;
-  for (int i = 1; i < n; ++i) {
-    const double* q = s.At(pts[i]);
-    const double d[3] = {q[0] - self[0], q[1] - self[1], q[2] - self[2]};
-    const double nm = Dot(q + 3, m);
-    if (!(nm >= cos_cut)) continue;
-    const double u = Dot(d, t1), w = Dot(d, t2), h = Dot(d, m), r2 = u * u + w * w;
-    if (r2 == 0) continue;
-    const double inv = 1 / (nm * r2);
-    // (4 h - (f_u u + f_v w)) / r^2 with (f_u, f_v) = -(n.t1, n.t2) / n.m
-    const double val = (4 * h * nm + (Dot(q + 3, t1) * u + Dot(q + 3, t2) * w)) * inv;
-    const double inv_r2 = nm * inv;
-    const double c0 = u * u * inv_r2, c1 = 2 * u * w * inv_r2, c2 = w * w * inv_r2;
-    const double sr = r2 * inv_radius2, root = std::sqrt(sr + kEps);
-    const double wt = nm * sr / (root * root * root * root * root);
-    const double w0 = wt * c0, w1 = wt * c1, w2 = wt * c2;
-    a00 += w0 * c0, a01 += w0 * c1, a02 += w0 * c2, a11 += w1 * c1, a12 += w1 * c2, a22 += w2 * c2;
-    b0 += w0 * val, b1 += w1 * val, b2 += w2 * val;
+  enum { a00, a01, a02, a11, a12, a22, b0, b1, b2, kSums };
+  alignas(64) double acc[kSums][kLanes] = {};
+  for (int b = 0; b < st.count; b += kLanes) {
+#pragma omp simd
+    for (int l = 0; l < kLanes; ++l) {
+      const int i = b + l;
+      const double dx = st.dx[i], dy = st.dy[i], dz = st.dz[i], nx = st.nx[i], ny = st.ny[i], nz = st.nz[i];
+      const double nm = nx * mx + ny * my + nz * mz;
+      const double u = dx * t1x + dy * t1y + dz * t1z, w = dx * t2x + dy * t2y + dz * t2z,
+                   h = dx * mx + dy * my + dz * mz, r2 = u * u + w * w;
+      const double ok = nm >= cos_cut && r2 > 0 ? st.live[i] : 0.0;
+      const double inv = 1 / (ok > 0 ? nm * r2 : 1.0);
+      // (4 h - (f_u u + f_v w)) / r^2 with (f_u, f_v) = -(n.t1, n.t2) / n.m
+      const double val = (4 * h * nm + ((nx * t1x + ny * t1y + nz * t1z) * u + (nx * t2x + ny * t2y + nz * t2z) * w)) * inv;
+      const double inv_r2 = nm * inv;
+      const double c0 = u * u * inv_r2, c1 = 2 * u * w * inv_r2, c2 = w * w * inv_r2;
+      const double sr = r2 * inv_radius2, root = std::sqrt(sr + kEps);
+      const double wt = ok * nm * sr / (root * root * root * root * root);
+      const double w0 = wt * c0, w1 = wt * c1, w2 = wt * c2;
+      acc[a00][l] += w0 * c0, acc[a01][l] += w0 * c1, acc[a02][l] += w0 * c2;
+      acc[a11][l] += w1 * c1, acc[a12][l] += w1 * c2, acc[a22][l] += w2 * c2;
+      acc[b0][l] += w0 * val, acc[b1][l] += w1 * val, acc[b2][l] += w2 * val;
+    }
   }
-  double a[3][3] = {{a00, a01, a02}, {0, a11, a12}, {0, 0, a22}};
-  double b[3] = {b0, b1, b2};
-  if (!SolveSpd<3>(a, b, 1e-3)) return false;
-  for (int k = 0; k < 3; ++k) hess[k] = b[k];
+  double m[kSums];
+  for (int k = 0; k < kSums; ++k) m[k] = LaneSum(acc[k]);
+  double a[3][3] = {{m[a00], m[a01], m[a02]}, {0, m[a11], m[a12]}, {0, 0, m[a22]}};
+  double rhs[3] = {m[b0], m[b1], m[b2]};
+  if (!SolveSpd<3>(a, rhs, 1e-3)) return false;
+  for (int k = 0; k < 3; ++k) hess[k] = rhs[k];
   return true;
 }
 
@@ -185,19 +227,25 @@ struct Passes {
 
 __attribute__((target_clones("arch=x86-64-v4", "avx2", "default"))) void NormalsRange(const Passes& P, int64_t k0,
                                                                                        int64_t k1) {
+  Stencil st;
   for (int64_t k = k0; k < k1; ++k) {
     P.Prefetch(k, k1);
     const int v = P.Vertex(k);
     double* out = P.refined + 3 * k;
-    const double* own = P.s.xn.data() + 6 * k + 3;
-    if (!(P.diag[v].degree_used >= 2) || !SlopeNormal(v, P.nb, P.s, P.cos_cut, out, &P.radius2[k]))
-      out[0] = own[0], out[1] = own[1], out[2] = own[2];
+    const double* self = P.s.xn.data() + 6 * k;
+    bool ok = P.diag[v].degree_used >= 2;
+    if (ok) {
+      Gather(v, P.nb, P.s, st);
+      ok = SlopeNormal(self, st, P.cos_cut, out, &P.radius2[k]);
+    }
+    if (!ok) out[0] = self[3], out[1] = self[4], out[2] = self[5];
   }
 }
 
 __attribute__((target_clones("arch=x86-64-v4", "avx2", "default"))) void HessiansRange(const Passes& P, int64_t k0,
                                                                                         int64_t k1) {
   constexpr int kCoef = 6;  // NumCoefficients(2)
+  Stencil st;
   for (int64_t k = k0; k < k1; ++k) {
     P.Prefetch(k, k1);
     const int v = P.Vertex(k);
@@ -207,7 +255,12 @@ __attribute__((target_clones("arch=x86-64-v4", "avx2", "default"))) void Hessian
                                           Eigen::Vector3d(self[3], self[4], self[5]));
     double* c = P.coefficients + static_cast<int64_t>(v) * kCoef;
     double hess[3];
-    if (P.radius2[k] > 0 && HermiteHessian(v, P.nb, P.s, fr, P.radius2[k], P.cos_cut, hess))
+    bool ok = P.radius2[k] > 0;
+    if (ok) {
+      Gather(v, P.nb, P.s, st);
+      ok = HermiteHessian(st, fr, P.radius2[k], P.cos_cut, hess);
+    }
+    if (ok)
       c[TaylorIndex(2, 0)] = hess[0], c[TaylorIndex(1, 1)] = hess[1], c[TaylorIndex(0, 2)] = hess[2];
     c[TaylorIndex(1, 0)] = c[TaylorIndex(0, 1)] = 0;
     P.frames[v] = fr;
