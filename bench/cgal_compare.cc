@@ -114,7 +114,7 @@ int main(int argc, char** argv) {
         if (const char* e = std::getenv("GF_EPS")) ours_o.weight_epsilon = std::atof(e);
         if (const char* e = std::getenv("GF_ND")) ours_o.normal_degree = std::atoi(e);
         if (std::getenv("GF_HERM")) ours_o.hermite_hessian = true;  // Hermite curvatures
-        if (std::getenv("GF_SLOPES")) ours_o.slope_refinement = true;  // slope refinement
+        if (const char* e = std::getenv("GF_SLOPES")) ours_o.slope_refinement = std::atoi(e);  // slope passes
         auto ours_nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, mesh, RingSpecFor(ours_o)));
         Row r;
         r.surface = name, r.n = n, r.degree = d, r.nv = mesh.NumVertices();

@@ -107,7 +107,7 @@ absl::StatusOr<FitOptions> FromProto(const v1::FitOptions& p, FitOptions o) {
   if (p.has_smoothing_passes()) o.smoothing_passes = p.smoothing_passes();
   if (p.normal_degree() != 0) o.normal_degree = p.normal_degree();
   if (p.hermite_hessian()) o.hermite_hessian = true;
-  if (p.slope_refinement()) o.slope_refinement = true;
+  if (p.slope_refinement() != 0) o.slope_refinement = p.slope_refinement();
   switch (p.solver()) {
     case v1::WLS_SOLVER_UNSPECIFIED:
     case v1::WLS_SOLVER_QR: o.solver = WlsSolver::kQR; break;

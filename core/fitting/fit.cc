@@ -435,15 +435,16 @@ class SurfaceFitter {
       }
       fits = std::make_shared<SurfaceFits>();
       // Slope refinement (slopes.h) after the final fit: its blocks are reported once refined.
-      const bool slopes = last && pass_options.SlopeRefinement() && !req.stencils;
+      const bool slopes = last && pass_options.SlopePasses() > 0 && !req.stencils;
       if (absl::Status s = FitAll(*input, topo, pass_options, pass_nb, normals, req, ctx,
                                   last && !slopes ? &on_fitted : nullptr,
                                   fixed_tangent.empty() ? nullptr : fixed_tangent.data(), phase, *fits);
           !s.ok())
         return s;
       if (slopes) {
-        RefineSlopes(*input, topo, *pass_nb, std::cos(pass_options.safeguard_angle_deg * M_PI / 180.0), ctx.threads(),
-                     fits->diagnostics_.data(), fits->frames_.data(), fits->coefficients_.data());
+        RefineSlopes(*input, topo, *pass_nb, std::cos(pass_options.safeguard_angle_deg * M_PI / 180.0),
+                     pass_options.SlopePasses(), ctx.threads(), fits->diagnostics_.data(), fits->frames_.data(),
+                     fits->coefficients_.data());
         if (on_fitted) on_fitted(*fits, 0, mesh.NumVertices());
       }
       if (scheduled && pass == 0 && schedule.local_passes > 0)

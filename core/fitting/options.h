@@ -94,23 +94,26 @@ struct FitOptions {
   bool hermite_hessian = false;
   /// Slope refinement (degree-2 interpolating LHF fits with the QR solver, when neither
   /// normal_degree nor hermite_hessian asks for the pre-fit; ignored otherwise and by the
-  /// GFD operators): two passes over the fit's own stencils with the neighbours' fitted
-  /// normals (core/fitting/slopes.h). Normals from h_j - p_j.G_j/3, in which the cubic term
-  /// cancels (0.03-0.47x CGAL's normal error at degree 2), then the Hermite Hessian of
-  /// hermite_hessian in the refined frame (H and K 0.03-0.63x CGAL's). ~2-3x a plain
-  /// degree-2 fit (no second neighbourhood build, no degree-3 fit; bench/README.md).
-  /// Not for noisy input.
-  bool slope_refinement = false;
+  /// GFD operators): this many normal passes over the fit's own stencils with the
+  /// neighbours' fitted normals, normals from h_j - p_j.G_j/3 in which the cubic term
+  /// cancels, then the Hermite Hessian of hermite_hessian in the refined frame
+  /// (core/fitting/slopes.h). 0 = off (default), 1..3. At 1: normals 0.03-0.42x, H
+  /// 0.03-0.32x, K 0.10-0.63x CGAL's at degree 2 on clean meshes for ~2.9x the CPU time of a
+  /// plain degree-2 fit; at 2: normals 0.02-0.49x, K 0.10-0.58x, ~3.9x (bench/README.md; the
+  /// degree-3 pre-fit of hermite_hessian: ~4.8x). Not for noisy input.
+  int slope_refinement = 0;
 
   /// Whether the Hermite curvatures apply (see hermite_hessian).
   bool HermiteHessian() const {
     return hermite_hessian && degree == 2 && method == FitMethod::kLHF && solver == WlsSolver::kQR &&
            Interpolates();
   }
-  /// Whether the slope refinement applies (see slope_refinement).
-  bool SlopeRefinement() const {
-    return slope_refinement && degree == 2 && method == FitMethod::kLHF && solver == WlsSolver::kQR &&
-           Interpolates() && NormalDegree() == degree;
+  /// The slope refinement's normal passes actually run (0: it does not apply).
+  int SlopePasses() const {
+    return degree == 2 && method == FitMethod::kLHF && solver == WlsSolver::kQR && Interpolates() &&
+                   NormalDegree() == degree
+               ? slope_refinement
+               : 0;
   }
   /// The normal pre-fit's degree actually used; equal to `degree` when there is none
   /// (the noise mode at degree 2 always refines its normals with a cubic, noise.h).

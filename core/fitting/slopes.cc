@@ -269,7 +269,7 @@ __attribute__((target_clones("arch=x86-64-v4", "avx2", "default"))) void Hessian
 
 }  // namespace
 
-void RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighborhoods& nb, double cos_cut, int threads,
+void RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighborhoods& nb, double cos_cut, int passes, int threads,
                   const VertexDiagnostics* diagnostics, LocalFrame* frames, double* coefficients) {
   const int nv = mesh.NumVertices();
   constexpr int kCoef = 6;  // NumCoefficients(2)
@@ -288,17 +288,19 @@ void RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighborhoods& n
     const Eigen::Vector3d n = (fr.normal - c[TaylorIndex(1, 0)] * fr.t1 - c[TaylorIndex(0, 1)] * fr.t2).normalized();
     for (int i = 0; i < 3; ++i) dst[i] = mesh.positions(v, i), dst[3 + i] = n[i];
   }, 4096);
-  // Pass 1: refined normals (into a copy: every vertex reads its neighbours' plain ones).
+  // Normal passes (into a copy: every vertex reads its neighbours' previous normals).
   std::vector<double> refined(3 * static_cast<size_t>(nv));
   std::vector<double> radius2(nv, 0.0);
   const Passes P{nb, s, local ? topo.locality_order.data() : nullptr, diagnostics, cos_cut,
                  refined.data(), radius2.data(), frames, coefficients};
   constexpr int64_t kGrain = 1024;
   const int64_t chunks = (nv + kGrain - 1) / kGrain;
-  ParallelFor(chunks, threads, [&](int64_t c) { NormalsRange(P, c * kGrain, std::min<int64_t>(nv, (c + 1) * kGrain)); }, 1);
-  ParallelFor(nv, threads, [&](int64_t k) {
-    for (int i = 0; i < 3; ++i) s.xn[6 * k + 3 + i] = refined[3 * k + i];
-  }, 4096);
+  for (int pass = 0; pass < passes; ++pass) {
+    ParallelFor(chunks, threads, [&](int64_t c) { NormalsRange(P, c * kGrain, std::min<int64_t>(nv, (c + 1) * kGrain)); }, 1);
+    ParallelFor(nv, threads, [&](int64_t k) {
+      for (int i = 0; i < 3; ++i) s.xn[6 * k + 3 + i] = refined[3 * k + i];
+    }, 4096);
+  }
   // Pass 2: frames of the refined normals, Hermite Hessians.
   ParallelFor(chunks, threads, [&](int64_t c) { HessiansRange(P, c * kGrain, std::min<int64_t>(nv, (c + 1) * kGrain)); }, 1);
 }

@@ -24,6 +24,7 @@ namespace geomfit {
 ///    own frame) with weight 1/3 and the new one with weight 2/3, in which the leading,
 ///    smooth part of the bias cancels (e_0 - mean e_j) / 3; what is left is the bias's
 ///    variation over the stencil and the quartic term's D r^4 / 72.
+///    Each further pass (`passes` in all) repeats this with the previous pass's normals.
 /// 2. Curvatures. The Hessian is the Hermite fit of FitOptions::hermite_hessian
 ///    (4 h_j / r_j^2 - g_j / r_j = e^T H e + C r / 6 + O(r^3), the quartic term cancels),
 ///    solved in the frame of the refined normal with the refined normals of the neighbours.
@@ -33,7 +34,7 @@ namespace geomfit {
 /// (normal) or plain Hessian. `fits` must be interpolating LHF fits of degree 2, with
 /// `coefficients` holding 6 Taylor coefficients per vertex; the neighbourhoods list the
 /// centre first. `locality_order` (may be empty) is the order vertices are visited in.
-void RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighborhoods& nb, double cos_cut, int threads,
+void RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighborhoods& nb, double cos_cut, int passes, int threads,
                   const VertexDiagnostics* diagnostics, LocalFrame* frames, double* coefficients);
 
 }  // namespace geomfit
