@@ -5,6 +5,8 @@
 //   BM_Pipeline/<degree>/<threads>      BuildNeighborhoods + FitSurface + ComputeDifferentials(all)
 //   BM_FitQuantities/<degree>/<threads> FitSurface + ComputeDifferentials(all), stencils precomputed
 //   BM_FitQuantitiesScalar/<d>/<t>      the same with the scalar kernel (batched_kernel = false)
+//   BM_Degree2Refined/<mode>/<t>        degree 2 as BM_FitQuantities with mode 0: plain, 1 / 3:
+//                                       slope_refinement 1 / 2, 2: hermite_hessian (degree-3 pre-fit)
 //   BM_Neighborhoods/<degree>/<threads> BuildNeighborhoods alone (for the breakdown)
 //   BM_VertexNormals                    ApproximateVertexNormals alone (one thread)
 //   BM_Topology                         BuildTopology alone (not part of the pipeline above)
@@ -139,6 +141,23 @@ void BM_FitQuantitiesScalar(benchmark::State& state) {
   SetRates(state, o.degree);
 }
 
+// Degree 2 with its refinements (FitOptions::slope_refinement, hermite_hessian), on the
+// degree-2 stencils (the pre-fit of hermite_hessian builds its own).
+void BM_Degree2Refined(benchmark::State& state) {
+  const Fixture& f = F();
+  FitOptions o = Options(2);
+  o.slope_refinement = state.range(0) == 1 ? 1 : state.range(0) == 3 ? 2 : 0;
+  o.hermite_hessian = state.range(0) == 2;
+  const RunContext ctx(nullptr, static_cast<int>(state.range(1)));
+  for (auto _ : state) {
+    auto fits = FitSurface(f.mesh, f.topo, o, f.nb[2], {}, ctx).value();
+    Differentials d = ComputeDifferentials(*fits, kAllQuantities, ctx.threads());
+    benchmark::DoNotOptimize(d.mean.data());
+    benchmark::ClobberMemory();
+  }
+  SetRates(state, 2);
+}
+
 void BM_Neighborhoods(benchmark::State& state) {
   const Fixture& f = F();
   const FitOptions o = Options(static_cast<int>(state.range(0)));
@@ -259,6 +278,11 @@ void Args(benchmark::internal::Benchmark* b) {
 BENCHMARK(BM_Pipeline)->Apply(Args);
 BENCHMARK(BM_FitQuantities)->Apply(Args);
 BENCHMARK(BM_FitQuantitiesScalar)->Apply(Args);
+BENCHMARK(BM_Degree2Refined)
+    ->ArgsProduct({{0, 1, 3, 2}, {1, 2}})
+    ->ArgNames({"mode", "threads"})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
 BENCHMARK(BM_Neighborhoods)->Apply(Args);
 BENCHMARK(BM_VertexNormals)->Unit(benchmark::kMillisecond)->UseRealTime();
 BENCHMARK(BM_Topology)->Unit(benchmark::kMillisecond)->UseRealTime();

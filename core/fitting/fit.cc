@@ -12,6 +12,7 @@
 #include "absl/strings/str_format.h"
 #include "core/fitting/noise.h"
 #include "core/fitting/parametric.h"
+#include "core/fitting/slopes.h"
 #include "core/fitting/wls.h"
 #include "core/fitting/wls_batch.h"
 #include "core/util/status_macros.h"
@@ -445,10 +446,19 @@ class SurfaceFitter {
         }
       }
       fits = std::make_shared<SurfaceFits>();
-      if (absl::Status s = FitAll(*input, topo, pass_options, pass_nb, normals, req, ctx, last ? &on_fitted : nullptr,
+      // Slope refinement (slopes.h) after the final fit: its blocks are reported once refined.
+      const bool slopes = last && pass_options.SlopePasses() > 0 && !req.stencils;
+      if (absl::Status s = FitAll(*input, topo, pass_options, pass_nb, normals, req, ctx,
+                                  last && !slopes ? &on_fitted : nullptr,
                                   fixed_tangent.empty() ? nullptr : fixed_tangent.data(), phase, *fits);
           !s.ok())
         return s;
+      if (slopes) {
+        RefineSlopes(*input, topo, *pass_nb, std::cos(pass_options.safeguard_angle_deg * M_PI / 180.0),
+                     pass_options.SlopePasses(), ctx.threads(), fits->diagnostics_.data(), fits->frames_.data(),
+                     fits->coefficients_.data());
+        if (on_fitted) on_fitted(*fits, 0, mesh.NumVertices());
+      }
       if (scheduled && pass == 0 && schedule.local_passes > 0)
         local_smoothing = LocalSmoothingSteps(*fits, mesh, noise_over_h, ctx.threads());
       // Moderate noise: the smoothing fits above cubic extrapolate the one-sided stencils

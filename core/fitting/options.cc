@@ -54,6 +54,8 @@ absl::Status ValidateFitOptions(const FitOptions& o) {
   if (o.normal_degree != 0 && (o.normal_degree < o.degree || o.normal_degree > kMaxDegree))
     return bad("fit option normal_degree = ", o.normal_degree, " must be 0 (off) or in [degree, ",
                kMaxDegree, "]");
+  if (o.slope_refinement < 0 || o.slope_refinement > 3)
+    return bad("fit option slope_refinement = ", o.slope_refinement, " must be 0 (off) or in [1, 3]");
   return absl::OkStatus();
 }
 
@@ -86,6 +88,7 @@ FitOptionsBits FitOptionsIdentity(const FitOptions& o) {
   b[16 + kMaxDegree] = static_cast<uint64_t>(o.solver);
   b[17 + kMaxDegree] = static_cast<uint64_t>(o.NormalDegree());
   b[18 + kMaxDegree] = o.HermiteHessian();
+  b[19 + kMaxDegree] = static_cast<uint64_t>(o.SlopePasses());
   return b;
 }
 
@@ -98,6 +101,7 @@ std::string FitOptionsKey(const FitOptions& o) {
   for (int d = 1; d <= kMaxDegree; ++d) absl::StrAppendFormat(&key, " c%g", o.cond_threshold[d]);
   absl::StrAppendFormat(&key, " n%s sp%d %s nd%d hh%d", NoiseModeName(o.noise), o.SmoothingPasses(),
                         WlsSolverName(o.solver), o.NormalDegree(), o.HermiteHessian());
+  if (o.SlopePasses() > 0) absl::StrAppendFormat(&key, " sr%d", o.SlopePasses());
   return key;
 }
 

@@ -92,11 +92,28 @@ struct FitOptions {
   /// the normal refinement (normal_degree 3 when unset), which supplies O(h^3) normals at
   /// every vertex; the stencil operators stay the plain fit's. Not for noisy input.
   bool hermite_hessian = false;
+  /// Slope refinement (degree-2 interpolating LHF fits with the QR solver, when neither
+  /// normal_degree nor hermite_hessian asks for the pre-fit; ignored otherwise and by the
+  /// GFD operators): this many normal passes over the fit's own stencils with the
+  /// neighbours' fitted normals, normals from h_j - p_j.G_j/3 in which the cubic term
+  /// cancels, then the Hermite Hessian of hermite_hessian in the refined frame
+  /// (core/fitting/slopes.h). 0 = off (default), 1..3. At 1: normals 0.03-0.42x, H
+  /// 0.03-0.32x, K 0.10-0.63x CGAL's at degree 2 on clean meshes for ~2.9x the CPU time of a
+  /// plain degree-2 fit; at 2: normals 0.02-0.49x, K 0.10-0.58x, ~3.9x (bench/README.md; the
+  /// degree-3 pre-fit of hermite_hessian: ~4.8x). Not for noisy input.
+  int slope_refinement = 0;
 
   /// Whether the Hermite curvatures apply (see hermite_hessian).
   bool HermiteHessian() const {
     return hermite_hessian && degree == 2 && method == FitMethod::kLHF && solver == WlsSolver::kQR &&
            Interpolates();
+  }
+  /// The slope refinement's normal passes actually run (0: it does not apply).
+  int SlopePasses() const {
+    return degree == 2 && method == FitMethod::kLHF && solver == WlsSolver::kQR && Interpolates() &&
+                   NormalDegree() == degree
+               ? slope_refinement
+               : 0;
   }
   /// The normal pre-fit's degree actually used; equal to `degree` when there is none
   /// (the noise mode at degree 2 always refines its normals with a cubic, noise.h).
@@ -135,7 +152,7 @@ std::string FitOptionsKey(const FitOptions& options);
 /// as exact bit patterns: two option sets give identical fits iff their bits are equal.
 /// Cache keys are built from these, never from formatted text (`%g` aliases 1.5 and
 /// 1.5000001).
-using FitOptionsBits = std::array<uint64_t, 19 + kMaxDegree>;
+using FitOptionsBits = std::array<uint64_t, 20 + kMaxDegree>;
 FitOptionsBits FitOptionsIdentity(const FitOptions& options);
 
 const char* FitMethodName(FitMethod m);

@@ -80,6 +80,7 @@ absl::StatusOr<std::shared_ptr<const SurfaceFits>> FitForOperators(
   FitOptions o = options;  // the operators' function stencils share the fits' own tangent planes
   o.normal_degree = 0;  // no normal refinement: it would break the operators' orders
   o.hermite_hessian = false;  // nor Hermite curvatures (they need it, and leave the stencils)
+  o.slope_refinement = 0;  // nor the slope refinement (frames change after the stencils)
   return FitSurface(mesh, topo, o, std::move(neighborhoods), req, ctx);
 }
 

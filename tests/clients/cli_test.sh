@@ -61,6 +61,15 @@ paste out.tsv nd.tsv | awk -F'\t' 'NR > 1 && $1 != $17 { d++ } END { exit !(d > 
   fail "--normal-degree 3 left every normal unchanged"
 pass
 expect_error 2 "normal_degree" curvature --local t.obj --degree 2 --normal-degree 1
+# Slope refinement: degree 2's normals refined from the neighbours' (other normals,
+# degree 2 still reported); more than 3 passes is a usage error naming the option.
+run_ok curvature --local t.obj --degree 2 --slope-refinement 1 --output sr.tsv
+[ "$(wc -l <sr.tsv)" -eq $((nv + 1)) ] || fail "sr.tsv has $(wc -l <sr.tsv) lines"
+awk -F'\t' 'NR > 1 && $14 != 2 { exit 1 }' sr.tsv || fail "--slope-refinement 1: degree_used is not 2"
+paste out.tsv sr.tsv | awk -F'\t' 'NR > 1 && $1 != $17 { d++ } END { exit !(d > 0) }' ||
+  fail "--slope-refinement 1 left every normal unchanged"
+pass
+expect_error 2 "slope_refinement" curvature --local t.obj --degree 2 --slope-refinement 4
 
 # --- VTP and NPY ------------------------------------------------------------------
 run_ok curvature --local t.obj --degree 3 --method lop --two-pass --output out.vtp --verbose

@@ -1,0 +1,40 @@
+#pragma once
+#include <cstdint>
+
+#include "core/fitting/fit.h"
+#include "core/fitting/frames.h"
+#include "core/fitting/neighborhood.h"
+#include "core/mesh/mesh.h"
+#include "core/mesh/topology.h"
+
+namespace geomfit {
+
+/// Slope refinement of interpolating degree-2 height fits (FitOptions::slope_refinement):
+/// two passes over the fits' own stencils that use the neighbours' fitted normals.
+///
+/// 1. Normals. In the frame of a vertex's fitted normal, a stencil point p_j at height h_j
+///    whose normal has slopes G_j satisfies, for the Taylor expansion f = a.p + p^T H p / 2
+///    + C(p) / 6 + O(p^4), p.grad C(p) = 3 C(p) (Euler), hence
+///    h_j - p_j.G_j / 3 = (2/3) a.p_j + (1/6) p_j^T H p_j + O(p^4): the cubic term, whose
+///    projection onto the linear columns is the O(h^2) error of a degree-2 fit's gradient
+///    (the u^3 column projects onto u), cancels exactly. The slopes G_j are the neighbours'
+///    degree-2 normals, biased by e_j = O(h^2): they enter the new gradient as -e_j / 2 when
+///    read as (3/2) of the fitted linear term. The refinement reports the fitted linear term
+///    itself, (2/3) of that: the mean of the vertex's own gradient (error e_0, zero in its
+///    own frame) with weight 1/3 and the new one with weight 2/3, in which the leading,
+///    smooth part of the bias cancels (e_0 - mean e_j) / 3; what is left is the bias's
+///    variation over the stencil and the quartic term's D r^4 / 72.
+///    Each further pass (`passes` in all) repeats this with the previous pass's normals.
+/// 2. Curvatures. The Hessian is the Hermite fit of FitOptions::hermite_hessian
+///    (4 h_j / r_j^2 - g_j / r_j = e^T H e + C r / 6 + O(r^3), the quartic term cancels),
+///    solved in the frame of the refined normal with the refined normals of the neighbours.
+///
+/// Frames get the refined normals (the fits keep their tangent plane: c10 = c01 = 0);
+/// vertices whose fit used degree < 2, or whose passes are ill-posed, keep their plain fit
+/// (normal) or plain Hessian. `fits` must be interpolating LHF fits of degree 2, with
+/// `coefficients` holding 6 Taylor coefficients per vertex; the neighbourhoods list the
+/// centre first. `locality_order` (may be empty) is the order vertices are visited in.
+void RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighborhoods& nb, double cos_cut, int passes, int threads,
+                  const VertexDiagnostics* diagnostics, LocalFrame* frames, double* coefficients);
+
+}  // namespace geomfit
