@@ -454,9 +454,9 @@ class SurfaceFitter {
           !s.ok())
         return s;
       if (slopes) {
-        RefineSlopes(*input, topo, *pass_nb, std::cos(pass_options.safeguard_angle_deg * M_PI / 180.0),
-                     pass_options.SlopePasses(), ctx.threads(), fits->diagnostics_.data(), fits->frames_.data(),
-                     fits->coefficients_.data());
+        GF_RETURN_IF_ERROR(RefineSlopes(*input, topo, *pass_nb, std::cos(pass_options.safeguard_angle_deg * M_PI / 180.0),
+                                        pass_options.SlopePasses(), ctx, fits->diagnostics_.data(),
+                                        fits->frames_.data(), fits->coefficients_.data()));
         if (on_fitted) on_fitted(*fits, 0, mesh.NumVertices());
       }
       if (scheduled && pass == 0 && schedule.local_passes > 0)

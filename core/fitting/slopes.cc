@@ -5,6 +5,7 @@
 #include <vector>
 
 #include "core/util/parallel.h"
+#include "core/util/status_macros.h"
 
 namespace geomfit {
 namespace {
@@ -269,8 +270,10 @@ __attribute__((target_clones("arch=x86-64-v4", "avx2", "default"))) void Hessian
 
 }  // namespace
 
-void RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighborhoods& nb, double cos_cut, int passes, int threads,
-                  const VertexDiagnostics* diagnostics, LocalFrame* frames, double* coefficients) {
+absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighborhoods& nb, double cos_cut, int passes,
+                          const RunContext& ctx, const VertexDiagnostics* diagnostics, LocalFrame* frames,
+                          double* coefficients) {
+  const int threads = ctx.threads();
   const int nv = mesh.NumVertices();
   constexpr int kCoef = 6;  // NumCoefficients(2)
   const bool local = static_cast<int>(topo.locality_order.size()) == nv;
@@ -296,13 +299,15 @@ void RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighborhoods& n
   constexpr int64_t kGrain = 1024;
   const int64_t chunks = (nv + kGrain - 1) / kGrain;
   for (int pass = 0; pass < passes; ++pass) {
-    ParallelFor(chunks, threads, [&](int64_t c) { NormalsRange(P, c * kGrain, std::min<int64_t>(nv, (c + 1) * kGrain)); }, 1);
+    GF_RETURN_IF_ERROR(ParallelFor(
+        chunks, ctx, [&](int64_t c) { NormalsRange(P, c * kGrain, std::min<int64_t>(nv, (c + 1) * kGrain)); }, 1));
     ParallelFor(nv, threads, [&](int64_t k) {
       for (int i = 0; i < 3; ++i) s.xn[6 * k + 3 + i] = refined[3 * k + i];
     }, 4096);
   }
   // Pass 2: frames of the refined normals, Hermite Hessians.
-  ParallelFor(chunks, threads, [&](int64_t c) { HessiansRange(P, c * kGrain, std::min<int64_t>(nv, (c + 1) * kGrain)); }, 1);
+  return ParallelFor(
+      chunks, ctx, [&](int64_t c) { HessiansRange(P, c * kGrain, std::min<int64_t>(nv, (c + 1) * kGrain)); }, 1);
 }
 
 }  // namespace geomfit

@@ -6,6 +6,8 @@
 #include "core/fitting/neighborhood.h"
 #include "core/mesh/mesh.h"
 #include "core/mesh/topology.h"
+#include "core/util/run_context.h"
+#include "absl/status/status.h"
 
 namespace geomfit {
 
@@ -33,8 +35,10 @@ namespace geomfit {
 /// vertices whose fit used degree < 2, or whose passes are ill-posed, keep their plain fit
 /// (normal) or plain Hessian. `fits` must be interpolating LHF fits of degree 2, with
 /// `coefficients` holding 6 Taylor coefficients per vertex; the neighbourhoods list the
-/// centre first. `locality_order` (may be empty) is the order vertices are visited in.
-void RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighborhoods& nb, double cos_cut, int passes, int threads,
-                  const VertexDiagnostics* diagnostics, LocalFrame* frames, double* coefficients);
+/// centre first. Vertices are visited in `topo.locality_order` when it is set. Polls `ctx`
+/// between chunks (a cancelled run leaves the fits partly refined: callers discard them).
+absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighborhoods& nb, double cos_cut, int passes,
+                          const RunContext& ctx, const VertexDiagnostics* diagnostics, LocalFrame* frames,
+                          double* coefficients);
 
 }  // namespace geomfit
