@@ -513,14 +513,30 @@ class SurfaceFitter {
       // The lanes read their stencils in slots: the ordered ones, else (vertex order) the
       // neighbourhoods' own.
       const bool ordered_lanes = lane_setup && os;
-      for (int64_t k = chunk * kGrain; k < end; ++k) {
+      // Ordered lanes are queued by stencil size (a stable counting sort of the block), so
+      // the stencils of a batch differ little in size: few padded rows. Each lane's
+      // result is independent of its batch.
+      const int64_t begin = chunk * kGrain;
+      const int n = static_cast<int>(end - begin);
+      int64_t walk[kGrain];
+      if (ordered_lanes) {
+        int at[kMaxStencil + 2] = {};
+        const auto size_of = [&](int64_t k) { return std::min<int>(os->offsets[k + 1] - os->offsets[k], kMaxStencil); };
+        for (int64_t k = begin; k < end; ++k) ++at[size_of(k) + 1];
+        for (int c = 1; c <= kMaxStencil + 1; ++c) at[c] += at[c - 1];
+        for (int64_t k = begin; k < end; ++k) walk[at[size_of(k)]++] = k;
+      } else {
+        for (int j = 0; j < n; ++j) walk[j] = begin + j;
+      }
+      for (int j = 0; j < n; ++j) {
+        const int64_t k = walk[j];
         // Prefetch: the CSR offsets 16 vertices ahead, the stencil indices 8 ahead and
         // their slots 4 ahead (the neighbourhoods are in the input numbering, the walk in
         // locality order: each vertex's stencil is a random read). The ordered stencils
         // are read in sequence.
-        if (!ordered_lanes && k + 16 < end) __builtin_prefetch(nb->offsets.data() + vertex_at(k + 16));
-        if (k + 8 < end) {
-          const int64_t w = vertex_at(k + 8);
+        if (!ordered_lanes && j + 16 < n) __builtin_prefetch(nb->offsets.data() + vertex_at(walk[j + 16]));
+        if (j + 8 < n) {
+          const int64_t w = vertex_at(walk[j + 8]);
           if (!ordered_lanes) {
             const int32_t* p = nb->Points(static_cast<int>(w));
             __builtin_prefetch(p);
@@ -536,8 +552,8 @@ class SurfaceFitter {
           __builtin_prefetch(c, 1);
           __builtin_prefetch(c + f.dims() * f.num_coefficients() - 1, 1);
         }
-        if (!ordered_lanes && os && k + 4 < end) {
-          const int w = static_cast<int>(vertex_at(k + 4));
+        if (!ordered_lanes && os && j + 4 < n) {
+          const int w = static_cast<int>(vertex_at(walk[j + 4]));
           const int32_t* p = nb->Points(w);
           for (int i = 0, n = nb->Size(w); i < n; ++i) __builtin_prefetch(os->rank.data() + p[i]);
         }
@@ -568,7 +584,7 @@ class SurfaceFitter {
       }
       heights.Flush(in, hin, settings, *batch);
       batch->Flush(in, settings, req.batched_kernel);
-      if (on_fitted && *on_fitted) (*on_fitted)(f, chunk * kGrain, end);
+      if (on_fitted && *on_fitted) (*on_fitted)(f, begin, end);
     }, 1, phase);
   }
 };
