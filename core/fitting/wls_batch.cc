@@ -212,16 +212,6 @@ GEOMFIT_INLINE V Weight(V u, V v, V g, double epsilon) {
   return g > 0 ? g / denom : V{};
 }
 
-// The square of Weight (what the normal equations use) without its roots where D is
-// even: g^2 / s2^(D/2) (equal to Weight^2 to round-off).
-template <int D, class V>
-GEOMFIT_INLINE V WeightSquared(V u, V v, V g, double epsilon) {
-  const V s2 = u * u + v * v + epsilon;
-  V denom = D % 2 == 0 ? s2 : Sqrt(s2);
-  for (int e = 0; e < D / 2 - (D % 2 == 0 ? 1 : 0); ++e) denom *= s2;
-  return g > 0 ? g * g / denom : V{};
-}
-
 // x <- R^-1 R^-T x for the upper-triangular R (column-major, kCols x kCols) with the
 // reciprocals of its diagonal in `inv` (a vector division costs ~10 multiplications).
 template <int kCols, class V>
@@ -256,11 +246,11 @@ GEOMFIT_INLINE int SolveNormal(const V* gu, const V* gv, const V* gg, const V* g
   for (int t = 0; t < kMoments; ++t) mom[t] = V{};
   for (int d = 0; d < dims; ++d)
     for (int t = 0; t < kN; ++t) rmom[d][t] = V{};
-  const V inv_h = 1.0 / hv;  // rows scaled by a multiplication: one division per batch
   for (int i = 0; i < m; ++i) {
-    const V u = gu[i] * inv_h, v = gv[i] * inv_h;
+    const V u = gu[i] / hv, v = gv[i] / hv;
+    const V w = Weight<D>(u, v, gg[i], S.weight_epsilon);
     V wu[2 * D + 1], vp[2 * D + 1];
-    wu[0] = WeightSquared<D>(u, v, gg[i], S.weight_epsilon);
+    wu[0] = w * w;
     vp[0] = Splat<V>(1);
     for (int e = 1; e <= 2 * D; ++e) wu[e] = wu[e - 1] * u, vp[e] = vp[e - 1] * v;
     for (int p = 0, t = 0; p <= 2 * D; ++p)
@@ -338,15 +328,15 @@ GEOMFIT_INLINE int SolveNormal(const V* gu, const V* gv, const V* gg, const V* g
     for (int d = 0; d < dims; ++d)
       for (int c = 0; c < kCols; ++c) g[d][c] = V{};
     for (int i = 0; i < m; ++i) {
-      const V u = gu[i] * inv_h, v = gv[i] * inv_h;
-      const V w2 = WeightSquared<D>(u, v, gg[i], S.weight_epsilon);
+      const V u = gu[i] / hv, v = gv[i] / hv;
+      const V w = Weight<D>(u, v, gg[i], S.weight_epsilon);
       V up[D + 1], vp[D + 1];
       up[0] = vp[0] = Splat<V>(1);
       for (int e = 1; e <= D; ++e) up[e] = up[e - 1] * u, vp[e] = vp[e - 1] * v;
       for (int d = 0; d < dims; ++d) {
         V e = grhs[d * m + i];
         for (int c = 0; c < kCols; ++c) e -= f[c] * y[d][c] * up[ea[c]] * vp[eb[c]];
-        e *= w2;
+        e *= w * w;
         for (int c = 0; c < kCols; ++c) g[d][c] += e * up[ea[c]] * vp[eb[c]];
       }
     }
