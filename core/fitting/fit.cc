@@ -229,6 +229,7 @@ struct FitBatch {
 struct HeightQueue {
   HeightLane lanes[kWlsLanes];
   FitOutput outs[kWlsLanes];
+  int vertex[kWlsLanes];
   int count = 0;
 
   void Flush(const FitInput& in, const HeightLanesInput& hin, const WlsSettings& S, FitBatch& batch) {
@@ -245,9 +246,9 @@ struct HeightQueue {
         continue;
       }
       const int slot = batch.count;
-      SetUpVertex(lanes[l].vertex, in, outs[l], batch.problems[slot]);  // not isolated: queued
+      SetUpVertex(vertex[l], in, outs[l], batch.problems[slot]);  // not isolated: queued
       batch.outs[slot] = outs[l];
-      batch.vertex[slot] = lanes[l].vertex;
+      batch.vertex[slot] = vertex[l];
       if (++batch.count == kWlsLanes) batch.Flush(in, S, true);
     }
     count = 0;
@@ -497,25 +498,26 @@ class SurfaceFitter {
       f.stencils_.assign(f.stencil_offsets_[nv], 0.0);
     }
     // Vertices in the topology's locality order (neighbouring stencils share cache
-    // lines), unless blocks must be reported as index ranges; positions and normals
-    // copied in that order.
+    // lines), unless blocks must be reported as index ranges: the stencils in that order
+    // (the neighbourhoods', else ordered here), positions and normals copied in it.
     const bool local_order = !(on_fitted && *on_fitted) && static_cast<int>(topo.locality_order.size()) == nv;
+    OrderedStencils own;
+    if (local_order && static_cast<int>(nb->ordered.order.size()) != nv)
+      own = OrderStencils(*nb, topo.locality_order, ctx.threads());
+    const OrderedStencils* os = !local_order ? nullptr : own.empty() ? &nb->ordered : &own;
     std::vector<double> xyzn(6 * static_cast<size_t>(nv));
-    std::vector<int32_t> rank(local_order ? nv : 0);
     ParallelFor(nv, ctx.threads(), [&](int64_t k) {
-      const int64_t v = local_order ? topo.locality_order[k] : k;
-      if (local_order && k + 16 < nv) {  // random reads in the input numbering
-        const int64_t w = topo.locality_order[k + 16];
+      const int64_t v = os ? os->order[k] : k;
+      if (os && k + 16 < nv) {  // random reads in the input numbering
+        const int64_t w = os->order[k + 16];
         __builtin_prefetch(mesh.positions.data() + 3 * w);
         __builtin_prefetch(normals.data() + 3 * w);
-        __builtin_prefetch(rank.data() + w, 1);
       }
-      if (local_order) rank[v] = static_cast<int32_t>(k);
       double* dst = xyzn.data() + 6 * k;
       for (int c = 0; c < 3; ++c) dst[c] = mesh.positions(v, c), dst[3 + c] = normals(v, c);
     }, 4096);
     const FitInput in{mesh, *nb, normals, o, std::cos(o.safeguard_angle_deg * M_PI / 180.0), topo,
-                      xyzn.data(), local_order ? rank.data() : nullptr, fixed_tangent,
+                      xyzn.data(), os ? os->rank.data() : nullptr, fixed_tangent,
                       fixed_tangent != nullptr && o.HermiteHessian()};
     const WlsSettings settings = SettingsFor(o, f.stencil_rows_);
     // Height fits without stencils, refinement or comparison solvers are set up in the
@@ -523,23 +525,45 @@ class SurfaceFitter {
     const bool lane_setup = req.batched_kernel && req.lane_setup && o.method == FitMethod::kLHF && !req.stencils &&
                             o.solver != WlsSolver::kSVD && !o.oscillation_safeguard && fixed_tangent == nullptr &&
                             WlsBatchNormalEquations();
-    const HeightLanesInput hin{in.xyzn, in.rank, in.cos_cut};
+    const HeightLanesInput hin{in.xyzn, in.cos_cut};
     constexpr int64_t kGrain = 512;
     return ParallelFor((nv + kGrain - 1) / kGrain, ctx, [&](int64_t chunk) {
       const int64_t end = std::min<int64_t>(nv, (chunk + 1) * kGrain);
       std::unique_ptr<FitBatch> batch(new FitBatch);  // default-initialized: no 800 KB memset
       HeightQueue heights;
-      const auto vertex_at = [&](int64_t k) -> int64_t { return local_order ? topo.locality_order[k] : k; };
-      for (int64_t k = chunk * kGrain; k < end; ++k) {
+      const auto vertex_at = [&](int64_t k) -> int64_t { return os ? os->order[k] : k; };
+      // The lanes read their stencils in slots: the ordered ones, else (vertex order) the
+      // neighbourhoods' own.
+      const bool ordered_lanes = lane_setup && os;
+      // Ordered lanes are queued by stencil size (a stable counting sort of the block), so
+      // the stencils of a batch differ little in size: few padded rows. Each lane's
+      // result is independent of its batch.
+      const int64_t begin = chunk * kGrain;
+      const int n = static_cast<int>(end - begin);
+      int64_t walk[kGrain];
+      if (ordered_lanes) {
+        int at[kMaxStencil + 2] = {};
+        const auto size_of = [&](int64_t k) { return std::min<int>(os->offsets[k + 1] - os->offsets[k], kMaxStencil); };
+        for (int64_t k = begin; k < end; ++k) ++at[size_of(k) + 1];
+        for (int c = 1; c <= kMaxStencil + 1; ++c) at[c] += at[c - 1];
+        for (int64_t k = begin; k < end; ++k) walk[at[size_of(k)]++] = k;
+      } else {
+        for (int j = 0; j < n; ++j) walk[j] = begin + j;
+      }
+      for (int j = 0; j < n; ++j) {
+        const int64_t k = walk[j];
         // Prefetch: the CSR offsets 16 vertices ahead, the stencil indices 8 ahead and
         // their slots 4 ahead (the neighbourhoods are in the input numbering, the walk in
-        // locality order: each vertex's stencil is a random read).
-        if (k + 16 < end) __builtin_prefetch(nb->offsets.data() + vertex_at(k + 16));
-        if (k + 8 < end) {
-          const int64_t w = vertex_at(k + 8);
-          const int32_t* p = nb->Points(static_cast<int>(w));
-          __builtin_prefetch(p);
-          __builtin_prefetch(p + 16);
+        // locality order: each vertex's stencil is a random read). The ordered stencils
+        // are read in sequence.
+        if (!ordered_lanes && j + 16 < n) __builtin_prefetch(nb->offsets.data() + vertex_at(walk[j + 16]));
+        if (j + 8 < n) {
+          const int64_t w = vertex_at(walk[j + 8]);
+          if (!ordered_lanes) {
+            const int32_t* p = nb->Points(static_cast<int>(w));
+            __builtin_prefetch(p);
+            __builtin_prefetch(p + 16);
+          }
           // Its outputs too (input numbering: random lines; a store that misses holds up
           // every later store).
           const char* fr = reinterpret_cast<const char*>(&f.frames_[w]);
@@ -550,10 +574,10 @@ class SurfaceFitter {
           __builtin_prefetch(c, 1);
           __builtin_prefetch(c + f.dims() * f.num_coefficients() - 1, 1);
         }
-        if (local_order && k + 4 < end) {
-          const int w = static_cast<int>(vertex_at(k + 4));
+        if (!ordered_lanes && os && j + 4 < n) {
+          const int w = static_cast<int>(vertex_at(walk[j + 4]));
           const int32_t* p = nb->Points(w);
-          for (int i = 0, n = nb->Size(w); i < n; ++i) __builtin_prefetch(rank.data() + p[i]);
+          for (int i = 0, n = nb->Size(w); i < n; ++i) __builtin_prefetch(os->rank.data() + p[i]);
         }
         const int64_t v = vertex_at(k);
         if (topo.is_boundary[v]) f.diagnostics_[v].flags |= kFlagBoundary;
@@ -561,12 +585,15 @@ class SurfaceFitter {
                             &f.diagnostics_[v], req.stencils ? f.stencils_.data() + f.stencil_offsets_[v] : nullptr,
                             f.stencil_rows_};
         if (lane_setup) {
-          const double* self = in.xyzn + 6 * static_cast<int64_t>(in.Slot(static_cast<int>(v)));
+          const double* self = in.xyzn + 6 * (os ? k : v);
           if (Eigen::Map<const Eigen::Vector3d>(self + 3).squaredNorm() != 0) {  // else isolated: below
             out.diag->degree_requested = static_cast<int8_t>(o.degree);
-            heights.lanes[heights.count] = HeightLane{static_cast<int>(v), nb->Points(static_cast<int>(v)),
-                                                      nb->Size(static_cast<int>(v)), out.frame, out.coefficients};
+            const int32_t* points = os ? os->points.data() + os->offsets[k] : nb->Points(static_cast<int>(v));
+            const int size = os ? os->offsets[k + 1] - os->offsets[k] : nb->Size(static_cast<int>(v));
+            heights.lanes[heights.count] = HeightLane{static_cast<int>(os ? k : v), points, size, out.frame,
+                                                      out.coefficients};
             heights.outs[heights.count] = out;
+            heights.vertex[heights.count] = static_cast<int>(v);
             if (++heights.count == kWlsLanes) heights.Flush(in, hin, settings, *batch);
             continue;
           }
@@ -579,7 +606,7 @@ class SurfaceFitter {
       }
       heights.Flush(in, hin, settings, *batch);
       batch->Flush(in, settings, req.batched_kernel);
-      if (on_fitted && *on_fitted) (*on_fitted)(f, chunk * kGrain, end);
+      if (on_fitted && *on_fitted) (*on_fitted)(f, begin, end);
     }, 1, phase);
   }
 };

@@ -257,19 +257,45 @@ Neighborhoods BuildNeighborhoods(const Topology& topo, const Mesh& mesh, const R
   if (threads == 1 || nv == 1) {
     bool identity = true;
     for (int i = 0; i < nv && identity; ++i) identity = order[i] == i;
-    if (identity) {  // one block grown in vertex order: it is the result (its spare
+    if (identity)  // one block grown in vertex order: it is the result (its spare
       nb.indices = std::move(block_indices[0]);  // capacity was never written: not resident)
-      return nb;
-    }
   }
-  nb.indices.resize(nb.offsets[nv]);
-  ParallelForBlocks(nv, threads, [&](int64_t begin, int64_t end, int b) {
-    for (int64_t i = begin; i < end; ++i) {
-      const int v = order[i];
-      std::copy_n(block_indices[b].begin() + start[v], sizes[v], nb.indices.begin() + nb.offsets[v]);
+  if (nb.indices.empty()) {
+    nb.indices.resize(nb.offsets[nv]);
+    ParallelForBlocks(nv, threads, [&](int64_t begin, int64_t end, int b) {
+      for (int64_t i = begin; i < end; ++i) {
+        const int v = order[i];
+        std::copy_n(block_indices[b].begin() + start[v], sizes[v], nb.indices.begin() + nb.offsets[v]);
+      }
+    });
+  }
+  if (static_cast<int>(topo.locality_order.size()) == nv) nb.ordered = OrderStencils(nb, topo.locality_order, threads);
+  return nb;
+}
+
+OrderedStencils OrderStencils(const Neighborhoods& nb, std::vector<int32_t> order, int num_threads) {
+  const int nv = static_cast<int>(nb.offsets.size()) - 1;
+  OrderedStencils s;
+  s.order = std::move(order);
+  s.rank.resize(nv);
+  s.offsets.resize(nv + 1);
+  s.offsets[0] = 0;
+  for (int k = 0; k < nv; ++k) {
+    const int v = s.order[k];
+    s.rank[v] = k;
+    s.offsets[k + 1] = s.offsets[k] + nb.Size(v);
+  }
+  s.points.resize(s.offsets[nv]);
+  ParallelForBlocks(nv, ResolveThreads(num_threads), [&](int64_t begin, int64_t end, int) {
+    for (int64_t k = begin; k < end; ++k) {
+      const int v = s.order[k];
+      if (k + 8 < end) __builtin_prefetch(nb.Points(s.order[k + 8]));  // rows in vertex order: random
+      const int32_t* p = nb.Points(v);
+      int32_t* out = s.points.data() + s.offsets[k];
+      for (int i = 0, n = nb.Size(v); i < n; ++i) out[i] = s.rank[p[i]];
     }
   });
-  return nb;
+  return s;
 }
 
 }  // namespace geomfit

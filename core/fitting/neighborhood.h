@@ -7,17 +7,35 @@
 
 namespace geomfit {
 
+/// The stencils again in a work order (a permutation of the vertices), renumbered by it:
+/// the k-th vertex visited is order[k], its points are
+/// points[offsets[k] .. offsets[k+1]) given by their positions in the order (rank[p] for
+/// vertex p), so a loop in this order reads its stencils sequentially and the points'
+/// data from an array copied in this order, without an index lookup per point.
+struct OrderedStencils {
+  std::vector<int32_t> order, rank, offsets, points;
+
+  bool empty() const { return order.empty(); }
+  size_t Bytes() const { return 4 * (order.size() + rank.size() + offsets.size() + points.size()); }
+};
+
 /// Per-vertex stencils in CSR form: points of vertex v are
 /// indices[offsets[v] .. offsets[v+1]), the vertex itself first, then ring by ring.
 struct Neighborhoods {
   std::vector<int32_t> offsets;
   std::vector<int32_t> indices;
   std::vector<float> rings;  ///< ring size reached per vertex (1, 1.5, ...)
+  /// The same stencils in Topology::locality_order (empty when the topology has none):
+  /// the order FitSurface fits in.
+  OrderedStencils ordered;
 
   int Size(int v) const { return offsets[v + 1] - offsets[v]; }
   const int32_t* Points(int v) const { return indices.data() + offsets[v]; }
-  size_t Bytes() const { return 4 * (offsets.size() + indices.size() + rings.size()); }
+  size_t Bytes() const { return 4 * (offsets.size() + indices.size() + rings.size()) + ordered.Bytes(); }
 };
+
+/// `nb`'s stencils in `order` (a permutation of its vertices), OrderedStencils' layout.
+OrderedStencils OrderStencils(const Neighborhoods& nb, std::vector<int32_t> order, int num_threads = 0);
 
 /// Ring growth rule (2.1). For triangles: the (k+1)-ring adds the 1-ring of every
 /// k-ring vertex; the half ring k+0.5 adds the vertices of faces sharing an edge

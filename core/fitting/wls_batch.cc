@@ -3,6 +3,10 @@
 #include <cstdint>
 #include <type_traits>
 
+#if defined(__x86_64__) && defined(__GNUC__)
+#include <immintrin.h>
+#endif
+
 #include "core/fitting/fit.h"
 
 // Compiled with -fno-math-errno (core/CMakeLists.txt) so that square roots of vectors
@@ -17,6 +21,7 @@ namespace {
 template <int W>
 struct Lanes {
   typedef double V __attribute__((vector_size(W * sizeof(double))));
+  typedef long long VI __attribute__((vector_size(W * sizeof(double))));  // comparison masks
 };
 
 #define GEOMFIT_INLINE inline __attribute__((always_inline))
@@ -34,6 +39,77 @@ template <class V>
 GEOMFIT_INLINE V Abs(V x) { return x < 0 ? -x : x; }
 template <class V>
 GEOMFIT_INLINE V Max(V a, V b) { return a < b ? b : a; }
+
+// FitHeights's row set-up per instruction set: Load(base, idx) = (base[idx[0]],
+// base[idx[1]], ...) (a gather where the CPU has one), Gamma(g, cut, i, rows) = g where
+// g >= cut and i < rows[l], else +0, IfPositive(gamma, x) = x where gamma > 0, else +0
+// (comparisons on vectors in registers: GCC 12 turns the generic code's vector selects
+// into scalar code).
+template <int W>
+struct PortableRows {
+  static constexpr int kW = W;
+  using V = typename Lanes<W>::V;
+  using VI = typename Lanes<W>::VI;
+  GEOMFIT_INLINE static V Load(const double* base, const int32_t* idx) {
+    V r;
+    for (int l = 0; l < W; ++l) r[l] = base[idx[l]];
+    return r;
+  }
+  GEOMFIT_INLINE static V Gamma(V g, V cut, int i, const int32_t* rows) {
+    V r;
+    for (int l = 0; l < W; ++l) r[l] = g[l] >= cut[l] && i < rows[l] ? g[l] : 0.0;
+    return r;
+  }
+  GEOMFIT_INLINE static V IfPositive(V gamma, V x) {
+    return reinterpret_cast<V>(reinterpret_cast<VI>(x) & (gamma > 0));
+  }
+};
+
+#if defined(__x86_64__) && defined(__GNUC__)
+#define GEOMFIT_AVX2 __attribute__((target("avx2")))
+#define GEOMFIT_AVX512 __attribute__((target("avx512f,avx512dq,avx512vl,avx512bw")))
+// Not always_inline (its callers are compiled for any CPU): flatten inlines them into the
+// kernels of their instruction set. Gathers in the masked form: GCC 12 warns on the plain
+// one's undefined source.
+struct Avx2Rows {
+  static constexpr int kW = 4;
+  using V = Lanes<4>::V;
+  GEOMFIT_AVX2 static inline V Load(const double* base, const int32_t* idx) {
+    const __m256d all = _mm256_castsi256_pd(_mm256_set1_epi64x(-1));
+    return reinterpret_cast<V>(_mm256_mask_i32gather_pd(
+        _mm256_setzero_pd(), base, _mm_loadu_si128(reinterpret_cast<const __m128i*>(idx)), all, 8));
+  }
+  GEOMFIT_AVX2 static inline V Gamma(V g, V cut, int i, const int32_t* rows) {
+    const __m128i valid = _mm_cmpgt_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(rows)), _mm_set1_epi32(i));
+    const __m256d keep = _mm256_and_pd(_mm256_cmp_pd(reinterpret_cast<__m256d>(g), reinterpret_cast<__m256d>(cut), _CMP_GE_OQ),
+                                       _mm256_castsi256_pd(_mm256_cvtepi32_epi64(valid)));
+    return reinterpret_cast<V>(_mm256_and_pd(keep, reinterpret_cast<__m256d>(g)));
+  }
+  GEOMFIT_AVX2 static inline V IfPositive(V gamma, V x) {
+    const __m256d keep = _mm256_cmp_pd(reinterpret_cast<__m256d>(gamma), _mm256_setzero_pd(), _CMP_GT_OQ);
+    return reinterpret_cast<V>(_mm256_and_pd(keep, reinterpret_cast<__m256d>(x)));
+  }
+};
+struct Avx512Rows {
+  static constexpr int kW = 8;
+  using V = Lanes<8>::V;
+  GEOMFIT_AVX512 static inline V Load(const double* base, const int32_t* idx) {
+    return reinterpret_cast<V>(_mm512_mask_i32gather_pd(
+        _mm512_setzero_pd(), 0xff, _mm256_loadu_si256(reinterpret_cast<const __m256i*>(idx)), base, 8));
+  }
+  GEOMFIT_AVX512 static inline V Gamma(V g, V cut, int i, const int32_t* rows) {
+    const __mmask8 valid =
+        _mm256_cmpgt_epi32_mask(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(rows)), _mm256_set1_epi32(i));
+    const __mmask8 keep =
+        _mm512_mask_cmp_pd_mask(valid, reinterpret_cast<__m512d>(g), reinterpret_cast<__m512d>(cut), _CMP_GE_OQ);
+    return reinterpret_cast<V>(_mm512_maskz_mov_pd(keep, reinterpret_cast<__m512d>(g)));
+  }
+  GEOMFIT_AVX512 static inline V IfPositive(V gamma, V x) {
+    const __mmask8 keep = _mm512_cmp_pd_mask(reinterpret_cast<__m512d>(gamma), _mm512_setzero_pd(), _CMP_GT_OQ);
+    return reinterpret_cast<V>(_mm512_maskz_mov_pd(keep, reinterpret_cast<__m512d>(x)));
+  }
+};
+#endif
 
 // (p[0][c], p[1][c], ...) built in registers (lane by lane stores go through the stack).
 template <class V>
@@ -500,19 +576,20 @@ GEOMFIT_INLINE int Solve(const WlsProblem* const problems[], int count, const Wl
 // SolveNormal. Rows are not compacted: a row with gamma 0 has weight 0, so it adds
 // exact zeros to every moment (sums that start at +0 never become -0) and the lane's
 // bits are those of the compacted rows.
-template <int W, int D, int First>
+template <class R, int D, int First>
 GEOMFIT_INLINE int FitHeights(const HeightLanesInput& in, const HeightLane* lanes, int count, const WlsSettings& S,
                               WlsSolution solutions[], int used[], WlsBatchWorkspace& work) {
+  constexpr int W = R::kW;
   using V = typename Lanes<W>::V;
   constexpr int kCols = NumCoefficients(D) - First;
-  const auto slot = [&](int p) -> int64_t { return 6 * static_cast<int64_t>(in.rank ? in.rank[p] : p); };
+  const auto slot = [](int p) -> int64_t { return 6 * static_cast<int64_t>(p); };
   int64_t self[W];
   const int32_t* pts[W];
-  int nrows[W];
+  int32_t nrows[W];
   int m = 0;
   for (int l = 0; l < W; ++l) {
     const HeightLane& L = lanes[l < count ? l : 0];
-    self[l] = slot(L.vertex);
+    self[l] = slot(L.slot);
     pts[l] = L.points + First;
     nrows[l] = l < count ? L.size - First : 0;
     m = m < nrows[l] ? nrows[l] : m;
@@ -561,28 +638,30 @@ GEOMFIT_INLINE int FitHeights(const HeightLanesInput& in, const HeightLane* lane
   V* gg = gv + m;
   V* grhs = gg + m;
   V* r = grhs + m;  // kCols^2 vectors: SolveNormal's scratch
+  // Each row's offsets into xyzn, lane by lane (offs[i * W + l]), laid out first (int32:
+  // 6 x the slot, below 2^31 for any mesh whose copy fits in memory).
+  int32_t* offs = reinterpret_cast<int32_t*>(r + kCols * kCols);
+  for (int l = 0; l < W; ++l) {
+    int i = 0;
+    for (; i < nrows[l]; ++i) offs[i * W + l] = static_cast<int32_t>(slot(pts[l][i]));
+    for (; i < m; ++i) offs[i * W + l] = static_cast<int32_t>(self[l]);
+  }
   V kept = V{}, radius2 = V{};
   const V cos_cut = Splat<V>(in.cos_cut);
-  V rows;
-  for (int l = 0; l < W; ++l) rows[l] = nrows[l];
   for (int i = 0; i < m; ++i) {
-    const double* at[W];
-    for (int l = 0; l < W; ++l) at[l] = in.xyzn + (i < nrows[l] ? slot(pts[l][i]) : self[l]);
     V q[6];
-    for (int c = 0; c < 6; ++c) q[c] = Gather(at, c, one);
+    for (int c = 0; c < 6; ++c) q[c] = R::Load(in.xyzn + c, offs + i * W);
     const V d0 = q[0] - x0[0], d1 = q[1] - x0[1], d2 = q[2] - x0[2];
     const V u = d0 * t1[0] + d1 * t1[1] + d2 * t1[2];
     const V v = d0 * t2[0] + d1 * t2[1] + d2 * t2[2];
     const V g = First == 0 && i == 0 ? one : q[3] * n[0] + q[4] * n[1] + q[5] * n[2];
-    const V cut = g >= cos_cut ? g : V{};
-    const V gamma = Splat<V>(i) < rows ? cut : V{};
+    const V gamma = R::Gamma(g, cos_cut, i, nrows);
     gu[i] = u;
     gv[i] = v;
     gg[i] = gamma;
     grhs[i] = d0 * n[0] + d1 * n[1] + d2 * n[2];
-    kept += gamma > 0 ? one : V{};
-    const V dd = u * u + v * v;
-    const V kept_dd = gamma > 0 ? dd : V{};  // radius2 >= 0: the kept rows' maximum
+    kept += R::IfPositive(gamma, one);
+    const V kept_dd = R::IfPositive(gamma, u * u + v * v);  // radius2 >= 0: the kept rows' maximum
     radius2 = radius2 < kept_dd ? kept_dd : radius2;
   }
   int mask = 0;
@@ -647,15 +726,16 @@ GEOMFIT_INLINE int SolveAny(const WlsProblem* const problems[], int count, const
 }
 
 // The height fits in groups of W lanes.
-template <int W>
+template <class R>
 GEOMFIT_INLINE int FitHeightsAny(const HeightLanesInput& in, const HeightLane lanes[], int count,
                                  const WlsSettings& S, WlsSolution solutions[], int used[], WlsBatchWorkspace& work) {
   if (count <= 0 || count > kWlsLanes || S.oscillation_safeguard || !NormalEquationsEnabled()) return 0;
+  constexpr int W = R::kW;
   int mask = 0;
   for (int g = 0; g < count; g += W) {
     const int n = count - g < W ? count - g : W;
     mask |= ForDegree(S, [&](auto d, auto first) GEOMFIT_INLINE_LAMBDA {
-              return FitHeights<W, decltype(d)::value, decltype(first)::value>(in, lanes + g, n, S, solutions + g,
+              return FitHeights<R, decltype(d)::value, decltype(first)::value>(in, lanes + g, n, S, solutions + g,
                                                                                used + g, work);
             })
             << g;
@@ -672,7 +752,7 @@ __attribute__((flatten)) int SolvePortable(const WlsProblem* const problems[], i
 __attribute__((flatten)) int FitHeightsPortable(const HeightLanesInput& in, const HeightLane lanes[], int count,
                                                 const WlsSettings& S, WlsSolution solutions[], int used[],
                                                 WlsBatchWorkspace& work) {
-  return FitHeightsAny<4>(in, lanes, count, S, solutions, used, work);
+  return FitHeightsAny<PortableRows<4>>(in, lanes, count, S, solutions, used, work);
 }
 
 #if defined(__x86_64__) && defined(__GNUC__)
@@ -692,12 +772,12 @@ __attribute__((flatten, target("avx2"))) int FitHeightsAvx2(const HeightLanesInp
                                                             int count, const WlsSettings& S,
                                                             WlsSolution solutions[], int used[],
                                                             WlsBatchWorkspace& work) {
-  return FitHeightsAny<4>(in, lanes, count, S, solutions, used, work);
+  return FitHeightsAny<Avx2Rows>(in, lanes, count, S, solutions, used, work);
 }
 __attribute__((flatten, target("avx512f,avx512dq,avx512vl,avx512bw,prefer-vector-width=512"))) int FitHeightsAvx512(
     const HeightLanesInput& in, const HeightLane lanes[], int count, const WlsSettings& S, WlsSolution solutions[],
     int used[], WlsBatchWorkspace& work) {
-  return FitHeightsAny<8>(in, lanes, count, S, solutions, used, work);
+  return FitHeightsAny<Avx512Rows>(in, lanes, count, S, solutions, used, work);
 }
 #endif
 

@@ -42,17 +42,17 @@ int SolveWlsBatch(const WlsProblem* const problems[], int count, const WlsSettin
                   double* const coefficients[], double* const ops[], WlsSolution solutions[],
                   WlsBatchWorkspace& work);
 
-/// Where FitHeightsBatch reads its stencils: position and normal of vertex p at
-/// xyzn[6 * slot(p)], slot(p) = rank[p] (or p when rank is null).
+/// Where FitHeightsBatch reads its stencils: position and normal of the point in slot s
+/// at xyzn[6 * s] (points are numbered by slot: an array copied in the fit's order).
 struct HeightLanesInput {
   const double* xyzn;
-  const int32_t* rank;
   double cos_cut;  ///< cos(safeguard angle): rows whose normals turn further get gamma 0 (2.2.1)
 };
 
-/// One vertex of FitHeightsBatch: its stencil (centre first) and where its fit goes.
+/// One vertex of FitHeightsBatch: its slot, its stencil's slots (centre first) and where
+/// its fit goes.
 struct HeightLane {
-  int vertex;
+  int slot;
   const int32_t* points;
   int size;
   LocalFrame* frame;     ///< written for every lane

@@ -168,6 +168,41 @@ TEST(NeighborhoodTest, ShuffledNumberingGivesTheRelabelledStencils) {
   }
 }
 
+// The stencils in the topology's locality order (what FitSurface streams): vertex
+// order[k]'s stencil at position k, every point given by its rank in the order, for
+// the shuffled torus (breadth-first order) and 1 or 2 threads; OrderStencils of any
+// permutation gives the same layout for it.
+TEST(NeighborhoodTest, OrderedStencilsAreTheStencilsRenumberedByTheOrder) {
+  GeneratorOptions g;
+  g.n = 24;
+  const Mesh s = testing_util::ShuffleVertices(GenerateTorusMesh(g), 5);
+  const Topology t = BuildTopology(s).value();
+  ASSERT_EQ(static_cast<int>(t.locality_order.size()), s.NumVertices());
+  FitOptions o;
+  o.degree = 4;
+  for (int threads : {1, 2}) {
+    const Neighborhoods nb = BuildNeighborhoods(t, s, RingSpecFor(o), threads);
+    const OrderedStencils& os = nb.ordered;
+    ASSERT_EQ(os.order, t.locality_order);
+    ASSERT_EQ(os.offsets.size(), nb.offsets.size());
+    ASSERT_EQ(os.points.size(), nb.indices.size());
+    for (int k = 0; k < s.NumVertices(); ++k) {
+      const int v = os.order[k];
+      ASSERT_EQ(os.rank[v], k);
+      ASSERT_EQ(os.offsets[k + 1] - os.offsets[k], nb.Size(v));
+      for (int i = 0; i < nb.Size(v); ++i) ASSERT_EQ(os.order[os.points[os.offsets[k] + i]], nb.Points(v)[i]);
+    }
+    std::vector<int32_t> reversed(t.locality_order.rbegin(), t.locality_order.rend());
+    const OrderedStencils r = OrderStencils(nb, reversed, threads);
+    const int nv = s.NumVertices();
+    for (int k = 0; k < nv; ++k) {
+      ASSERT_EQ(r.offsets[k + 1] - r.offsets[k], os.offsets[nv - k] - os.offsets[nv - k - 1]);
+      for (int i = 0; i < r.offsets[k + 1] - r.offsets[k]; ++i)
+        ASSERT_EQ(r.points[r.offsets[k] + i], nv - 1 - os.points[os.offsets[nv - 1 - k] + i]);
+    }
+  }
+}
+
 // The ring rule (2.1) stated plainly on the mesh's face rows, as a reference for the
 // stencil order: the k -> k + 0.5 step adds, for each layer-k point a in stencil order
 // and each face of a (topo.VertexFaces order), the face's corners in row order when
