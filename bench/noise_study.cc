@@ -96,6 +96,19 @@ void Diagnose(const char* what, const Mesh& clean, const AnalyticSurface& surfac
   std::printf("\n");
 }
 
+// NOISE_DUMP=prefix: per-vertex exact and fitted H, K and normal errors (text, one row per
+// vertex) of `d`, to study the error distributions.
+void Dump(const std::string& path, const Mesh& clean, const AnalyticSurface& surface, const Differentials& d) {
+  FILE* f = std::fopen(path.c_str(), "w");
+  if (!f) return;
+  for (int v = 0; v < clean.NumVertices(); ++v) {
+    const ExactDifferentials e = surface.At(clean.positions.row(v).transpose());
+    std::fprintf(f, "%.9g %.9g %.9g %.9g %.9g\n", e.mean, e.gaussian, d.mean(v), d.gaussian(v),
+                 (d.normals.row(v).transpose() - e.normal).norm());
+  }
+  std::fclose(f);
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -154,6 +167,8 @@ int main(int argc, char** argv) {
             secs.push_back(watch.Seconds());
             series[1 + i].errors.push_back(MeasureErrors(clean, *surface, dn));
             if (std::getenv("NOISE_DIAG")) Diagnose("noise", clean, *surface, dn, topo);
+            if (const char* e = std::getenv("NOISE_DUMP"))
+              Dump(std::string(e) + "_noise_" + parts[0] + "_d" + ds + "_n" + n + ".txt", clean, *surface, dn);
           }
           FitOptions on = o;
           on.noise = NoiseMode::kOn;
@@ -162,6 +177,8 @@ int main(int argc, char** argv) {
           const Differentials dc = CgalDifferentials(mesh, nb, d, def.normals, &few);
           series[series.size() - 2].errors.push_back(MeasureErrors(clean, *surface, dc));
           if (std::getenv("NOISE_DIAG")) Diagnose("CGAL", clean, *surface, dc, topo);
+          if (const char* e = std::getenv("NOISE_DUMP"))
+            Dump(std::string(e) + "_cgal_" + parts[0] + "_d" + ds + "_n" + n + ".txt", clean, *surface, dc);
           const Neighborhoods nbd = BuildNeighborhoods(topo, mesh, RingSpecFor(o));
           series.back().errors.push_back(MeasureErrors(clean, *surface, CgalDifferentials(mesh, nbd, d, def.normals, &few)));
           const Positions normals = ApproximateVertexNormals(mesh, topo, NormalWeighting::kArea);

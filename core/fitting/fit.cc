@@ -449,8 +449,11 @@ class SurfaceFitter {
       fits = std::make_shared<SurfaceFits>();
       // Slope refinement (slopes.h) after the final fit: its blocks are reported once refined.
       const bool slopes = last && pass_options.SlopePasses() > 0 && !req.stencils;
+      // The noise schedule's final fit from two stencil sets (noise.h).
+      const bool blend = last && eff.noise == NoiseMode::kOn && schedule.two_scale_final && !req.stencils &&
+                         smoothing_nb && pass_options.method == FitMethod::kLHF && !clean_tangent;
       if (absl::Status s = FitAll(*input, topo, pass_options, pass_nb, normals, req, ctx,
-                                  last && !slopes ? &on_fitted : nullptr,
+                                  last && !slopes && !blend ? &on_fitted : nullptr,
                                   fixed_tangent.empty() ? nullptr : fixed_tangent.data(), phase, *fits);
           !s.ok())
         return s;
@@ -460,8 +463,16 @@ class SurfaceFitter {
                                         fits->frames_.data(), fits->coefficients_.data()));
         if (on_fitted) on_fitted(*fits, 0, mesh.NumVertices());
       }
+      if (blend) {
+        SurfaceFits other;
+        GF_RETURN_IF_ERROR(FitAll(*input, topo, pass_options, smoothing_nb, normals, FitRequest{}, ctx, nullptr,
+                                  fixed_tangent.empty() ? nullptr : fixed_tangent.data(), phase, other));
+        TwoScaleFinalFit(*fits, other, *smoothing_nb, kTwoScaleSpread, fits->coefficients_.data(), ctx.threads());
+        if (on_fitted) on_fitted(*fits, 0, mesh.NumVertices());
+      }
       if (scheduled && pass == 0 && schedule.local_passes > 0)
-        local_smoothing = LocalSmoothingSteps(*fits, mesh, noise_over_h, ctx.threads());
+        local_smoothing = schedule.curvature_steps ? CurvatureSmoothingSteps(*fits, kTwoScaleSpread, ctx.threads())
+                                                   : LocalSmoothingSteps(*fits, mesh, noise_over_h, ctx.threads());
       // Moderate noise: the smoothing fits above cubic extrapolate the one-sided stencils
       // of the boundary (normal Linf 1.3x there, bench/README.md third round); cubic ones.
       if (eff.noise == NoiseMode::kOn && pass < smoothing && schedule.cubic_near_boundary && has_boundary) {

@@ -39,6 +39,8 @@ NoiseSchedule NoiseScheduleFor(int degree, double residual_ratio) {
     if (degree >= 3 && residual_ratio >= kLocalSmoothingResidualRatio) s.local_passes = 2;
   }
   if (degree == 2 && residual_ratio >= kModerateNoiseResidualRatio) s.normal_points_factor = kHeavyNoiseNormalPointsFactor;
+  if (degree == 3 && residual_ratio >= kModerateNoiseResidualRatio && residual_ratio < kVeryHeavyNoiseResidualRatio)
+    s.two_scale_final = s.curvature_steps = true, s.local_passes = 3;
   return s;
 }
 
@@ -100,6 +102,94 @@ void BlendLargeStencilNormals(const SurfaceFits& large, const std::vector<uint8_
     const double w = tau > 0 ? 1 / (1 + (d[v] / tau) * (d[v] / tau)) : 1;
     const Eigen::Vector3d n = w * nl.row(v).transpose() + (1 - w) * normals->row(v).transpose();
     normals->row(v) = n.normalized().transpose();
+  });
+}
+
+namespace {
+
+// |Hessian| of an LHF fit (-1 where unfitted or below degree 2).
+double HessianNorm(const SurfaceFits& fits, int v) {
+  if (fits.diagnostics(v).degree_used < 2) return -1;
+  const double* a = fits.coefficients(v);
+  const double uu = a[TaylorIndex(2, 0)], uv = a[TaylorIndex(1, 1)], vv = a[TaylorIndex(0, 2)];
+  return std::sqrt(uu * uu + 2 * uv * uv + vv * vv);
+}
+
+// 1 / (1 + (x / (spread x median x))^2) per entry, 0 where x < 0.
+std::vector<double> RelativeWeights(std::vector<double> x, double spread) {
+  std::vector<double> y;
+  for (double a : x)
+    if (a >= 0) y.push_back(a);
+  if (y.empty()) return std::vector<double>(x.size(), 0);
+  std::nth_element(y.begin(), y.begin() + y.size() / 2, y.end());
+  const double tau = spread * y[y.size() / 2];
+  for (double& a : x) a = a < 0 ? 0 : tau > 0 ? 1 / (1 + (a / tau) * (a / tau)) : 1;
+  return x;
+}
+
+}  // namespace
+
+std::vector<double> CurvatureSmoothingSteps(const SurfaceFits& fits, double spread, int num_threads) {
+  std::vector<double> c(fits.num_vertices(), -1);
+  if (fits.dims() != 1) return std::vector<double>(c.size(), 0);
+  ParallelFor(fits.num_vertices(), num_threads, [&](int64_t v) { c[v] = HessianNorm(fits, static_cast<int>(v)); });
+  return RelativeWeights(std::move(c), spread);
+}
+
+void TwoScaleFinalFit(const SurfaceFits& own, const SurfaceFits& other, const Neighborhoods& other_nb,
+                      double spread, double* coefficients, int num_threads) {
+  const int nv = own.num_vertices(), nc = own.num_coefficients();
+  if (own.dims() != 1 || other.dims() != 1) return;
+  // D = other - own, orders 0-2 in ambient form: offset along the normal, gradient vector, Hessian tensor.
+  struct Diff {
+    double d0 = 0;
+    Eigen::Vector3d d1 = Eigen::Vector3d::Zero();
+    Eigen::Matrix3d d2 = Eigen::Matrix3d::Zero();
+    bool ok = false;
+  };
+  std::vector<Diff> diff(nv);
+  std::vector<double> hess(nv, -1);
+  const int i00 = TaylorIndex(0, 0), i10 = TaylorIndex(1, 0), i01 = TaylorIndex(0, 1), i20 = TaylorIndex(2, 0),
+            i11 = TaylorIndex(1, 1), i02 = TaylorIndex(0, 2);
+  ParallelFor(nv, num_threads, [&](int64_t v) {
+    const int i = static_cast<int>(v);
+    const LocalFrame &fr = own.frame(i), &fo = other.frame(i);
+    if (own.diagnostics(i).degree_used < 2 || other.diagnostics(i).degree_used != own.diagnostics(i).degree_used ||
+        fr.normal != fo.normal || fr.t1 != fo.t1 || fr.origin != fo.origin)
+      return;
+    const double *a = own.coefficients(i), *b = other.coefficients(i);
+    Diff& e = diff[v];
+    e.d0 = b[i00] - a[i00];
+    e.d1 = (b[i10] - a[i10]) * fr.t1 + (b[i01] - a[i01]) * fr.t2;
+    Eigen::Matrix<double, 3, 2> T;
+    T << fr.t1, fr.t2;
+    Eigen::Matrix2d h;
+    h << b[i20] - a[i20], b[i11] - a[i11], b[i11] - a[i11], b[i02] - a[i02];
+    e.d2 = T * h * T.transpose();
+    e.ok = true;
+    hess[v] = HessianNorm(own, i);
+  });
+  const std::vector<double> w = RelativeWeights(std::move(hess), spread);
+  ParallelFor(nv, num_threads, [&](int64_t v) {
+    const int i = static_cast<int>(v);
+    if (!diff[v].ok) return;
+    Diff m;  // S(D): the mean over the noise stencil
+    int count = 0;
+    for (int k = 0; k < other_nb.Size(i); ++k) {
+      const Diff& e = diff[other_nb.Points(i)[k]];
+      if (!e.ok) continue;
+      m.d0 += e.d0, m.d1 += e.d1, m.d2 += e.d2, ++count;
+    }
+    if (count == 0) return;
+    const Diff& d = diff[v];
+    const double e0 = w[v] * (d.d0 - m.d0 / count);
+    const Eigen::Vector3d e1 = w[v] * (d.d1 - m.d1 / count);
+    const Eigen::Matrix3d e2 = w[v] * (d.d2 - m.d2 / count);
+    const LocalFrame& fr = own.frame(i);
+    double* a = coefficients + v * nc;
+    a[i00] += e0;
+    a[i10] += fr.t1.dot(e1), a[i01] += fr.t2.dot(e1);
+    a[i20] += fr.t1.dot(e2 * fr.t1), a[i11] += fr.t1.dot(e2 * fr.t2), a[i02] += fr.t2.dot(e2 * fr.t2);
   });
 }
 

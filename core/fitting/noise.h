@@ -44,6 +44,10 @@ struct NoiseSchedule {
   /// Degree-2 normals: a second cubic pre-fit on stencils grown to this factor x the
   /// coefficients (0: none), blended in by BlendLargeStencilNormals.
   double normal_points_factor = 0;
+  /// The final fit's orders 0-2 from two stencil sets (TwoScaleFinalFit).
+  bool two_scale_final = false;
+  /// The local passes' steps from CurvatureSmoothingSteps instead of LocalSmoothingSteps.
+  bool curvature_steps = false;
 };
 /// LocalSmoothingSteps: the top-degree part's scale against the noise level.
 inline constexpr double kLocalSmoothingSignal = 0.3;
@@ -130,6 +134,33 @@ inline constexpr double kNoiseNormalBoundaryPointsFactor = 6;
 inline constexpr double kNormalBlendSpread = 4;
 void BlendLargeStencilNormals(const SurfaceFits& large, const std::vector<uint8_t>& adopted, Positions* normals,
                               int num_threads = 0);
+
+/// Heavy noise at degree 3 (residual ratio in [kModerateNoiseResidualRatio,
+/// kVeryHeavyNoiseResidualRatio)): the clean final stencils' truncation error is small but
+/// their noise term dominates H and K on fine or marching-cubes meshes (gmsh torus 0.1 h^2:
+/// 0.73 / 0.80x CGAL; marching cubes N = 64: 0.90 / 0.93x), while on the noise stencils
+/// (3x the coefficients) the bias dominates where the surface is strongly curved (bump
+/// alpha 0.2: K 0.67 -> 1.00x, 99% of its K error at the 10% of vertices with |K| > 4).
+/// The two fits' difference D = c_noise - c_clean (orders 0-2, as an ambient offset, vector
+/// and tensor) is the large stencil's bias, smooth over the surface, plus the small
+/// stencil's noise, which varies from vertex to vertex. TwoScaleFinalFit keeps the smooth
+/// part and takes the rough part away: c = c_clean + w (D - S(D)), S the mean over the
+/// noise stencil, i.e. the clean fit's low-pass plus the noise fit's high-pass. w = 1 / (1 +
+/// (|Hess| / (kTwoScaleSpread x median |Hess|))^2) from the clean fit's Hessian spares
+/// the strongly curved parts, where the bias varies at the scale of S.
+/// The local passes (three after the two global ones) use CurvatureSmoothingSteps, the
+/// same weight from the first smoothing fits: global smoothing where the surface is
+/// mildly curved (marching cubes: its noise varies at scale h), none where it is strongly
+/// curved (the cubic smoothing fits' bias). bench/README.md, "Noisy meshes, sixth round".
+inline constexpr double kTwoScaleSpread = 2;
+/// `coefficients` (`own`'s LHF fits on the clean stencils, written in place) from `own`
+/// and `other` (the same frames and degree on the noise stencils `other_nb`); vertices
+/// whose frames differ keep `own`'s.
+void TwoScaleFinalFit(const SurfaceFits& own, const SurfaceFits& other, const Neighborhoods& other_nb,
+                      double spread, double* coefficients, int num_threads = 0);
+/// Per-vertex steps 1 / (1 + (|Hess_v| / (spread x median |Hess|))^2) from `fits`' Hessians
+/// (LHF fits; 0 where unfitted).
+std::vector<double> CurvatureSmoothingSteps(const SurfaceFits& fits, double spread, int num_threads = 0);
 
 /// The noise test of NoiseMode::kAuto, on a sample of vertices: approximating degree-2
 /// and degree-4 fits on the same (>= 40-point) stencil. On smooth data the quartic's
