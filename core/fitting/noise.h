@@ -57,11 +57,12 @@ inline constexpr double kLocalSmoothingSignal = 0.3;
 inline constexpr double kLocalSmoothingResidualRatio = 0.032;
 /// Residual ratio (NoiseEstimate) from which the noise dominates the truncation error.
 inline constexpr double kHeavyNoiseResidualRatio = 0.2;
-/// From this residual ratio on the degree-3 final fit, too, takes the noise stencils: the
+/// From this residual ratio on the degree-4 final fit keeps flat weights and (until the sixth
+/// round, now TwoScaleFinalFit) the degree-3 final fit took the noise stencils: the
 /// noise then dominates its curvatures (alpha 0.5 h^2 at n = 64: ratio 0.73-0.75, torus K
 /// 0.70 -> 0.60x CGAL; a gmsh torus at h = 0.0127: H / K 0.83 / 0.80 -> 0.67 / 0.64x), while
 /// at 0.44-0.49 (alpha 0.2) the bump's K needs the clean ones (1.00x on the noise stencils).
-/// There, at every degree, the smoothing is 3 cubic passes and one local pass
+/// There, at degrees 2 and 4, the smoothing is 3 cubic passes and one local pass
 /// (LocalSmoothingSteps) instead of 2 passes: marching-cubes torus (raw vertices, 192^3)
 /// d3 K 0.71 -> 0.56x CGAL, d4 normal Linf 0.76 -> 0.68x; gmsh torus 0.5 h^2 d3 H 0.67 -> 0.47x
 /// (4 global passes: 0.45x, but bump d3 K Linf 0.78 -> 0.94x: the local pass spares its centre).
@@ -135,8 +136,8 @@ inline constexpr double kNormalBlendSpread = 4;
 void BlendLargeStencilNormals(const SurfaceFits& large, const std::vector<uint8_t>& adopted, Positions* normals,
                               int num_threads = 0);
 
-/// Heavy noise at degree 3 (residual ratio in [kModerateNoiseResidualRatio,
-/// kVeryHeavyNoiseResidualRatio)): the clean final stencils' truncation error is small but
+/// Heavy noise at degree 3 (residual ratio >= kModerateNoiseResidualRatio; it replaces the
+/// very heavy tier's noise stencils and 3 + 1 passes there): the clean final stencils' truncation error is small but
 /// their noise term dominates H and K on fine or marching-cubes meshes (gmsh torus 0.1 h^2:
 /// 0.73 / 0.80x CGAL; marching cubes N = 64: 0.90 / 0.93x), while on the noise stencils
 /// (3x the coefficients) the bias dominates where the surface is strongly curved (bump

@@ -277,7 +277,7 @@ TEST(NoiseAwareTest, QuadraticNormalsUnderHeavyNoiseOnAFineMesh) {
   EXPECT_GE(ConvergenceOrder(a.h, a.k_l2), 0.6);  // 0.65
 }
 
-// Heavy O(h^2) noise at degree 3 (residual ratio 0.35-0.6): the two-scale final fit and
+// Heavy O(h^2) noise at degree 3 (residual ratio >= 0.35): the two-scale final fit and
 // the curvature-weighted local passes (noise.h, TwoScaleFinalFit; bench/README.md, "Noisy
 // meshes, sixth round"). Torus alpha 0.2 at n = 64 (ratio 0.444): main's clean final
 // stencils gave normal / H / K 0.54 / 0.46 / 0.65x the best CGAL (1.87e-3 / 2.47e-2 /
@@ -306,7 +306,8 @@ TEST(NoiseAwareTest, ScheduleFollowsTheResidualRatio) {
   EXPECT_EQ(heavy.final_weight_epsilon, 0.01);
   EXPECT_EQ(NoiseScheduleFor(4, 0.5).final_weight_epsilon, kNoiseWeightEpsilon);
   EXPECT_TRUE(NoiseScheduleFor(3, 0.5).final_clean_stencils);
-  EXPECT_FALSE(NoiseScheduleFor(3, 0.7).final_clean_stencils);  // very heavy: noise stencils
+  EXPECT_TRUE(NoiseScheduleFor(3, 0.7).final_clean_stencils);  // degree 3: two-scale from 0.35 on
+  EXPECT_FALSE(NoiseScheduleFor(4, 0.7).final_clean_stencils);
   EXPECT_EQ(light.smoothing_degree, 5);
   EXPECT_EQ(NoiseScheduleFor(2, 0.05).smoothing_degree, 4);
   EXPECT_TRUE(light.final_clean_stencils);
@@ -326,7 +327,7 @@ TEST(NoiseAwareTest, ScheduleFollowsTheResidualRatio) {
   EXPECT_EQ(NoiseScheduleFor(2, 0.05).local_passes, 0);
   EXPECT_EQ(NoiseScheduleFor(4, 0.28).local_passes, 0);
   // heavy noise at degree 2: the large-stencil normal pre-fit from ratio 0.35; very heavy
-  // noise (>= 0.6): 3 cubic passes and one local pass at every degree
+  // noise (>= 0.6): 3 cubic passes and one local pass at degrees 2 and 4
   EXPECT_EQ(heavy.normal_points_factor, kHeavyNoiseNormalPointsFactor);
   EXPECT_EQ(NoiseScheduleFor(2, 0.3).normal_points_factor, 0);
   EXPECT_EQ(NoiseScheduleFor(3, 0.5).normal_points_factor, 0);
@@ -336,9 +337,12 @@ TEST(NoiseAwareTest, ScheduleFollowsTheResidualRatio) {
   EXPECT_TRUE(NoiseScheduleFor(3, 0.5).curvature_steps);
   EXPECT_EQ(NoiseScheduleFor(3, 0.5).local_passes, 3);
   EXPECT_EQ(NoiseScheduleFor(3, 0.5).smoothing_passes, 2);
-  for (double r : {0.05, 0.3, 0.7}) EXPECT_FALSE(NoiseScheduleFor(3, r).two_scale_final) << r;
+  EXPECT_TRUE(NoiseScheduleFor(3, 0.7).two_scale_final);
+  EXPECT_EQ(NoiseScheduleFor(3, 0.7).smoothing_passes, 2);
+  EXPECT_EQ(NoiseScheduleFor(3, 0.7).local_passes, 3);
+  for (double r : {0.05, 0.3}) EXPECT_FALSE(NoiseScheduleFor(3, r).two_scale_final || NoiseScheduleFor(3, r).curvature_steps) << r;
   for (int d : {2, 4}) EXPECT_FALSE(NoiseScheduleFor(d, 0.5).two_scale_final || NoiseScheduleFor(d, 0.5).curvature_steps);
-  for (int d : {2, 3, 4}) {
+  for (int d : {2, 4}) {
     EXPECT_EQ(NoiseScheduleFor(d, 0.7).smoothing_passes, 3);
     EXPECT_EQ(NoiseScheduleFor(d, 0.7).local_passes, 1);
     EXPECT_EQ(NoiseScheduleFor(d, 0.7).smoothing_degree, 3);
