@@ -14,6 +14,8 @@
 // Overrides of the noise mode's fit (experiments): NOISE_MPF (min points factor),
 // NOISE_RINGS, NOISE_ND (normal_degree: a normal pre-fit after smoothing). NOISE_DIAG=1
 // prints the errors within 3 rings of the boundary and inside separately.
+// NOISE_DUMP=prefix writes per-vertex exact / fitted H, K and normal errors of the noise
+// mode and CGAL to prefix_{noise,cgal}_SURFACE_dD_nN.txt (error distributions).
 #include <algorithm>
 #include <cstdio>
 #include <cstdlib>
