@@ -124,5 +124,64 @@ TEST(ComputeDifferentialsTest, EqualsDifferentialsFromJetBitForBit) {
     }
 }
 
+// FitAndEvaluate (the quantities evaluated per fitted block, in the fit's locality order)
+// equals FitSurface then ComputeDifferentials bit for bit, for any thread count, for
+// height and LOP fits, with slope refinement (evaluated once after it) and with a
+// FittedBlockFn (index blocks).
+TEST(FitAndEvaluateTest, EqualsFitThenComputeDifferentialsBitForBit) {
+  GeneratorOptions g;
+  g.n = 24;
+  g.jitter = 0.3;
+  const Mesh mesh = GenerateTorusMesh(g);
+  const Topology topo = BuildTopology(mesh).value();
+  ASSERT_EQ(static_cast<int>(topo.locality_order.size()), mesh.NumVertices());
+  auto same = [](const auto& a, const auto& b) {
+    return a.size() == b.size() && std::memcmp(a.data(), b.data(), 8 * a.size()) == 0;
+  };
+  struct Case {
+    FitMethod method;
+    int degree, slope_refinement, threads;
+    bool blocks;
+  };
+  for (const Case c : {Case{FitMethod::kLHF, 2, 0, 1, false}, Case{FitMethod::kLHF, 2, 0, 2, false},
+                       Case{FitMethod::kLHF, 4, 0, 1, false}, Case{FitMethod::kLOP, 3, 0, 2, false},
+                       Case{FitMethod::kLHF, 2, 1, 1, false}, Case{FitMethod::kLHF, 3, 0, 2, true}}) {
+    SCOPED_TRACE(::testing::Message() << "degree " << c.degree << " slopes " << c.slope_refinement << " threads "
+                                      << c.threads << " blocks " << c.blocks);
+    FitOptions o;
+    o.method = c.method;
+    o.degree = c.degree;
+    o.slope_refinement = c.slope_refinement;
+    const RunContext ctx(nullptr, c.threads);
+    const auto nb = std::make_shared<const Neighborhoods>(BuildNeighborhoods(topo, mesh, RingSpecFor(o), 1));
+    const auto fits = FitSurface(mesh, topo, o, nb, {}, ctx).value();
+    const Differentials a = ComputeDifferentials(*fits, kAllQuantities, 1);
+    int64_t blocked = 0;
+    const FittedBlockFn on_fitted = [&](const SurfaceFits&, int64_t begin, int64_t end) { blocked += end - begin; };
+    const FitsAndDifferentials f =
+        FitAndEvaluate(mesh, topo, o, nb, kAllQuantities, {}, ctx, c.blocks ? on_fitted : nullptr).value();
+    if (c.blocks) {
+      EXPECT_EQ(blocked, mesh.NumVertices());
+    }
+    const Differentials& b = f.differentials;
+    const size_t nc = static_cast<size_t>(fits->dims()) * fits->num_coefficients() * fits->num_vertices();
+    EXPECT_EQ(std::memcmp(f.fits->coefficients(0), fits->coefficients(0), 8 * nc), 0);
+    EXPECT_TRUE(same(a.normals, b.normals));
+    EXPECT_TRUE(same(a.mean, b.mean));
+    EXPECT_TRUE(same(a.gaussian, b.gaussian));
+    EXPECT_TRUE(same(a.k1, b.k1));
+    EXPECT_TRUE(same(a.k2, b.k2));
+    EXPECT_TRUE(same(a.dir1, b.dir1));
+    EXPECT_TRUE(same(a.dir2, b.dir2));
+    EXPECT_TRUE(same(a.tensor, b.tensor));
+    ASSERT_EQ(a.diagnostics.size(), b.diagnostics.size());
+    for (size_t v = 0; v < a.diagnostics.size(); ++v) {
+      EXPECT_EQ(a.diagnostics[v].flags, b.diagnostics[v].flags);
+      EXPECT_EQ(a.diagnostics[v].degree_used, b.diagnostics[v].degree_used);
+      EXPECT_EQ(a.diagnostics[v].points, b.diagnostics[v].points);
+    }
+  }
+}
+
 }  // namespace
 }  // namespace geomfit
