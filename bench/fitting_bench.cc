@@ -3,9 +3,7 @@
 // Jet_fitting_3 (CGAL::Monge_via_jet_fitting) fed the very same stencils.
 //
 //   BM_Pipeline/<degree>/<threads>      BuildNeighborhoods + FitSurface + ComputeDifferentials(all)
-//   BM_FitQuantities/<degree>/<threads> FitSurface + ComputeDifferentials(all), stencils precomputed,
-//                                       in one pass (FitAndEvaluate)
-//   BM_FitThenQuantities/<d>/<t>        the same as two passes (FitSurface, then ComputeDifferentials)
+//   BM_FitQuantities/<degree>/<threads> FitSurface + ComputeDifferentials(all), stencils precomputed
 //   BM_FitQuantitiesScalar/<d>/<t>      the same with the scalar kernel (batched_kernel = false)
 //   BM_Degree2Refined/<mode>/<t>        degree 2 as BM_FitQuantities with mode 0: plain, 1 / 3:
 //                                       slope_refinement 1 / 2, 2: hermite_hessian (degree-3 pre-fit)
@@ -115,18 +113,6 @@ void BM_Pipeline(benchmark::State& state) {
 }
 
 void BM_FitQuantities(benchmark::State& state) {
-  const Fixture& f = F();
-  const FitOptions o = Options(static_cast<int>(state.range(0)));
-  const RunContext ctx(nullptr, static_cast<int>(state.range(1)));
-  for (auto _ : state) {
-    FitsAndDifferentials r = FitAndEvaluate(f.mesh, f.topo, o, f.nb[o.degree], kAllQuantities, {}, ctx).value();
-    benchmark::DoNotOptimize(r.differentials.mean.data());
-    benchmark::ClobberMemory();
-  }
-  SetRates(state, o.degree);
-}
-
-void BM_FitThenQuantities(benchmark::State& state) {
   const Fixture& f = F();
   const FitOptions o = Options(static_cast<int>(state.range(0)));
   const RunContext ctx(nullptr, static_cast<int>(state.range(1)));
@@ -291,7 +277,6 @@ void Args(benchmark::internal::Benchmark* b) {
 
 BENCHMARK(BM_Pipeline)->Apply(Args);
 BENCHMARK(BM_FitQuantities)->Apply(Args);
-BENCHMARK(BM_FitThenQuantities)->Apply(Args);
 BENCHMARK(BM_FitQuantitiesScalar)->Apply(Args);
 BENCHMARK(BM_Degree2Refined)
     ->ArgsProduct({{0, 1, 3, 2}, {1, 2}})

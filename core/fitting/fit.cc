@@ -474,11 +474,6 @@ class SurfaceFitter {
                                         pass_options.SlopePasses(), ctx, fits->diagnostics_.data(),
                                         fits->frames_.data(), fits->coefficients_.data()));
         if (on_fitted) on_fitted(*fits, 0, mesh.NumVertices());
-        if (req.on_vertices) {
-          std::vector<int32_t> all(mesh.NumVertices());
-          for (int v = 0; v < mesh.NumVertices(); ++v) all[v] = v;
-          req.on_vertices(*fits, all.data(), mesh.NumVertices());
-        }
       }
       if (scheduled && pass == 0 && schedule.local_passes > 0)
         local_smoothing = LocalSmoothingSteps(*fits, mesh, noise_over_h, ctx.threads());
@@ -623,11 +618,6 @@ class SurfaceFitter {
       heights.Flush(in, hin, settings, *batch);
       batch->Flush(in, settings, req.batched_kernel);
       if (on_fitted && *on_fitted) (*on_fitted)(f, begin, end);
-      if (on_fitted && req.on_vertices) {  // the final pass: its vertices in the walk's order
-        int32_t fitted[kGrain];
-        for (int j = 0; j < n; ++j) fitted[j] = static_cast<int32_t>(vertex_at(walk[j]));
-        req.on_vertices(f, fitted, n);
-      }
     }, 1, phase);
   }
 };

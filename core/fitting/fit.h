@@ -94,9 +94,6 @@ class SurfaceFits {
   int stencil_rows_ = 0;
 };
 
-/// Called with vertices whose final fits are done (FitRequest::on_vertices).
-using FittedVerticesFn = std::function<void(const SurfaceFits& fits, const int32_t* vertices, int count)>;
-
 /// What to build besides the fits.
 struct FitRequest {
   bool stencils = false;  ///< also build the stencil operators
@@ -110,13 +107,6 @@ struct FitRequest {
   /// (FitHeightsBatch, wls_batch.h); false sets every vertex up as a WlsProblem first
   /// (tests: the same bits).
   bool lane_setup = true;
-  /// Called once each block of vertices of the final pass is fitted, with the block's
-  /// vertices in the order they were fitted (Topology::locality_order unless a
-  /// FittedBlockFn is given), from the fitting thread(s), possibly concurrently: lets a
-  /// caller evaluate per vertex while the block's fits are still in cache
-  /// (FitAndEvaluate). Only those vertices' fits may be read. After slope refinement it
-  /// is called once, with every vertex.
-  FittedVerticesFn on_vertices = nullptr;
 };
 
 /// Without this callback vertices are fitted in Topology::locality_order; with it, in

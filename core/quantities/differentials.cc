@@ -172,18 +172,15 @@ __attribute__((target_clones("arch=x86-64-v4", "avx2", "default"))) void HeightL
   }
 }
 
-// Vertices vertex(i) for i in [0, n): height-function fits kLanes at a time, the others
-// one by one.
-template <typename VertexAt>
-void EvaluateVertices(const SurfaceFits& fits, uint32_t q, int64_t n, VertexAt vertex, Differentials& d) {
+// Vertices [begin, end): height-function fits kLanes at a time, the others one by one.
+void EvaluateRange(const SurfaceFits& fits, uint32_t q, int64_t begin, int64_t end, Differentials& d) {
   if (fits.dims() != 1) {
-    for (int64_t i = 0; i < n; ++i) EvaluateVertex(fits, q, vertex(i), d);
+    for (int64_t v = begin; v < end; ++v) EvaluateVertex(fits, q, v, d);
     return;
   }
   int64_t lanes[kLanes];
   int count = 0;
-  for (int64_t i = 0; i < n; ++i) {
-    const int64_t v = vertex(i);
+  for (int64_t v = begin; v < end; ++v) {
     if (fits.diagnostics(static_cast<int>(v)).degree_used < 1) {
       EvaluateVertex(fits, q, v, d);
       continue;
@@ -192,11 +189,6 @@ void EvaluateVertices(const SurfaceFits& fits, uint32_t q, int64_t n, VertexAt v
     if (count == kLanes) HeightLanes(fits, q, lanes, count, d), count = 0;
   }
   if (count > 0) HeightLanes(fits, q, lanes, count, d);
-}
-
-// Vertices [begin, end).
-void EvaluateRange(const SurfaceFits& fits, uint32_t q, int64_t begin, int64_t end, Differentials& d) {
-  EvaluateVertices(fits, q, end - begin, [begin](int64_t i) { return begin + i; }, d);
 }
 
 }  // namespace
@@ -238,21 +230,6 @@ absl::StatusOr<Differentials> ComputeDifferentials(const SurfaceFits& fits, uint
       },
       kGrain, "evaluate"));
   return d;
-}
-
-absl::StatusOr<FitsAndDifferentials> FitAndEvaluate(const Mesh& mesh, const Topology& topo,
-                                                    const FitOptions& options,
-                                                    std::shared_ptr<const Neighborhoods> neighborhoods,
-                                                    uint32_t quantities, FitRequest request, const RunContext& ctx,
-                                                    const FittedBlockFn& on_fitted) {
-  FitsAndDifferentials out;
-  out.differentials = AllocateDifferentials(mesh.NumVertices(), quantities);
-  Differentials& d = out.differentials;
-  request.on_vertices = [&d, quantities](const SurfaceFits& fits, const int32_t* vertices, int count) {
-    EvaluateVertices(fits, quantities, count, [vertices](int64_t i) { return int64_t{vertices[i]}; }, d);
-  };
-  GF_ASSIGN_OR_RETURN(out.fits, FitSurface(mesh, topo, options, std::move(neighborhoods), request, ctx, on_fitted));
-  return out;
 }
 
 absl::StatusOr<Differentials> ComputeDifferentials(const Mesh& mesh, const FitOptions& options,

@@ -1,6 +1,5 @@
 #pragma once
 #include <cstdint>
-#include <memory>
 #include <vector>
 
 #include <Eigen/Core>
@@ -58,23 +57,6 @@ Differentials ComputeDifferentials(const SurfaceFits& fits, uint32_t quantities 
 /// The same, polling `ctx` (progress phase "evaluate").
 absl::StatusOr<Differentials> ComputeDifferentials(const SurfaceFits& fits, uint32_t quantities,
                                                    const RunContext& ctx);
-
-/// A fit and its quantities.
-struct FitsAndDifferentials {
-  std::shared_ptr<const SurfaceFits> fits;
-  Differentials differentials;
-};
-
-/// FitSurface(mesh, topo, options, neighborhoods, request, ctx, on_fitted) and
-/// ComputeDifferentials(fits, quantities) in one pass: each block's quantities are
-/// evaluated as soon as it is fitted, while its fits are in cache (through
-/// request.on_vertices, which this sets), with the same values. Errors: FitSurface's.
-absl::StatusOr<FitsAndDifferentials> FitAndEvaluate(const Mesh& mesh, const Topology& topo,
-                                                    const FitOptions& options,
-                                                    std::shared_ptr<const Neighborhoods> neighborhoods,
-                                                    uint32_t quantities = kAllQuantities, FitRequest request = {},
-                                                    const RunContext& ctx = {},
-                                                    const FittedBlockFn& on_fitted = nullptr);
 
 /// One-shot convenience: validate, fit and evaluate.
 absl::StatusOr<Differentials> ComputeDifferentials(const Mesh& mesh, const FitOptions& options,
