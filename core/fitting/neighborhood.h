@@ -35,9 +35,9 @@ struct Neighborhoods {
 
   int Size(int v) const { return offsets[v + 1] - offsets[v]; }
   const int32_t* Points(int v) const { return indices.data() + offsets[v]; }
-  size_t Bytes() const {
-    return 4 * (offsets.size() + indices.size() + rings.size()) + ordered.Bytes() + fit_inputs.Bytes();
-  }
+  /// The stencils alone (without fit_inputs).
+  size_t StencilBytes() const { return 4 * (offsets.size() + indices.size() + rings.size()) + ordered.Bytes(); }
+  size_t Bytes() const { return StencilBytes() + fit_inputs.Bytes(); }
 };
 
 /// `nb`'s stencils in `order` (a permutation of its vertices), OrderedStencils' layout.
