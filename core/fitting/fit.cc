@@ -10,6 +10,7 @@
 #include <Eigen/Eigenvalues>
 
 #include "absl/strings/str_format.h"
+#include "core/fitting/fit_inputs.h"
 #include "core/fitting/noise.h"
 #include "core/fitting/parametric.h"
 #include "core/fitting/slopes.h"
@@ -326,7 +327,17 @@ class SurfaceFitter {
     if (static_cast<int>(nb->offsets.size()) != mesh.NumVertices() + 1)
       return absl::InvalidArgumentError("neighborhoods do not match the mesh");
 
-    Positions normals = ApproximateVertexNormals(mesh, topo, o.frame_normals, ctx.threads());
+    // The approximate normals, computed once per stencils and geometry (FitInputCache),
+    // with their point records in the stencils' order; copied once a pass changes them.
+    const Neighborhoods* const cached_nb = nb.get();
+    const std::shared_ptr<const FitInputs> inputs =
+        nb->fit_inputs.Get(mesh, topo, o.frame_normals, &nb->ordered.order, ctx.threads());
+    Positions own_normals;
+    const Positions* frame_normals = &inputs->normals;
+    auto writable_normals = [&]() -> Positions& {
+      if (frame_normals != &own_normals) own_normals = inputs->normals, frame_normals = &own_normals;
+      return own_normals;
+    };
     // Noise-aware fitting (noise.h): `o` resolved, smoothing-by-projection passes first.
     FitOptions eff = o;
     NoiseSchedule schedule;
@@ -334,7 +345,7 @@ class SurfaceFitter {
     if (o.noise != NoiseMode::kOff) {
       // Reported as a phase where it decides (auto); with kOn it only sets the schedule.
       GF_ASSIGN_OR_RETURN(const NoiseEstimate est,
-                          EstimateNoise(mesh, topo, normals, o.noise == NoiseMode::kAuto ? ctx : ctx.WithProgress(nullptr)));
+                          EstimateNoise(mesh, topo, *frame_normals, o.noise == NoiseMode::kAuto ? ctx : ctx.WithProgress(nullptr)));
       if (o.noise == NoiseMode::kAuto) eff.noise = est.noisy ? NoiseMode::kOn : NoiseMode::kOff;
       schedule = NoiseScheduleFor(o.degree, est.residual_ratio);
       noise_over_h = est.noise_over_h;
@@ -362,6 +373,7 @@ class SurfaceFitter {
     auto fits = std::make_shared<SurfaceFits>();
     // Frames and safeguard weights from fitted normals; `adopted` marks the vertices set.
     auto adopt_normals = [&](const SurfaceFits& from, std::vector<uint8_t>* adopted) {
+      Positions& normals = writable_normals();
       ParallelFor(mesh.NumVertices(), ctx.threads(), [&](int64_t v) {
         if (from.diagnostics_[v].degree_used < 1) return;
         const SurfaceJet jet = from.Jet(static_cast<int>(v));
@@ -429,7 +441,7 @@ class SurfaceFitter {
           pre.boundary_points_factor = std::max(pre.boundary_points_factor, kNoiseNormalBoundaryPointsFactor);
         const auto pre_nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, *input, RingSpecFor(pre), ctx.threads()));
         SurfaceFits pre_fits;
-        if (absl::Status s = FitAll(*input, topo, pre, pre_nb, normals, FitRequest{}, ctx, nullptr, nullptr, "normals",
+        if (absl::Status s = FitAll(*input, topo, pre, pre_nb, *frame_normals, FitRequest{}, ctx, nullptr, nullptr, "normals",
                                     pre_fits);
             !s.ok())
           return s;
@@ -439,11 +451,11 @@ class SurfaceFitter {
           pre.min_points_factor = schedule.normal_points_factor;
           SurfaceFits large;
           const auto large_nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, *input, RingSpecFor(pre), ctx.threads()));
-          if (absl::Status s = FitAll(*input, topo, pre, large_nb, normals, FitRequest{}, ctx, nullptr, nullptr, "normals",
+          if (absl::Status s = FitAll(*input, topo, pre, large_nb, *frame_normals, FitRequest{}, ctx, nullptr, nullptr, "normals",
                                       large);
               !s.ok())
             return s;
-          BlendLargeStencilNormals(large, fixed_tangent, &normals, ctx.threads());
+          BlendLargeStencilNormals(large, fixed_tangent, &writable_normals(), ctx.threads());
         }
       }
       fits = std::make_shared<SurfaceFits>();
@@ -452,9 +464,12 @@ class SurfaceFitter {
       // The noise schedule's final fit from two stencil sets (noise.h).
       const bool blend = last && eff.noise == NoiseMode::kOn && schedule.two_scale_final && !req.stencils &&
                          smoothing_nb && pass_options.method == FitMethod::kLHF && !clean_tangent;
-      if (absl::Status s = FitAll(*input, topo, pass_options, pass_nb, normals, req, ctx,
+      // The cached point records while the geometry, normals and stencils are the cache's.
+      const bool cached = input == &mesh && frame_normals == &inputs->normals && pass_nb.get() == cached_nb;
+      if (absl::Status s = FitAll(*input, topo, pass_options, pass_nb, *frame_normals, req, ctx,
                                   last && !slopes && !blend ? &on_fitted : nullptr,
-                                  fixed_tangent.empty() ? nullptr : fixed_tangent.data(), phase, *fits);
+                                  fixed_tangent.empty() ? nullptr : fixed_tangent.data(), phase, *fits,
+                                  cached ? &inputs->records : nullptr);
           !s.ok())
         return s;
       if (slopes) {
@@ -465,7 +480,7 @@ class SurfaceFitter {
       }
       if (blend) {
         SurfaceFits other;
-        GF_RETURN_IF_ERROR(FitAll(*input, topo, pass_options, smoothing_nb, normals, FitRequest{}, ctx, nullptr,
+        GF_RETURN_IF_ERROR(FitAll(*input, topo, pass_options, smoothing_nb, *frame_normals, FitRequest{}, ctx, nullptr,
                                   fixed_tangent.empty() ? nullptr : fixed_tangent.data(), phase, other));
         TwoScaleFinalFit(*fits, other, *smoothing_nb, kTwoScaleSpread, fits->coefficients_.data(), ctx.threads());
         if (on_fitted) on_fitted(*fits, 0, mesh.NumVertices());
@@ -479,7 +494,7 @@ class SurfaceFitter {
         NoiseSchedule cubic = schedule;
         cubic.smoothing_degree = 3;
         boundary_fits = std::make_shared<SurfaceFits>();
-        if (absl::Status s = FitAll(*input, topo, NoiseSmoothingOptions(eff, cubic), pass_nb, normals, FitRequest{}, ctx,
+        if (absl::Status s = FitAll(*input, topo, NoiseSmoothingOptions(eff, cubic), pass_nb, *frame_normals, FitRequest{}, ctx,
                                     nullptr, nullptr, phase, *boundary_fits);
             !s.ok())
           return s;
@@ -492,7 +507,8 @@ class SurfaceFitter {
   static absl::Status FitAll(const Mesh& mesh, const Topology& topo, const FitOptions& o,
                              const std::shared_ptr<const Neighborhoods>& nb, const Positions& normals,
                              const FitRequest& req, const RunContext& ctx, const FittedBlockFn* on_fitted,
-                             const uint8_t* fixed_tangent, std::string_view phase, SurfaceFits& f) {
+                             const uint8_t* fixed_tangent, std::string_view phase, SurfaceFits& f,
+                             const std::vector<double>* cached_records = nullptr) {
     const int nv = mesh.NumVertices();
     f.options_ = o;
     f.neighborhoods_ = nb;
@@ -516,17 +532,12 @@ class SurfaceFitter {
     if (local_order && static_cast<int>(nb->ordered.order.size()) != nv)
       own = OrderStencils(*nb, topo.locality_order, ctx.threads());
     const OrderedStencils* os = !local_order ? nullptr : own.empty() ? &nb->ordered : &own;
-    std::vector<double> xyzn(6 * static_cast<size_t>(nv));
-    ParallelFor(nv, ctx.threads(), [&](int64_t k) {
-      const int64_t v = os ? os->order[k] : k;
-      if (os && k + 16 < nv) {  // random reads in the input numbering
-        const int64_t w = os->order[k + 16];
-        __builtin_prefetch(mesh.positions.data() + 3 * w);
-        __builtin_prefetch(normals.data() + 3 * w);
-      }
-      double* dst = xyzn.data() + 6 * k;
-      for (int c = 0; c < 3; ++c) dst[c] = mesh.positions(v, c), dst[3 + c] = normals(v, c);
-    }, 4096);
+    // `cached_records` (PointRecords of this mesh and normals in nb->ordered's order) when
+    // the caller has them.
+    std::vector<double> own_records;
+    const bool use_cached = cached_records && os == &nb->ordered && !cached_records->empty();
+    if (!use_cached) own_records = PointRecords(mesh, normals, os ? &os->order : nullptr, ctx.threads());
+    const std::vector<double>& xyzn = use_cached ? *cached_records : own_records;
     const FitInput in{mesh, *nb, normals, o, std::cos(o.safeguard_angle_deg * M_PI / 180.0), topo,
                       xyzn.data(), os ? os->rank.data() : nullptr, fixed_tangent,
                       fixed_tangent != nullptr && o.HermiteHessian()};

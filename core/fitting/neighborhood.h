@@ -2,6 +2,7 @@
 #include <cstdint>
 #include <vector>
 
+#include "core/fitting/fit_inputs.h"
 #include "core/fitting/options.h"
 #include "core/mesh/topology.h"
 
@@ -28,10 +29,15 @@ struct Neighborhoods {
   /// The same stencils in Topology::locality_order (empty when the topology has none):
   /// the order FitSurface fits in.
   OrderedStencils ordered;
+  /// Normals and point records of the geometries fitted over these stencils (FitSurface
+  /// fills it on first use; records in `ordered`'s order).
+  FitInputCache fit_inputs;
 
   int Size(int v) const { return offsets[v + 1] - offsets[v]; }
   const int32_t* Points(int v) const { return indices.data() + offsets[v]; }
-  size_t Bytes() const { return 4 * (offsets.size() + indices.size() + rings.size()) + ordered.Bytes(); }
+  /// The stencils alone (without fit_inputs).
+  size_t StencilBytes() const { return 4 * (offsets.size() + indices.size() + rings.size()) + ordered.Bytes(); }
+  size_t Bytes() const { return StencilBytes() + fit_inputs.Bytes(); }
 };
 
 /// `nb`'s stencils in `order` (a permutation of its vertices), OrderedStencils' layout.

@@ -218,6 +218,9 @@ absl::StatusOr<std::shared_ptr<const Neighborhoods>> Workspace::NeighborhoodsOf(
       NeighborhoodsKey(s.mesh_id, spec),
       [&]() -> Made<Neighborhoods> {
         auto n = std::make_shared<const Neighborhoods>(BuildNeighborhoods(*s.topology, *s.mesh, spec, ctx.threads()));
+        // The default frame normals and their point records (FitInputCache) now, so the
+        // entry's bytes count them; a later revision's replace them (the same size).
+        n->fit_inputs.Get(*s.mesh, *s.topology, FitOptions().frame_normals, &n->ordered.order, ctx.threads());
         return std::make_pair(n, static_cast<int64_t>(n->Bytes()));
       },
       ctx.token());
@@ -237,7 +240,7 @@ absl::StatusOr<std::shared_ptr<const SparseMatrix>> Workspace::Operator(const Sn
                                           [&]() -> Made<OperatorAssembler> {
                                             auto a = std::make_shared<const OperatorAssembler>(nbhd);
                                             // slots, columns and offsets: ~2 ints per stencil point
-                                            return std::make_pair(a, static_cast<int64_t>(nbhd->Bytes()));
+                                            return std::make_pair(a, static_cast<int64_t>(nbhd->StencilBytes()));
                                           },
                                           ctx.token()));
   return cache_->Get<SparseMatrix>(

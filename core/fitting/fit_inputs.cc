@@ -1,0 +1,77 @@
+#include "core/fitting/fit_inputs.h"
+
+#include <cstring>
+#include <utility>
+
+#include "core/fitting/frames.h"
+#include "core/util/parallel.h"
+
+namespace geomfit {
+
+std::vector<double> PointRecords(const Mesh& mesh, const Positions& normals, const std::vector<int32_t>* order,
+                                 int num_threads) {
+  const int64_t nv = mesh.NumVertices();
+  const int32_t* ord = order && static_cast<int64_t>(order->size()) == nv ? order->data() : nullptr;
+  std::vector<double> records(6 * static_cast<size_t>(nv));
+  ParallelFor(nv, num_threads, [&](int64_t k) {
+    const int64_t v = ord ? ord[k] : k;
+    if (ord && k + 16 < nv) {  // random reads in the input numbering
+      const int64_t w = ord[k + 16];
+      __builtin_prefetch(mesh.positions.data() + 3 * w);
+      __builtin_prefetch(normals.data() + 3 * w);
+    }
+    double* dst = records.data() + 6 * k;
+    for (int c = 0; c < 3; ++c) dst[c] = mesh.positions(v, c), dst[3 + c] = normals(v, c);
+  }, 4096);
+  return records;
+}
+
+FitInputCache& FitInputCache::operator=(const FitInputCache&) {
+  std::lock_guard<std::mutex> lock(mu_);
+  for (auto& e : entries_) e.reset();
+  return *this;
+}
+
+FitInputCache::FitInputCache(FitInputCache&& other) noexcept {
+  std::lock_guard<std::mutex> lock(other.mu_);
+  for (int i = 0; i < kWeightings; ++i) entries_[i] = std::move(other.entries_[i]);
+}
+
+FitInputCache& FitInputCache::operator=(FitInputCache&& other) noexcept {
+  if (this == &other) return *this;
+  std::scoped_lock lock(mu_, other.mu_);
+  for (int i = 0; i < kWeightings; ++i) entries_[i] = std::move(other.entries_[i]);
+  return *this;
+}
+
+std::shared_ptr<const FitInputs> FitInputCache::Get(const Mesh& mesh, const Topology& topo, NormalWeighting weighting,
+                                                    const std::vector<int32_t>* order, int num_threads) const {
+  const int slot = static_cast<int>(weighting);
+  std::shared_ptr<const FitInputs> kept;
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    kept = entries_[slot];
+  }
+  const bool with_records = order && !order->empty();
+  if (kept && kept->positions.rows() == mesh.positions.rows() && kept->records.empty() != with_records &&
+      std::memcmp(kept->positions.data(), mesh.positions.data(), sizeof(double) * mesh.positions.size()) == 0)
+    return kept;
+  auto made = std::make_shared<FitInputs>();
+  made->weighting = weighting;
+  made->positions = mesh.positions;
+  made->normals = ApproximateVertexNormals(mesh, topo, weighting, num_threads);
+  if (with_records) made->records = PointRecords(mesh, made->normals, order, num_threads);
+  std::lock_guard<std::mutex> lock(mu_);
+  entries_[slot] = made;
+  return made;
+}
+
+size_t FitInputCache::Bytes() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  size_t bytes = 0;
+  for (const auto& e : entries_)
+    if (e) bytes += e->Bytes();
+  return bytes;
+}
+
+}  // namespace geomfit
