@@ -38,6 +38,12 @@ GEOMFIT_INLINE V Sqrt(V x) {
 }
 template <class V>
 GEOMFIT_INLINE V Abs(V x) { return x < 0 ? -x : x; }
+// mask ? a : b lane by lane on the bits (a comparison's mask): GCC 12 compiles some
+// vector ?: with constant or shared operands to scalar code per lane at AVX-512.
+template <class V, class M>
+GEOMFIT_INLINE V Select(M mask, V a, V b) {
+  return reinterpret_cast<V>((reinterpret_cast<M>(a) & mask) | (reinterpret_cast<M>(b) & ~mask));
+}
 template <class V>
 GEOMFIT_INLINE V Max(V a, V b) { return a < b ? b : a; }
 
@@ -632,18 +638,18 @@ GEOMFIT_INLINE int FitHeights(const HeightLanesInput& in, const HeightLane* lane
     const V a0 = Abs(n[0]), a1 = Abs(n[1]), a2 = Abs(n[2]);
     // One comparison per select, masks combined in 0/1 arithmetic (exact): GCC 12 turns
     // nested selects and combined comparison masks into scalar code.
-    const V c10 = a1 < a0 ? one : V{}, c21 = a2 < a1 ? one : V{}, c20 = a2 < a0 ? one : V{};
+    const V c10 = Select(a1 < a0, one, V{}), c21 = Select(a2 < a1, one, V{}), c20 = Select(a2 < a0, one, V{});
     const V is2 = c10 * c21 + (one - c10) * c20;
     const V is1 = c10 * (one - c21);
     const V is0 = one - is1 - is2;
-    const V s12 = is1 != 0 ? n[1] : n[2];
-    const V s = is0 != 0 ? n[0] : s12;
+    const V s12 = Select(is1 != 0, n[1], n[2]);
+    const V s = Select(is0 != 0, n[0], s12);
     const V e0 = is0 - s * n[0], e1 = is1 - s * n[1], e2 = is2 - s * n[2];
     const V z = e0 * e0 + e1 * e1 + e2 * e2;
-    const V r = z > 0 ? Sqrt(z) : one;
-    t1[0] = z > 0 ? e0 / r : e0;
-    t1[1] = z > 0 ? e1 / r : e1;
-    t1[2] = z > 0 ? e2 / r : e2;
+    const V r = Select(z > 0, Sqrt(z), one);  // e / 1 = e exactly where z is not positive
+    t1[0] = e0 / r;
+    t1[1] = e1 / r;
+    t1[2] = e2 / r;
     t2[0] = n[1] * t1[2] - n[2] * t1[1];
     t2[1] = n[2] * t1[0] - n[0] * t1[2];
     t2[2] = n[0] * t1[1] - n[1] * t1[0];
