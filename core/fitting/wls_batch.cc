@@ -623,6 +623,9 @@ GEOMFIT_INLINE int FitHeights(const HeightLanesInput& in, const HeightLane* lane
     nrows[l] = l < count ? L.size - First : 0;
     m = m < nrows[l] ? nrows[l] : m;
   }
+  // Every row's record requested up front (the row loop's window holds ~3 rows' loads).
+  for (int l = 0; l < count; ++l)
+    for (int i = 0; i < nrows[l]; ++i) __builtin_prefetch(in.points + pts[l][i]);
   const V one = Splat<V>(1);
   V x0[3], n[3];
   {
