@@ -30,10 +30,10 @@ struct FitInput {
   const FitOptions& o;
   double cos_cut;  // cos(safeguard angle) of (2.2.1)
   const Topology& topo;      // for the comparison parametrizations (parametric.h)
-  // Position and normal of vertex p at xyzn[6 * slot(p)]: a copy in the order vertices
+  // Position and normal of vertex p at points[slot(p)]: a copy in the order vertices
   // are fitted in, so neighbouring stencils read neighbouring memory (the same doubles
   // as mesh.positions and normals, so the same results).
-  const double* xyzn;
+  const PointRecord* points;
   const int32_t* rank;  // slot of each vertex; null: the vertex's own index
   const uint8_t* fixed_tangent;  // per vertex: keep the frame's tangent plane (or null)
   bool hermite;                  // Hermite curvatures where the tangent plane is fixed
@@ -73,7 +73,7 @@ bool SetUpVertex(int v, const FitInput& in, const FitOutput& out, WlsProblem& P)
   diag.degree_requested = static_cast<int8_t>(o.degree);
 
   using Vec = Eigen::Map<const Eigen::Vector3d>;
-  const double* self = in.xyzn + 6 * static_cast<int64_t>(in.Slot(v));
+  const double* self = in.points[in.Slot(v)].p;
   const Eigen::Vector3d x0 = Vec(self);
   const Eigen::Vector3d m0 = Vec(self + 3);
   if (m0.squaredNorm() == 0) {  // isolated vertex: no faces, no frame
@@ -91,7 +91,7 @@ bool SetUpVertex(int v, const FitInput& in, const FitOutput& out, WlsProblem& P)
   int used = first;
   for (int i = first; i < n_pts; ++i) {
     const int r = i - first;
-    const double* q = in.xyzn + 6 * static_cast<int64_t>(in.Slot(pts[i]));
+    const double* q = in.points[in.Slot(pts[i])].p;
     const Eigen::Vector3d d = Vec(q) - x0;
     P.u[r] = d.dot(frame.t1);
     P.v[r] = d.dot(frame.t2);
@@ -141,7 +141,7 @@ void FitHermiteHessian(int v, const FitInput& in, const FitOutput& out, const Wl
   for (int r = 0; r < P.rows; ++r) {
     const double u = P.u[r], w = P.v[r], r2 = u * u + w * w;
     if (!(P.gamma[r] > 0) || r2 == 0) continue;
-    const Eigen::Map<const Eigen::Vector3d> n(in.xyzn + 6 * static_cast<int64_t>(in.Slot(pts[r + first])) + 3);
+    const Eigen::Map<const Eigen::Vector3d> n(in.points[in.Slot(pts[r + first])].n);
     const double nm = n.dot(fr.normal);
     if (!(nm > 0)) continue;
     const double fu = -n.dot(fr.t1) / nm, fv = -n.dot(fr.t2) / nm;
@@ -508,7 +508,7 @@ class SurfaceFitter {
                              const std::shared_ptr<const Neighborhoods>& nb, const Positions& normals,
                              const FitRequest& req, const RunContext& ctx, const FittedBlockFn* on_fitted,
                              const uint8_t* fixed_tangent, std::string_view phase, SurfaceFits& f,
-                             const std::vector<double>* cached_records = nullptr) {
+                             const PointRecords* cached_records = nullptr) {
     const int nv = mesh.NumVertices();
     f.options_ = o;
     f.neighborhoods_ = nb;
@@ -532,14 +532,14 @@ class SurfaceFitter {
     if (local_order && static_cast<int>(nb->ordered.order.size()) != nv)
       own = OrderStencils(*nb, topo.locality_order, ctx.threads());
     const OrderedStencils* os = !local_order ? nullptr : own.empty() ? &nb->ordered : &own;
-    // `cached_records` (PointRecords of this mesh and normals in nb->ordered's order) when
-    // the caller has them.
-    std::vector<double> own_records;
+    // `cached_records` (MakePointRecords of this mesh and normals in nb->ordered's order)
+    // when the caller has them.
+    PointRecords own_records;
     const bool use_cached = cached_records && os == &nb->ordered && !cached_records->empty();
-    if (!use_cached) own_records = PointRecords(mesh, normals, os ? &os->order : nullptr, ctx.threads());
-    const std::vector<double>& xyzn = use_cached ? *cached_records : own_records;
+    if (!use_cached) own_records = MakePointRecords(mesh.positions, normals, os ? os->order.data() : nullptr, ctx.threads());
+    const PointRecords& points = use_cached ? *cached_records : own_records;
     const FitInput in{mesh, *nb, normals, o, std::cos(o.safeguard_angle_deg * M_PI / 180.0), topo,
-                      xyzn.data(), os ? os->rank.data() : nullptr, fixed_tangent,
+                      points.data(), os ? os->rank.data() : nullptr, fixed_tangent,
                       fixed_tangent != nullptr && o.HermiteHessian()};
     const WlsSettings settings = SettingsFor(o, f.stencil_rows_);
     // Height fits without stencils, refinement or comparison solvers are set up in the
@@ -547,7 +547,7 @@ class SurfaceFitter {
     const bool lane_setup = req.batched_kernel && req.lane_setup && o.method == FitMethod::kLHF && !req.stencils &&
                             o.solver != WlsSolver::kSVD && !o.oscillation_safeguard && fixed_tangent == nullptr &&
                             WlsBatchNormalEquations();
-    const HeightLanesInput hin{in.xyzn, in.cos_cut};
+    const HeightLanesInput hin{in.points, in.cos_cut};
     constexpr int64_t kGrain = 512;
     return ParallelFor((nv + kGrain - 1) / kGrain, ctx, [&](int64_t chunk) {
       const int64_t end = std::min<int64_t>(nv, (chunk + 1) * kGrain);
@@ -607,8 +607,7 @@ class SurfaceFitter {
                             &f.diagnostics_[v], req.stencils ? f.stencils_.data() + f.stencil_offsets_[v] : nullptr,
                             f.stencil_rows_};
         if (lane_setup) {
-          const double* self = in.xyzn + 6 * (os ? k : v);
-          if (Eigen::Map<const Eigen::Vector3d>(self + 3).squaredNorm() != 0) {  // else isolated: below
+          if (Eigen::Map<const Eigen::Vector3d>(in.points[os ? k : v].n).squaredNorm() != 0) {  // else isolated: below
             out.diag->degree_requested = static_cast<int8_t>(o.degree);
             const int32_t* points = os ? os->points.data() + os->offsets[k] : nb->Points(static_cast<int>(v));
             const int size = os ? os->offsets[k + 1] - os->offsets[k] : nb->Size(static_cast<int>(v));

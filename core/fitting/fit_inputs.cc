@@ -8,24 +8,6 @@
 
 namespace geomfit {
 
-std::vector<double> PointRecords(const Mesh& mesh, const Positions& normals, const std::vector<int32_t>* order,
-                                 int num_threads) {
-  const int64_t nv = mesh.NumVertices();
-  const int32_t* ord = order && static_cast<int64_t>(order->size()) == nv ? order->data() : nullptr;
-  std::vector<double> records(6 * static_cast<size_t>(nv));
-  ParallelFor(nv, num_threads, [&](int64_t k) {
-    const int64_t v = ord ? ord[k] : k;
-    if (ord && k + 16 < nv) {  // random reads in the input numbering
-      const int64_t w = ord[k + 16];
-      __builtin_prefetch(mesh.positions.data() + 3 * w);
-      __builtin_prefetch(normals.data() + 3 * w);
-    }
-    double* dst = records.data() + 6 * k;
-    for (int c = 0; c < 3; ++c) dst[c] = mesh.positions(v, c), dst[3 + c] = normals(v, c);
-  }, 4096);
-  return records;
-}
-
 FitInputCache& FitInputCache::operator=(const FitInputCache&) {
   std::lock_guard<std::mutex> lock(mu_);
   for (auto& e : entries_) e.reset();
@@ -60,7 +42,7 @@ std::shared_ptr<const FitInputs> FitInputCache::Get(const Mesh& mesh, const Topo
   made->weighting = weighting;
   made->positions = mesh.positions;
   made->normals = ApproximateVertexNormals(mesh, topo, weighting, num_threads);
-  if (with_records) made->records = PointRecords(mesh, made->normals, order, num_threads);
+  if (with_records) made->records = MakePointRecords(mesh.positions, made->normals, order->data(), num_threads);
   std::lock_guard<std::mutex> lock(mu_);
   entries_[slot] = made;
   return made;

@@ -5,16 +5,10 @@
 #include <vector>
 
 #include "core/fitting/options.h"
+#include "core/fitting/wls_batch.h"
 #include "core/mesh/topology.h"
 
 namespace geomfit {
-
-/// Position and normal of every vertex in a fit's work order, as the fitting loops read
-/// them: the vertex order[k] (k itself without an order) at records[6 * k]: x, y, z,
-/// nx, ny, nz (the same doubles as mesh.positions and normals). One function makes them,
-/// so the record layout lives in one place.
-std::vector<double> PointRecords(const Mesh& mesh, const Positions& normals, const std::vector<int32_t>* order,
-                                 int num_threads);
 
 /// What every plain fit of one geometry over one set of stencils reads besides the
 /// stencils: the approximate vertex normals of FitOptions::frame_normals and their point
@@ -23,9 +17,11 @@ struct FitInputs {
   NormalWeighting weighting = NormalWeighting::kArea;
   Positions positions;           ///< the geometry these come from (the cache's key)
   Positions normals;             ///< ApproximateVertexNormals(mesh, topo, weighting)
-  std::vector<double> records;   ///< PointRecords in the work order; empty without one
+  PointRecords records;          ///< MakePointRecords in the work order; empty without one
 
-  size_t Bytes() const { return 8 * (positions.size() + normals.size() + records.size()); }
+  size_t Bytes() const {
+    return 8 * (positions.size() + normals.size()) + sizeof(PointRecord) * records.size();
+  }
 };
 
 /// The FitInputs of the geometries fitted over one Neighborhoods, one per normal

@@ -8,6 +8,7 @@
 #endif
 
 #include "core/fitting/fit.h"
+#include "core/util/parallel.h"
 
 // Compiled with -fno-math-errno (core/CMakeLists.txt) so that square roots of vectors
 // become vector instructions, and with -ffp-contract=off: every lane performs SolveWls's
@@ -37,11 +38,27 @@ GEOMFIT_INLINE V Sqrt(V x) {
 }
 template <class V>
 GEOMFIT_INLINE V Abs(V x) { return x < 0 ? -x : x; }
+// mask ? a : b lane by lane on the bits (a comparison's mask): GCC 12 compiles some
+// vector ?: with constant or shared operands to scalar code per lane at AVX-512.
+template <class V, class M>
+GEOMFIT_INLINE V Select(M mask, V a, V b) {
+  return reinterpret_cast<V>((reinterpret_cast<M>(a) & mask) | (reinterpret_cast<M>(b) & ~mask));
+}
 template <class V>
 GEOMFIT_INLINE V Max(V a, V b) { return a < b ? b : a; }
 
-// FitHeights's row set-up per instruction set: Load(base, idx) = (base[idx[0]],
-// base[idx[1]], ...) (a gather where the CPU has one), Gamma(g, cut, i, rows) = g where
+// (p[0][c], p[1][c], ...) built in registers (lane by lane stores go through the stack).
+template <class V>
+GEOMFIT_INLINE V Gather(const double* const* p, int c, V /*type*/) {
+  if constexpr (sizeof(V) == 8 * sizeof(double))
+    return V{p[0][c], p[1][c], p[2][c], p[3][c], p[4][c], p[5][c], p[6][c], p[7][c]};
+  else
+    return V{p[0][c], p[1][c], p[2][c], p[3][c]};
+}
+
+// FitHeights's row set-up per instruction set: Records(at, q) sets q[c] = (at[0][c],
+// at[1][c], ...), c = 0..5, from the lanes' PointRecords (each an aligned cache line:
+// full-width loads transposed in registers where the CPU has the shuffles), Gamma(g, cut, i, rows) = g where
 // g >= cut and i < rows[l], else +0, IfPositive(gamma, x) = x where gamma > 0, else +0
 // (comparisons on vectors in registers: GCC 12 turns the generic code's vector selects
 // into scalar code).
@@ -50,10 +67,8 @@ struct PortableRows {
   static constexpr int kW = W;
   using V = typename Lanes<W>::V;
   using VI = typename Lanes<W>::VI;
-  GEOMFIT_INLINE static V Load(const double* base, const int32_t* idx) {
-    V r;
-    for (int l = 0; l < W; ++l) r[l] = base[idx[l]];
-    return r;
+  GEOMFIT_INLINE static void Records(const double* const* at, V* q) {
+    for (int c = 0; c < 6; ++c) q[c] = Gather(at, c, V{});
   }
   GEOMFIT_INLINE static V Gamma(V g, V cut, int i, const int32_t* rows) {
     V r;
@@ -69,15 +84,21 @@ struct PortableRows {
 #define GEOMFIT_AVX2 __attribute__((target("avx2")))
 #define GEOMFIT_AVX512 __attribute__((target("avx512f,avx512dq,avx512vl,avx512bw")))
 // Not always_inline (its callers are compiled for any CPU): flatten inlines them into the
-// kernels of their instruction set. Gathers in the masked form: GCC 12 warns on the plain
-// one's undefined source.
+// kernels of their instruction set.
 struct Avx2Rows {
   static constexpr int kW = 4;
   using V = Lanes<4>::V;
-  GEOMFIT_AVX2 static inline V Load(const double* base, const int32_t* idx) {
-    const __m256d all = _mm256_castsi256_pd(_mm256_set1_epi64x(-1));
-    return reinterpret_cast<V>(_mm256_mask_i32gather_pd(
-        _mm256_setzero_pd(), base, _mm_loadu_si128(reinterpret_cast<const __m128i*>(idx)), all, 8));
+  // The pairs (x, y), (z, nx), (ny, nz) of lanes 0 and 2 in one vector, of lanes 1 and 3
+  // in another: their unpacks are the pair's two components across the 4 lanes.
+  GEOMFIT_AVX2 static inline void Records(const double* const* at, V* q) {
+    for (int k = 0; k < 3; ++k) {
+      const __m256d a = _mm256_insertf128_pd(_mm256_castpd128_pd256(_mm_load_pd(at[0] + 2 * k)),
+                                             _mm_load_pd(at[2] + 2 * k), 1);
+      const __m256d b = _mm256_insertf128_pd(_mm256_castpd128_pd256(_mm_load_pd(at[1] + 2 * k)),
+                                             _mm_load_pd(at[3] + 2 * k), 1);
+      q[2 * k] = reinterpret_cast<V>(_mm256_unpacklo_pd(a, b));
+      q[2 * k + 1] = reinterpret_cast<V>(_mm256_unpackhi_pd(a, b));
+    }
   }
   GEOMFIT_AVX2 static inline V Gamma(V g, V cut, int i, const int32_t* rows) {
     const __m128i valid = _mm_cmpgt_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(rows)), _mm_set1_epi32(i));
@@ -93,9 +114,27 @@ struct Avx2Rows {
 struct Avx512Rows {
   static constexpr int kW = 8;
   using V = Lanes<8>::V;
-  GEOMFIT_AVX512 static inline V Load(const double* base, const int32_t* idx) {
-    return reinterpret_cast<V>(_mm512_mask_i32gather_pd(
-        _mm512_setzero_pd(), 0xff, _mm256_loadu_si256(reinterpret_cast<const __m256i*>(idx)), base, 8));
+  // 8 records (x y z nx ny nz pad pad) transposed: unpacks of lane pairs give (x, z, ny,
+  // pad) and (y, nx, nz, pad) in pairs of lanes; two-source permutes put lanes 0-3 and 4-7
+  // of two components side by side, 256-bit joins finish. (Generic shuffles: GCC 12 warns
+  // on the intrinsics' undefined sources.)
+  GEOMFIT_AVX512 static inline void Records(const double* const* at, V* q) {
+    V lo[4], hi[4];
+    for (int k = 0; k < 4; ++k) {
+      const V a = *reinterpret_cast<const V*>(at[2 * k]), b = *reinterpret_cast<const V*>(at[2 * k + 1]);
+      lo[k] = __builtin_shufflevector(a, b, 0, 8, 2, 10, 4, 12, 6, 14);
+      hi[k] = __builtin_shufflevector(a, b, 1, 9, 3, 11, 5, 13, 7, 15);
+    }
+    for (int h = 0; h < 2; ++h) {
+      const V* t = h ? hi : lo;
+      const V a = __builtin_shufflevector(t[0], t[1], 0, 1, 8, 9, 2, 3, 10, 11);
+      const V b = __builtin_shufflevector(t[2], t[3], 0, 1, 8, 9, 2, 3, 10, 11);
+      const V c = __builtin_shufflevector(t[0], t[1], 4, 5, 12, 13, 6, 7, 14, 15);
+      const V d = __builtin_shufflevector(t[2], t[3], 4, 5, 12, 13, 6, 7, 14, 15);
+      q[h] = __builtin_shufflevector(a, b, 0, 1, 2, 3, 8, 9, 10, 11);
+      q[h + 2] = __builtin_shufflevector(a, b, 4, 5, 6, 7, 12, 13, 14, 15);
+      q[h + 4] = __builtin_shufflevector(c, d, 0, 1, 2, 3, 8, 9, 10, 11);
+    }
   }
   GEOMFIT_AVX512 static inline V Gamma(V g, V cut, int i, const int32_t* rows) {
     const __mmask8 valid =
@@ -110,15 +149,6 @@ struct Avx512Rows {
   }
 };
 #endif
-
-// (p[0][c], p[1][c], ...) built in registers (lane by lane stores go through the stack).
-template <class V>
-GEOMFIT_INLINE V Gather(const double* const* p, int c, V /*type*/) {
-  if constexpr (sizeof(V) == 8 * sizeof(double))
-    return V{p[0][c], p[1][c], p[2][c], p[3][c], p[4][c], p[5][c], p[6][c], p[7][c]};
-  else
-    return V{p[0][c], p[1][c], p[2][c], p[3][c]};
-}
 
 constexpr double Factorial(int n) { return n <= 1 ? 1.0 : n * Factorial(n - 1); }
 
@@ -582,24 +612,28 @@ GEOMFIT_INLINE int FitHeights(const HeightLanesInput& in, const HeightLane* lane
   constexpr int W = R::kW;
   using V = typename Lanes<W>::V;
   constexpr int kCols = NumCoefficients(D) - First;
-  const auto slot = [](int p) -> int64_t { return 6 * static_cast<int64_t>(p); };
-  int64_t self[W];
+  int32_t self[W];
   const int32_t* pts[W];
   int32_t nrows[W];
   int m = 0;
   for (int l = 0; l < W; ++l) {
     const HeightLane& L = lanes[l < count ? l : 0];
-    self[l] = slot(L.slot);
+    self[l] = L.slot;
     pts[l] = L.points + First;
     nrows[l] = l < count ? L.size - First : 0;
     m = m < nrows[l] ? nrows[l] : m;
   }
+  // Every row's record requested up front (the row loop's window holds ~3 rows' loads).
+  for (int l = 0; l < count; ++l)
+    for (int i = 0; i < nrows[l]; ++i) __builtin_prefetch(in.points + pts[l][i]);
   const V one = Splat<V>(1);
   V x0[3], n[3];
   {
     const double* at[W];
-    for (int l = 0; l < W; ++l) at[l] = in.xyzn + self[l];
-    for (int c = 0; c < 3; ++c) x0[c] = Gather(at, c, one), n[c] = Gather(at, 3 + c, one);
+    V q[6];
+    for (int l = 0; l < W; ++l) at[l] = in.points[self[l]].p;
+    R::Records(at, q);
+    for (int c = 0; c < 3; ++c) x0[c] = q[c], n[c] = q[3 + c];
   }
   // FrameFromNormal (frames.h), lane by lane.
   V t1[3], t2[3];
@@ -607,18 +641,18 @@ GEOMFIT_INLINE int FitHeights(const HeightLanesInput& in, const HeightLane* lane
     const V a0 = Abs(n[0]), a1 = Abs(n[1]), a2 = Abs(n[2]);
     // One comparison per select, masks combined in 0/1 arithmetic (exact): GCC 12 turns
     // nested selects and combined comparison masks into scalar code.
-    const V c10 = a1 < a0 ? one : V{}, c21 = a2 < a1 ? one : V{}, c20 = a2 < a0 ? one : V{};
+    const V c10 = Select(a1 < a0, one, V{}), c21 = Select(a2 < a1, one, V{}), c20 = Select(a2 < a0, one, V{});
     const V is2 = c10 * c21 + (one - c10) * c20;
     const V is1 = c10 * (one - c21);
     const V is0 = one - is1 - is2;
-    const V s12 = is1 != 0 ? n[1] : n[2];
-    const V s = is0 != 0 ? n[0] : s12;
+    const V s12 = Select(is1 != 0, n[1], n[2]);
+    const V s = Select(is0 != 0, n[0], s12);
     const V e0 = is0 - s * n[0], e1 = is1 - s * n[1], e2 = is2 - s * n[2];
     const V z = e0 * e0 + e1 * e1 + e2 * e2;
-    const V r = z > 0 ? Sqrt(z) : one;
-    t1[0] = z > 0 ? e0 / r : e0;
-    t1[1] = z > 0 ? e1 / r : e1;
-    t1[2] = z > 0 ? e2 / r : e2;
+    const V r = Select(z > 0, Sqrt(z), one);  // e / 1 = e exactly where z is not positive
+    t1[0] = e0 / r;
+    t1[1] = e1 / r;
+    t1[2] = e2 / r;
     t2[0] = n[1] * t1[2] - n[2] * t1[1];
     t2[1] = n[2] * t1[0] - n[0] * t1[2];
     t2[2] = n[0] * t1[1] - n[1] * t1[0];
@@ -638,19 +672,13 @@ GEOMFIT_INLINE int FitHeights(const HeightLanesInput& in, const HeightLane* lane
   V* gg = gv + m;
   V* grhs = gg + m;
   V* r = grhs + m;  // kCols^2 vectors: SolveNormal's scratch
-  // Each row's offsets into xyzn, lane by lane (offs[i * W + l]), laid out first (int32:
-  // 6 x the slot, below 2^31 for any mesh whose copy fits in memory).
-  int32_t* offs = reinterpret_cast<int32_t*>(r + kCols * kCols);
-  for (int l = 0; l < W; ++l) {
-    int i = 0;
-    for (; i < nrows[l]; ++i) offs[i * W + l] = static_cast<int32_t>(slot(pts[l][i]));
-    for (; i < m; ++i) offs[i * W + l] = static_cast<int32_t>(self[l]);
-  }
   V kept = V{}, radius2 = V{};
   const V cos_cut = Splat<V>(in.cos_cut);
   for (int i = 0; i < m; ++i) {
+    const double* at[W];
+    for (int l = 0; l < W; ++l) at[l] = in.points[i < nrows[l] ? pts[l][i] : self[l]].p;
     V q[6];
-    for (int c = 0; c < 6; ++c) q[c] = R::Load(in.xyzn + c, offs + i * W);
+    R::Records(at, q);
     const V d0 = q[0] - x0[0], d1 = q[1] - x0[1], d2 = q[2] - x0[2];
     const V u = d0 * t1[0] + d1 * t1[1] + d2 * t1[2];
     const V v = d0 * t2[0] + d1 * t2[1] + d2 * t2[2];
@@ -832,6 +860,24 @@ int SolveWlsBatch(const WlsProblem* const problems[], int count, const WlsSettin
 int FitHeightsBatch(const HeightLanesInput& in, const HeightLane lanes[], int count, const WlsSettings& settings,
                     WlsSolution solutions[], int used[], WlsBatchWorkspace& work) {
   return Selected()->heights(in, lanes, count, settings, solutions, used, work);
+}
+
+PointRecords MakePointRecords(const Positions& positions, const Positions& normals, const int32_t* order,
+                              int threads) {
+  const int64_t nv = positions.rows();
+  PointRecords records(nv);
+  ParallelFor(nv, threads, [&](int64_t k) {
+    const int64_t v = order ? order[k] : k;
+    if (order && k + 16 < nv) {  // random reads in the input numbering
+      const int64_t w = order[k + 16];
+      __builtin_prefetch(positions.data() + 3 * w);
+      __builtin_prefetch(normals.data() + 3 * w);
+    }
+    PointRecord& r = records[k];
+    for (int c = 0; c < 3; ++c) r.p[c] = positions(v, c), r.n[c] = normals(v, c);
+    r.pad[0] = r.pad[1] = 0;
+  }, 4096);
+  return records;
 }
 
 bool WlsBatchNormalEquations() { return NormalEquationsEnabled(); }

@@ -6,6 +6,7 @@
 
 #include "core/fitting/frames.h"
 #include "core/fitting/wls.h"
+#include "core/mesh/mesh.h"
 
 namespace geomfit {
 
@@ -42,10 +43,24 @@ int SolveWlsBatch(const WlsProblem* const problems[], int count, const WlsSettin
                   double* const coefficients[], double* const ops[], WlsSolution solutions[],
                   WlsBatchWorkspace& work);
 
-/// Where FitHeightsBatch reads its stencils: position and normal of the point in slot s
-/// at xyzn[6 * s] (points are numbered by slot: an array copied in the fit's order).
+/// Position and normal of one point as FitHeightsBatch reads them: one aligned 64-byte
+/// cache line (two doubles of padding, zero), loaded whole and transposed in registers
+/// across the lanes (no per-component gathers).
+struct alignas(64) PointRecord {
+  double p[3];
+  double n[3];
+  double pad[2];
+};
+using PointRecords = std::vector<PointRecord>;
+
+/// records[k] = (positions row order[k], normals row order[k]) for every vertex k (order
+/// null: row k): the copy in fit order whose slots FitHeightsBatch and the fit loop read.
+PointRecords MakePointRecords(const Positions& positions, const Positions& normals, const int32_t* order,
+                              int threads);
+
+/// Where FitHeightsBatch reads its stencils: the point in slot s is points[s].
 struct HeightLanesInput {
-  const double* xyzn;
+  const PointRecord* points;
   double cos_cut;  ///< cos(safeguard angle): rows whose normals turn further get gamma 0 (2.2.1)
 };
 

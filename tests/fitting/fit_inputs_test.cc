@@ -36,13 +36,13 @@ TEST(FitInputCacheTest, NormalsAndRecordsEqualFreshOnesAndAreReused) {
     const Positions fresh = ApproximateVertexNormals(mesh, topo, w, 1);
     ASSERT_EQ(a->normals.rows(), mesh.NumVertices());
     EXPECT_TRUE(SameBits(a->normals.data(), fresh.data(), fresh.size()));
-    const std::vector<double> records = PointRecords(mesh, fresh, &nb.ordered.order, 1);
+    const PointRecords records = MakePointRecords(mesh.positions, fresh, nb.ordered.order.data(), 1);
     ASSERT_EQ(a->records.size(), records.size());
-    EXPECT_TRUE(SameBits(a->records.data(), records.data(), records.size()));
+    EXPECT_EQ(std::memcmp(a->records.data(), records.data(), sizeof(PointRecord) * records.size()), 0);
     // Record k: the position and normal of the k-th vertex of the order.
     const int v = nb.ordered.order[7];
-    EXPECT_EQ(records[6 * 7 + 1], mesh.positions(v, 1));
-    EXPECT_EQ(records[6 * 7 + 5], fresh(v, 2));
+    EXPECT_EQ(records[7].p[1], mesh.positions(v, 1));
+    EXPECT_EQ(records[7].n[2], fresh(v, 2));
     EXPECT_EQ(nb.fit_inputs.Get(mesh, topo, w, &nb.ordered.order, 1), a);  // reused
   }
   EXPECT_GT(nb.Bytes(), empty_bytes);
@@ -54,7 +54,7 @@ TEST(FitInputCacheTest, NormalsAndRecordsEqualFreshOnesAndAreReused) {
   EXPECT_NE(after, before);
   const Positions fresh = ApproximateVertexNormals(moved, topo, NormalWeighting::kArea, 1);
   EXPECT_TRUE(SameBits(after->normals.data(), fresh.data(), fresh.size()));
-  EXPECT_NE(after->records[6 * nb.ordered.rank[3]], before->records[6 * nb.ordered.rank[3]]);
+  EXPECT_NE(after->records[nb.ordered.rank[3]].p[0], before->records[nb.ordered.rank[3]].p[0]);
   // Copies start empty.
   const Neighborhoods copy = nb;
   EXPECT_EQ(copy.fit_inputs.Bytes(), 0u);
