@@ -325,7 +325,8 @@ void Stats() {
     const Variant& x = F().v[s];
     const Topology& t = x.topo;
     std::vector<int32_t> position(t.num_vertices);
-    for (int i = 0; i < t.num_vertices; ++i) position[t.locality_order[i]] = i;
+    for (int i = 0; i < t.num_vertices; ++i)  // a relabelling's topology: vertex order
+      position[t.locality_order.empty() ? i : t.locality_order[i]] = i;
     double gap = 0, gap_order = 0;
     for (int v = 0; v < t.num_vertices; ++v)
       for (int j = 0; j < t.NumNeighbors(v); ++j) {

@@ -557,15 +557,16 @@ class SurfaceFitter {
       // The lanes read their stencils in slots: the ordered ones, else (vertex order) the
       // neighbourhoods' own.
       const bool ordered_lanes = lane_setup && os;
-      // Ordered lanes are queued by stencil size (a stable counting sort of the block), so
-      // the stencils of a batch differ little in size: few padded rows. Each lane's
-      // result is independent of its batch.
+      // Lanes are queued by stencil size (a stable counting sort of the block), so the
+      // stencils of a batch differ little in size: few padded rows. Each lane's result
+      // is independent of its batch.
       const int64_t begin = chunk * kGrain;
       const int n = static_cast<int>(end - begin);
       int64_t walk[kGrain];
-      if (ordered_lanes) {
+      if (lane_setup) {
         int at[kMaxStencil + 2] = {};
-        const auto size_of = [&](int64_t k) { return std::min<int>(os->offsets[k + 1] - os->offsets[k], kMaxStencil); };
+        const std::vector<int32_t>& offsets = os ? os->offsets : nb->offsets;
+        const auto size_of = [&](int64_t k) { return std::min<int>(offsets[k + 1] - offsets[k], kMaxStencil); };
         for (int64_t k = begin; k < end; ++k) ++at[size_of(k) + 1];
         for (int c = 1; c <= kMaxStencil + 1; ++c) at[c] += at[c - 1];
         for (int64_t k = begin; k < end; ++k) walk[at[size_of(k)]++] = k;

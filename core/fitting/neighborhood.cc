@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <memory>
 
 #include "core/util/parallel.h"
 
@@ -232,14 +233,14 @@ Neighborhoods BuildNeighborhoods(const Topology& topo, const Mesh& mesh, const R
   // Stencils are grown in GrowthOrder (each is independent of the order) and then
   // copied to vertex order.
   const std::vector<int32_t> order = GrowthOrder(topo);
-  const Spans spans(topo, mesh, order, threads);
+  auto spans = std::make_unique<const Spans>(topo, mesh, order, threads);
   std::vector<std::vector<int32_t>> block_indices(threads);
   std::vector<int32_t> sizes(nv);
   std::vector<int64_t> start(nv);  // in the block's buffer, then final
   Neighborhoods nb;
   nb.rings.resize(nv);
   ParallelForBlocks(nv, threads, [&](int64_t begin, int64_t end, int b) {
-    RingGrower grower(topo, spans);
+    RingGrower grower(topo, *spans);
     std::vector<int32_t> stencil;
     auto& idx = block_indices[b];
     idx.reserve((end - begin) * std::max(24, 2 * spec.min_points));  // stencils rarely pass 1.5x min_points
@@ -251,14 +252,19 @@ Neighborhoods BuildNeighborhoods(const Topology& topo, const Mesh& mesh, const R
       idx.insert(idx.end(), stencil.begin(), stencil.end());
     }
   });
+  spans.reset();  // its memory (~128 bytes a vertex) takes the stencils below
   nb.offsets.resize(nv + 1);
   nb.offsets[0] = 0;
   for (int v = 0; v < nv; ++v) nb.offsets[v + 1] = nb.offsets[v] + sizes[v];
   if (threads == 1 || nv == 1) {
     bool identity = true;
     for (int i = 0; i < nv && identity; ++i) identity = order[i] == i;
-    if (identity)  // one block grown in vertex order: it is the result (its spare
-      nb.indices = std::move(block_indices[0]);  // capacity was never written: not resident)
+    // One block grown in vertex order is the result, unless its spare capacity is large:
+    // then the copy below, exact in size, and the block's memory is left to the fit's
+    // arrays (a CLI run's heap is backed ahead of use: spare capacity costs as much as
+    // used memory; -4 MB at degree 2 on an 87k-vertex mesh).
+    const std::vector<int32_t>& block = block_indices[0];
+    if (identity && block.capacity() <= block.size() + block.size() / 8) nb.indices = std::move(block_indices[0]);
   }
   if (nb.indices.empty()) {
     nb.indices.resize(nb.offsets[nv]);
@@ -268,6 +274,8 @@ Neighborhoods BuildNeighborhoods(const Topology& topo, const Mesh& mesh, const R
         std::copy_n(block_indices[b].begin() + start[v], sizes[v], nb.indices.begin() + nb.offsets[v]);
       }
     });
+    std::vector<std::vector<int32_t>>().swap(block_indices);
+    std::vector<int64_t>().swap(start);
   }
   if (static_cast<int>(topo.locality_order.size()) == nv) nb.ordered = OrderStencils(nb, topo.locality_order, threads);
   return nb;

@@ -568,8 +568,7 @@ absl::StatusOr<Topology> FanTopology(const LocalityRelabelling& r) {
       SortRowByKey(t.vv.data() + t.vv_offsets[v], t.vv.data() + t.vv_offsets[v + 1], r.vertex_source);
       SortRowByKey(t.vf_faces.data() + t.vf_offsets[v], t.vf_faces.data() + t.vf_offsets[v + 1], r.face_source);
     }
-  FillLocalityOrder(&t);
-  t.vertex_faces_ascending = false;
+  t.vertex_faces_ascending = false;  // and no locality order: the numbering is one
   return t;
 }
 

@@ -22,7 +22,8 @@ struct Topology {
   std::vector<uint8_t> is_isolated;  ///< 1 for vertices in no face (allowed, flagged)
   /// Every vertex once, in breadth-first order over the edges: a work order with
   /// neighbours close together (cache locality on meshes numbered in any order). Loops
-  /// may visit vertices in this order; outputs stay indexed by vertex.
+  /// may visit vertices in this order; outputs stay indexed by vertex. Empty for a
+  /// LocalityRelabelling's topology (its numbering is such an order).
   std::vector<int32_t> locality_order;
   int num_boundary_edges = 0;
   int num_isolated = 0;
@@ -113,6 +114,8 @@ absl::StatusOr<LocalityRelabelling> RelabelForLocality(const Mesh& mesh, RowOrde
 /// vertex from each fan, with no half-edge sort. Fails exactly when
 /// BuildTopology(source) fails, with a message naming relabelled indices (and for
 /// edges and fans the kind of error only): report BuildTopology(source)'s instead.
+/// Its locality_order is empty: the relabelled numbering is one already (loops over it
+/// run in vertex order).
 absl::StatusOr<Topology> BuildTopology(const LocalityRelabelling& relabelled);
 
 }  // namespace geomfit

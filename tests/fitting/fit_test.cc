@@ -67,7 +67,9 @@ Eigen::Vector2d PolyGrad(int d, double x, double y) {
 TEST(FitTest, VertexNormalsEqualTheSumsOverEachFanInOrder) {
   GeneratorOptions g;
   g.n = 7;
-  for (const Mesh& base : {GenerateTorusMesh(g), GenerateSphereMesh(g), GenerateBumpMesh(g)}) {
+  GeneratorOptions q = g;
+  q.quads = true;
+  for (const Mesh& base : {GenerateTorusMesh(g), GenerateSphereMesh(g), GenerateBumpMesh(g), GenerateBumpMesh(q)}) {
     const Mesh mesh = testing_util::ShuffleVertices(base, 5);
     const Topology t = BuildTopology(mesh).value();
     for (NormalWeighting w : {NormalWeighting::kArea, NormalWeighting::kAngle}) {
@@ -90,7 +92,7 @@ TEST(FitTest, VertexNormalsEqualTheSumsOverEachFanInOrder) {
         }
         want.row(v) = sum / sum.norm();
       }
-      for (int threads : {1, 2}) {
+      for (int threads : {1, 2, 3, 7}) {  // 2+: each thread adds its vertices' corners
         const Positions got = ApproximateVertexNormals(mesh, t, w, threads);
         for (int v = 0; v < mesh.NumVertices(); ++v)
           for (int k = 0; k < 3; ++k) ASSERT_EQ(got(v, k), want(v, k)) << "vertex " << v << " threads " << threads;

@@ -38,10 +38,11 @@ size_t ReadHeapBytes(int64_t file_bytes) { return static_cast<size_t>(2.3 * stat
 
 /// Heap bytes the rest of a `curvature --local` run spans for `vertices` at `degree`
 /// (the fit's: stencils, frames, coefficients, positions and normals in locality order,
-/// mesh and topology), as measured on the gmsh torus (87k vertices, one thread). An
-/// estimate: what it leaves out faults in on use.
+/// mesh and topology), as measured on the gmsh torus (87k vertices, one thread: the
+/// resident heap, reading included, of runs that back nothing ahead). An estimate: what
+/// it leaves out faults in on use.
 size_t FitHeapBytes(int vertices, int degree) {
-  constexpr int kBytesPerVertex[] = {475, 475, 500, 555, 660, 780, 915};  // degrees 0-6
+  constexpr int kBytesPerVertex[] = {415, 415, 455, 530, 605, 690, 820};  // degrees 0-6
   const int d = std::max(degree, 0);
   return static_cast<size_t>(vertices) * (d <= 6 ? kBytesPerVertex[d] : kBytesPerVertex[6] + 150 * (d - 6));
 }
