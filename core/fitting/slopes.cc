@@ -75,6 +75,7 @@ struct Work {
   std::unique_ptr<double[]> xn[2];   // x, y, z, nx, ny, nz per slot; normals of the previous / next pass
   std::unique_ptr<double[]> radius2;  // the stencil's squared radius (0: the pass failed)
   std::unique_ptr<uint8_t[]> fitted;  // a degree-2 fit to refine
+  std::unique_ptr<double[]> hessians;  // c20, c11, c02 and 1 (or 0: keep the plain fit's) per slot
   double cos_cut = 0;
   int Vertex(int64_t k) const { return order ? order[k] : static_cast<int>(k); }
   int Size(int64_t k) const { return std::min(offsets[k + 1] - offsets[k], kMaxStencil); }
@@ -322,35 +323,20 @@ __attribute__((target_clones("arch=x86-64-v4", "avx2", "default"))) void Normals
   }
 }
 
-__attribute__((target_clones("arch=x86-64-v4", "avx2", "default"))) void HessiansRange(
-    const Work& W, int from, int64_t k0, int64_t k1, LocalFrame* frames, double* coefficients) {
+__attribute__((target_clones("arch=x86-64-v4", "avx2", "default"))) void HessiansRange(const Work& W, int from,
+                                                                                        int64_t k0, int64_t k1) {
   std::unique_ptr<Batch> B(new Batch);
   const std::vector<int64_t> walk = BatchOrder(W, k0, k1);
   for (size_t j = 0; j < walk.size(); j += kLanes) {
     const int n = static_cast<int>(std::min<size_t>(kLanes, walk.size() - j));
-    for (size_t q = j + kLanes; q < std::min(walk.size(), j + 2 * kLanes); ++q) {  // the next batch's outputs
-      const int v = W.Vertex(walk[q]);  // (input numbering: random lines)
-      const char* fr = reinterpret_cast<const char*>(&frames[v]);
-      __builtin_prefetch(fr, 1);
-      __builtin_prefetch(fr + sizeof(LocalFrame) - 1, 1);
-      __builtin_prefetch(coefficients + static_cast<int64_t>(v) * kCoef, 1);
-      __builtin_prefetch(coefficients + static_cast<int64_t>(v) * kCoef + kCoef - 1, 1);
-    }
     B->Load(W, W.xn[from].get(), walk.data() + j, n);
     alignas(64) double hess[3][kLanes];
     alignas(64) Lanes ok;
     HermiteHessians(W, *B, hess, ok);
     for (int l = 0; l < n; ++l) {
-      const int64_t k = B->slot[l];
-      if (!W.fitted[k]) continue;
-      const int v = W.Vertex(k);
-      double* c = coefficients + static_cast<int64_t>(v) * kCoef;
-      if (ok[l] > 0)
-        c[TaylorIndex(2, 0)] = hess[0][l], c[TaylorIndex(1, 1)] = hess[1][l], c[TaylorIndex(0, 2)] = hess[2][l];
-      c[TaylorIndex(1, 0)] = c[TaylorIndex(0, 1)] = 0;
-      LocalFrame& fr = frames[v];
-      fr.origin = Eigen::Vector3d(B->x[l], B->y[l], B->z[l]);
-      for (int d = 0; d < 3; ++d) fr.normal[d] = B->m[d][l], fr.t1[d] = B->t1[d][l], fr.t2[d] = B->t2[d][l];
+      double* out = W.hessians.get() + 4 * B->slot[l];
+      for (int c = 0; c < 3; ++c) out[c] = hess[c][l];
+      out[3] = ok[l];
     }
   }
 }
@@ -377,18 +363,18 @@ absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighbor
   for (auto& x : W.xn) x.reset(new double[6 * static_cast<size_t>(nv)]);
   W.radius2.reset(new double[nv]);
   W.fitted.reset(new uint8_t[nv]);
-  // Positions and the plain fits' normals, in visiting order.
-  ParallelFor(nv, threads, [&](int64_t k) {
-    const int v = W.Vertex(k);
-    if (k + 16 < nv) {  // random reads in the input numbering
-      const int w = W.Vertex(k + 16);
-      __builtin_prefetch(&frames[w]);
-      __builtin_prefetch(coefficients + static_cast<int64_t>(w) * kCoef);
-      __builtin_prefetch(&diagnostics[w]);
-    }
+  W.hessians.reset(new double[4 * static_cast<size_t>(nv)]);
+  // Positions and the plain fits' normals, in visiting order. Here and at the end, the
+  // loops run in the input numbering (the fits' arrays read and written in sequence, the
+  // slots at random: one line a vertex instead of three).
+  const int32_t* rank = os ? os->rank.data() : nullptr;
+  auto slot_of = [&](int64_t v) -> int64_t { return rank ? rank[v] : v; };
+  ParallelFor(nv, threads, [&](int64_t v) {
+    if (v + 16 < nv) __builtin_prefetch(W.xn[0].get() + 6 * slot_of(v + 16), 1);
+    const int64_t k = slot_of(v);
     double* dst = W.xn[0].get() + 6 * k;
     const LocalFrame& fr = frames[v];
-    const double* c = coefficients + static_cast<int64_t>(v) * kCoef;
+    const double* c = coefficients + v * kCoef;
     const Eigen::Vector3d n = (fr.normal - c[TaylorIndex(1, 0)] * fr.t1 - c[TaylorIndex(0, 1)] * fr.t2).normalized();
     for (int i = 0; i < 3; ++i) dst[i] = mesh.positions(v, i), dst[3 + i] = n[i];
     W.fitted[k] = diagnostics[v].degree_used >= 2;
@@ -401,12 +387,26 @@ absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighbor
   for (int pass = 0; pass < passes; ++pass, from = 1 - from)
     GF_RETURN_IF_ERROR(ParallelFor(
         chunks, ctx, [&](int64_t c) { NormalsRange(W, from, c * kGrain, std::min<int64_t>(nv, (c + 1) * kGrain)); }, 1));
-  return ParallelFor(
-      chunks, ctx,
-      [&](int64_t c) {
-        HessiansRange(W, from, c * kGrain, std::min<int64_t>(nv, (c + 1) * kGrain), frames, coefficients);
-      },
-      1);
+  GF_RETURN_IF_ERROR(ParallelFor(
+      chunks, ctx, [&](int64_t c) { HessiansRange(W, from, c * kGrain, std::min<int64_t>(nv, (c + 1) * kGrain)); },
+      1));
+  // The refined frames and Hessians into the fits (the tangent plane is the frame's).
+  const double* refined = W.xn[from].get();
+  ParallelFor(nv, threads, [&](int64_t v) {
+    if (v + 16 < nv) {
+      __builtin_prefetch(refined + 6 * slot_of(v + 16));
+      __builtin_prefetch(W.hessians.get() + 4 * slot_of(v + 16));
+    }
+    const int64_t k = slot_of(v);
+    if (!W.fitted[k]) return;
+    const double* x = refined + 6 * k;
+    frames[v] = FrameFromNormal(Eigen::Vector3d(x[0], x[1], x[2]), Eigen::Vector3d(x[3], x[4], x[5]));
+    double* c = coefficients + v * kCoef;
+    const double* hess = W.hessians.get() + 4 * k;
+    if (hess[3] > 0) c[TaylorIndex(2, 0)] = hess[0], c[TaylorIndex(1, 1)] = hess[1], c[TaylorIndex(0, 2)] = hess[2];
+    c[TaylorIndex(1, 0)] = c[TaylorIndex(0, 1)] = 0;
+  }, 4096);
+  return absl::OkStatus();
 }
 
 }  // namespace geomfit
