@@ -153,13 +153,16 @@ __attribute__((always_inline)) inline void Project(const Batch& B, int i, int l,
 __attribute__((always_inline)) inline void SlopeNormals(const Work& W, const Batch& B, double* out) {
   // Lengths in units of the first (nonzero) neighbour's distance (conditioning).
   alignas(64) Lanes scale;
-  for (int l = 0; l < kLanes; ++l) {
-    scale[l] = 0;
-    for (int i = 0; i < B.rows && scale[l] == 0; ++i) {
+#pragma omp simd
+  for (int l = 0; l < B.lanes; ++l) {
+    const double l2 = B.dx[0][l] * B.dx[0][l] + B.dy[0][l] * B.dy[0][l] + B.dz[0][l] * B.dz[0][l];
+    scale[l] = 1 / std::sqrt(l2 > 0 ? l2 : 1.0) * (l2 > 0 ? 1.0 : 0.0);
+  }
+  for (int l = 0; l < kLanes; ++l)  // a first point on the centre (rare)
+    for (int i = 1; i < B.rows && scale[l] == 0; ++i) {
       const double l2 = B.dx[i][l] * B.dx[i][l] + B.dy[i][l] * B.dy[i][l] + B.dz[i][l] * B.dz[i][l];
       if (l2 > 0) scale[l] = 1 / std::sqrt(l2);
     }
-  }
   enum { k20, k11, k02, k30, k21, k12, k03, k40, k31, k22, k13, k04, kb0, kb1, kb2, kb3, kb4, kSums };
   alignas(64) double acc[kSums][kLanes] = {};
   alignas(64) Lanes r2max = {};
@@ -201,20 +204,24 @@ __attribute__((always_inline)) inline void SlopeNormals(const Work& W, const Bat
     ok[l] = r2max[l] > 0 && scale[l] > 0 ? 1.0 : 0.0;
   }
   SolveSpdLanes<5>(a, b, 1e-10, ok);
+  // The fitted linear term itself (2/3 of the gradient it estimates): see slopes.h.
+  alignas(64) double nn[3][kLanes], radius2[kLanes];
+#pragma omp simd
+  for (int l = 0; l < B.lanes; ++l) {
+    double v[3];
+    for (int c = 0; c < 3; ++c) v[c] = B.m[c][l] - b[0][l] * B.t1[c][l] - b[1][l] * B.t2[c][l];
+    const double len = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+    const bool good = ok[l] > 0 && len > 0 && len < HUGE_VAL;
+    for (int c = 0; c < 3; ++c) nn[c][l] = good ? v[c] / len : B.m[c][l];
+    radius2[l] = good ? r2max[l] / (scale[l] * scale[l]) : 0.0;
+  }
   for (int l = 0; l < B.count; ++l) {
     const int64_t k = B.slot[l];
+    const bool refined = W.fitted[k] != 0;  // else its own normal
     double* dst = out + 6 * k;
     dst[0] = B.x[l], dst[1] = B.y[l], dst[2] = B.z[l];
-    W.radius2[k] = 0;
-    for (int c = 0; c < 3; ++c) dst[3 + c] = B.m[c][l];
-    if (!(ok[l] > 0) || !W.fitted[k]) continue;
-    // The fitted linear term itself (2/3 of the gradient it estimates): see slopes.h.
-    double nn[3];
-    for (int c = 0; c < 3; ++c) nn[c] = B.m[c][l] - b[0][l] * B.t1[c][l] - b[1][l] * B.t2[c][l];
-    const double len = std::sqrt(nn[0] * nn[0] + nn[1] * nn[1] + nn[2] * nn[2]);
-    if (!(len > 0) || !std::isfinite(len)) continue;
-    for (int c = 0; c < 3; ++c) dst[3 + c] = nn[c] / len;
-    W.radius2[k] = r2max[l] / (scale[l] * scale[l]);
+    for (int c = 0; c < 3; ++c) dst[3 + c] = refined ? nn[c][l] : B.m[c][l];
+    W.radius2[k] = refined ? radius2[l] : 0.0;
   }
 }
 
