@@ -103,19 +103,8 @@ struct alignas(64) Batch {
       if (l < n) rows = std::max(rows, W.Size(k) - 1);
     }
 #pragma omp simd
-    for (int l = 0; l < kLanes; ++l) {  // FrameFromNormal (frames.h)
-      const double n0 = m[0][l], n1 = m[1][l], n2 = m[2][l];
-      const double a0 = std::abs(n0), a1 = std::abs(n1), a2 = std::abs(n2);
-      const int axis = a1 < a0 ? (a2 < a1 ? 2 : 1) : (a2 < a0 ? 2 : 0);
-      const double s = axis == 0 ? n0 : axis == 1 ? n1 : n2;
-      const double e0 = (axis == 0 ? 1.0 : 0.0) - s * n0, e1 = (axis == 1 ? 1.0 : 0.0) - s * n1,
-                   e2 = (axis == 2 ? 1.0 : 0.0) - s * n2;
-      const double zz = e0 * e0 + e1 * e1 + e2 * e2;
-      const double r = zz > 0 ? std::sqrt(zz) : 1.0;
-      const double u0 = zz > 0 ? e0 / r : e0, u1 = zz > 0 ? e1 / r : e1, u2 = zz > 0 ? e2 / r : e2;
-      t1[0][l] = u0, t1[1][l] = u1, t1[2][l] = u2;
-      t2[0][l] = n1 * u2 - n2 * u1, t2[1][l] = n2 * u0 - n0 * u2, t2[2][l] = n0 * u1 - n1 * u0;
-    }
+    for (int l = 0; l < kLanes; ++l)
+      FrameTangents(m[0][l], m[1][l], m[2][l], t1[0][l], t1[1][l], t1[2][l], t2[0][l], t2[1][l], t2[2][l]);
     for (int l = 0; l < kLanes; ++l) {
       const int32_t* pts = W.points + W.offsets[slot[l]];
       const int size = l < n ? std::max(1, W.Size(slot[l])) : 1;
