@@ -11,6 +11,7 @@
 
 #include "absl/strings/str_format.h"
 #include "core/fitting/fit_inputs.h"
+#include "core/fitting/hermite.h"
 #include "core/fitting/noise.h"
 #include "core/fitting/parametric.h"
 #include "core/fitting/slopes.h"
@@ -111,19 +112,12 @@ bool SetUpVertex(int v, const FitInput& in, const FitOutput& out, WlsProblem& P)
   return true;
 }
 
-// Hermite curvatures (FitOptions::hermite_hessian): along the ray to stencil point j at
-// parameter distance r in direction e, the height is h = Q r^2/2 + C r^3/6 + D r^4/24 + ...
-// and the radial slope g = Q r + C r^2/2 + D r^3/6 + ..., with Q = e^T Hess e and C, D the
-// cubic and quartic forms. Heights alone give 2h/r^2 = Q + C r/3 + D r^2/12; the
-// combination 4h/r^2 - g/r = Q + C r/6 + O(r^3) cancels the quartic term, which dominates
-// the degree-2 error on every mesh measured, and halves the cubic one, which enters the
-// fit only through the stencil's odd moments (the fits' usual O(h) term of asymmetric
-// stencils). (6h/r^2 - 2g/r = Q - D r^2/12 would cancel the cubic term instead: O(h^2) on
-// any stencil, but 2-8x less accurate at the resolutions measured, bench/README.md.)
-// g comes from the point's refined (O(h^3)) normal n_j in the vertex's frame,
-// (f_u, f_v) = -(n_j . t1, n_j . t2) / (n_j . m). The Hessian is the weighted least-squares
-// fit of e^T Hess e = Q_j (three unknowns); on too few or too clustered directions
-// the plain fit's Hessian stays.
+// Hermite curvatures (FitOptions::hermite_hessian): the Hessian is the weighted
+// least-squares fit of e^T Hess e to the rows of HermiteRowOf (hermite.h; 4h/r^2 - g/r,
+// the quartic term cancels, the cubic one halves and enters only through the stencil's
+// odd moments; 6h/r^2 - 2g/r, which cancels the cubic term instead, measured 2-8x less
+// accurate, bench/README.md), with g from the point's refined (O(h^3)) normal. On too few
+// or too clustered directions the plain fit's Hessian stays.
 void FitHermiteHessian(int v, const FitInput& in, const FitOutput& out, const WlsProblem& P) {
   const LocalFrame& fr = *out.frame;
   const int32_t* pts = in.nb.Points(v);
@@ -132,25 +126,18 @@ void FitHermiteHessian(int v, const FitInput& in, const FitOutput& out, const Wl
   for (int r = 0; r < P.rows; ++r)
     if (P.gamma[r] > 0) radius2 = std::max(radius2, P.u[r] * P.u[r] + P.v[r] * P.v[r]);
   if (radius2 == 0) return;
-  // Row weights s / (s + 0.1)^2.5 in s = r^2 / radius^2: ~ s^-1.5 favours near points (the
-  // remaining errors grow with r) but ~ s below r ~ 0.3 radius, where the normals' error
-  // over r dominates (marching-cubes meshes have points at 1% of h).
-  constexpr double kEps = 0.1;
+  constexpr double kEps = 0.1;  // the row weights' eps (hermite.h)
   Eigen::Matrix3d M = Eigen::Matrix3d::Zero();
   Eigen::Vector3d b = Eigen::Vector3d::Zero();
   for (int r = 0; r < P.rows; ++r) {
-    const double u = P.u[r], w = P.v[r], r2 = u * u + w * w;
-    if (!(P.gamma[r] > 0) || r2 == 0) continue;
     const Eigen::Map<const Eigen::Vector3d> n(in.points[in.Slot(pts[r + first])].n);
-    const double nm = n.dot(fr.normal);
-    if (!(nm > 0)) continue;
-    const double fu = -n.dot(fr.t1) / nm, fv = -n.dot(fr.t2) / nm;
-    const double q = (4 * P.rhs[0][r] - (fu * u + fv * w)) / r2;
-    const Eigen::Vector3d a(u * u / r2, 2 * u * w / r2, w * w / r2);
-    const double sr = r2 / radius2, root = std::sqrt(sr + kEps);
-    const double wt = P.gamma[r] * sr / (root * root * root * root * root);
-    M += wt * a * a.transpose();
-    b += wt * q * a;
+    double value, c0, c1, c2, inv_r2, weight;
+    HermiteRowOf(P.u[r], P.v[r], P.rhs[0][r], n.dot(fr.t1), n.dot(fr.t2), n.dot(fr.normal), P.gamma[r], 1 / radius2,
+                 kEps, value, c0, c1, c2, inv_r2, weight);
+    if (!(weight > 0)) continue;
+    const Eigen::Vector3d a(c0, c1, c2);
+    M += weight * a * a.transpose();
+    b += weight * value * a;
   }
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig;
   eig.computeDirect(M);

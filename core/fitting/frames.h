@@ -15,6 +15,21 @@ struct LocalFrame {
                   normal = Eigen::Vector3d::UnitZ();
 };
 
+/// The tangents of FrameFromNormal for the unit normal (n0, n1, n2), as scalars (also
+/// used in vector lanes, core/fitting/slopes.cc).
+inline void FrameTangents(double n0, double n1, double n2, double& t1x, double& t1y, double& t1z, double& t2x,
+                          double& t2y, double& t2z) {
+  const double a0 = std::abs(n0), a1 = std::abs(n1), a2 = std::abs(n2);
+  const int axis = a1 < a0 ? (a2 < a1 ? 2 : 1) : (a2 < a0 ? 2 : 0);
+  const double s = axis == 0 ? n0 : axis == 1 ? n1 : n2;  // a.dot(n), exact
+  const double t0 = (axis == 0 ? 1.0 : 0.0) - s * n0, t1 = (axis == 1 ? 1.0 : 0.0) - s * n1,
+               t2 = (axis == 2 ? 1.0 : 0.0) - s * n2;
+  const double z = t0 * t0 + t1 * t1 + t2 * t2;
+  const double r = z > 0 ? std::sqrt(z) : 1.0;
+  t1x = z > 0 ? t0 / r : t0, t1y = z > 0 ? t1 / r : t1, t1z = z > 0 ? t2 / r : t2;
+  t2x = n1 * t1z - n2 * t1y, t2y = n2 * t1x - n0 * t1z, t2z = n0 * t1y - n1 * t1x;
+}
+
 /// A frame whose normal is `n` (unit), with tangents chosen stably: t1 from the
 /// coordinate axis least aligned with n (the first of equals), t2 = n x t1. Inline and
 /// scalar (a call per fitted vertex): the operations of Eigen's
@@ -23,17 +38,7 @@ inline LocalFrame FrameFromNormal(const Eigen::Vector3d& origin, const Eigen::Ve
   LocalFrame fr;
   fr.origin = origin;
   fr.normal = n;
-  const double n0 = n[0], n1 = n[1], n2 = n[2];
-  const double a0 = std::abs(n0), a1 = std::abs(n1), a2 = std::abs(n2);
-  const int axis = a1 < a0 ? (a2 < a1 ? 2 : 1) : (a2 < a0 ? 2 : 0);
-  const double s = axis == 0 ? n0 : axis == 1 ? n1 : n2;  // a.dot(n), exact
-  const double t0 = (axis == 0 ? 1.0 : 0.0) - s * n0, t1 = (axis == 1 ? 1.0 : 0.0) - s * n1,
-               t2 = (axis == 2 ? 1.0 : 0.0) - s * n2;
-  const double z = t0 * t0 + t1 * t1 + t2 * t2;
-  const double r = z > 0 ? std::sqrt(z) : 1.0;
-  fr.t1 = z > 0 ? Eigen::Vector3d(t0 / r, t1 / r, t2 / r) : Eigen::Vector3d(t0, t1, t2);
-  const double u0 = fr.t1[0], u1 = fr.t1[1], u2 = fr.t1[2];
-  fr.t2 = Eigen::Vector3d(n1 * u2 - n2 * u1, n2 * u0 - n0 * u2, n0 * u1 - n1 * u0);
+  FrameTangents(n[0], n[1], n[2], fr.t1[0], fr.t1[1], fr.t1[2], fr.t2[0], fr.t2[1], fr.t2[2]);
   return fr;
 }
 

@@ -96,11 +96,13 @@ struct FitOptions {
   /// normal_degree nor hermite_hessian asks for the pre-fit; ignored otherwise and by the
   /// GFD operators): this many normal passes over the fit's own stencils with the
   /// neighbours' fitted normals, normals from h_j - p_j.G_j/3 in which the cubic term
-  /// cancels, then the Hermite Hessian of hermite_hessian in the refined frame
-  /// (core/fitting/slopes.h). 0 = off (default), 1..3. At 1: normals 0.03-0.42x, H
-  /// 0.03-0.32x, K 0.10-0.63x CGAL's at degree 2 on clean meshes for ~2.9x the CPU time of a
-  /// plain degree-2 fit; at 2: normals 0.02-0.49x, K 0.10-0.58x, ~3.9x (bench/README.md; the
-  /// degree-3 pre-fit of hermite_hessian: ~4.8x). Not for noisy input.
+  /// cancels, then the Hermite Hessian (hermite.h) with the cubic remainder as four more
+  /// unknowns, in the refined frame (core/fitting/slopes.h). 0 = off (default), 1..3. The
+  /// recipe for the best clean-mesh accuracy at degree 2: at 1, normals 0.03-0.42x (Linf
+  /// <= 0.47x), H 0.02-0.34x, K 0.04-0.41x CGAL Jet_fitting_3's on gmsh, marching-cubes,
+  /// structured and quad meshes, for ~2x the CPU time of a plain degree-2 fit; at 2,
+  /// normals 0.02-0.49x, H 0.01-0.38x, K 0.03-0.38x, ~2.4x (bench/README.md). Not for
+  /// noisy input.
   int slope_refinement = 0;
 
   /// Whether the Hermite curvatures apply (see hermite_hessian).

@@ -2,117 +2,169 @@
 
 #include <algorithm>
 #include <cmath>
+#include <memory>
 #include <vector>
 
+#include "core/fitting/hermite.h"
 #include "core/util/parallel.h"
 #include "core/util/status_macros.h"
 
 namespace geomfit {
 namespace {
 
-inline double Dot(const double* a, const double* b) { return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]; }
+// The passes run kLanes vertices at a time, one per vector lane: each lane sums its own
+// stencil's rows in stencil order and solves its own system, so a vertex's result does
+// not depend on its batch or on the instruction set (no fused multiply-adds,
+// core/CMakeLists.txt).
+constexpr int kLanes = 8;
+constexpr int kCoef = 6;  // NumCoefficients(2)
+using Lanes = double[kLanes];
 
-// Solves the symmetric positive definite N x N system (upper triangle of `a` used) in place
-// by Cholesky; false when a pivot is not positive relative to the diagonal (`rel`).
+// Solves kLanes symmetric positive definite N x N systems (upper triangles of `a` used,
+// one per lane) in place by Cholesky; ok[l] = 0 where a pivot is not positive relative to
+// the lane's largest diagonal entry (`rel`); such lanes' results are meaningless but finite.
 template <int N>
-__attribute__((always_inline)) inline bool SolveSpd(double (&a)[N][N], double (&b)[N], double rel) {
-  double scale = 0;
-  for (int i = 0; i < N; ++i) scale = std::max(scale, a[i][i]);
-  if (!(scale > 0)) return false;
-  double inv[N];  // 1 / R_kk
+__attribute__((always_inline)) inline void SolveSpdLanes(double (&a)[N][N][kLanes], double (&b)[N][kLanes],
+                                                         double rel, Lanes& ok) {
+  alignas(64) Lanes scale = {}, d, inv[N];  // inv: 1 / R_kk
+  for (int i = 0; i < N; ++i)
+#pragma omp simd
+    for (int l = 0; l < kLanes; ++l) scale[l] = std::max(scale[l], a[i][i][l]);
   for (int k = 0; k < N; ++k) {
-    double d = a[k][k];
-    for (int p = 0; p < k; ++p) d -= a[p][k] * a[p][k];
-    if (!(d > rel * scale)) return false;
-    inv[k] = 1 / std::sqrt(d);
+#pragma omp simd
+    for (int l = 0; l < kLanes; ++l) d[l] = a[k][k][l];
+    for (int p = 0; p < k; ++p)
+#pragma omp simd
+      for (int l = 0; l < kLanes; ++l) d[l] -= a[p][k][l] * a[p][k][l];
+#pragma omp simd
+    for (int l = 0; l < kLanes; ++l) {
+      const bool good = d[l] > rel * scale[l] && scale[l] > 0;
+      ok[l] = good ? ok[l] : 0.0;
+      inv[k][l] = 1 / std::sqrt(good ? d[l] : 1.0);
+    }
     for (int j = k + 1; j < N; ++j) {
-      double s = a[k][j];
-      for (int p = 0; p < k; ++p) s -= a[p][k] * a[p][j];
-      a[k][j] = s * inv[k];
+      for (int p = 0; p < k; ++p)
+#pragma omp simd
+        for (int l = 0; l < kLanes; ++l) a[k][j][l] -= a[p][k][l] * a[p][j][l];
+#pragma omp simd
+      for (int l = 0; l < kLanes; ++l) a[k][j][l] *= inv[k][l];
     }
   }
   for (int k = 0; k < N; ++k) {  // R^T y = b
-    double s = b[k];
-    for (int p = 0; p < k; ++p) s -= a[p][k] * b[p];
-    b[k] = s * inv[k];
+    for (int p = 0; p < k; ++p)
+#pragma omp simd
+      for (int l = 0; l < kLanes; ++l) b[k][l] -= a[p][k][l] * b[p][l];
+#pragma omp simd
+    for (int l = 0; l < kLanes; ++l) b[k][l] *= inv[k][l];
   }
   for (int k = N - 1; k >= 0; --k) {  // R x = y
-    double s = b[k];
-    for (int p = k + 1; p < N; ++p) s -= a[k][p] * b[p];
-    b[k] = s * inv[k];
+    for (int p = k + 1; p < N; ++p)
+#pragma omp simd
+      for (int l = 0; l < kLanes; ++l) b[k][l] -= a[k][p][l] * b[p][l];
+#pragma omp simd
+    for (int l = 0; l < kLanes; ++l) b[k][l] *= inv[k][l];
   }
-  return true;
 }
 
-// Positions and normals of every vertex, 6 doubles each, in visiting order (slot).
-struct Slots {
-  std::vector<double> xn;     // x, y, z, nx, ny, nz per slot
-  std::vector<int32_t> slot;  // slot of each vertex
-  const double* At(int v) const { return xn.data() + 6 * static_cast<int64_t>(slot[v]); }
-  double* At(int v) { return xn.data() + 6 * static_cast<int64_t>(slot[v]); }
+// The passes' work arrays, in visiting order (slot k: the k-th vertex visited).
+struct Work {
+  int64_t nv = 0;
+  const int32_t* order = nullptr;    // vertex at each slot (null: the slot itself)
+  const int32_t* offsets = nullptr;  // slot k's stencil: points[offsets[k] .. offsets[k+1]) as slots,
+  const int32_t* points = nullptr;   //   centre first
+  std::unique_ptr<double[]> xn[2];   // x, y, z, nx, ny, nz per slot; normals of the previous / next pass
+  std::unique_ptr<double[]> radius2;  // the stencil's squared radius (0: the pass failed)
+  std::unique_ptr<uint8_t[]> fitted;  // a degree-2 fit to refine
+  std::unique_ptr<double[]> hessians;  // c20, c11, c02 and 1 (or 0: keep the plain fit's) per slot
+  double cos_cut = 0;
+  int Vertex(int64_t k) const { return order ? order[k] : static_cast<int>(k); }
+  int Size(int64_t k) const { return std::min(offsets[k + 1] - offsets[k], kMaxStencil); }
 };
 
-// A stencil's points relative to its centre (d) and their normals (n), in lanes of
-// kLanes: the passes below run on whole lanes (vector instructions) and sum each lane
-// separately, then the lanes in a fixed order, so every instruction set gives the same bits.
-constexpr int kLanes = 8;
-struct alignas(64) Stencil {
-  int count = 0;  // points (the centre excluded)
-  double dx[kMaxStencil + kLanes], dy[kMaxStencil + kLanes], dz[kMaxStencil + kLanes];
-  double nx[kMaxStencil + kLanes], ny[kMaxStencil + kLanes], nz[kMaxStencil + kLanes];
-  double live[kMaxStencil + kLanes];  // 1 for the points, 0 for the padding
+// A batch of kLanes vertices: their centres, frames (FrameFromNormal's, in lanes) and
+// stencils' rows, transposed (row i of every lane together, as the slot of the point).
+// Lanes past `count`, and rows past a lane's stencil, name the centre with live = 0.
+struct alignas(64) Batch {
+  int count = 0, rows = 0;  // vertices; rows = the largest stencil less its centre
+  int lanes = kLanes;       // (not a constant: GCC unrolls a constant 8 before vectorizing)
+  const double* xn = nullptr;
+  int64_t slot[kLanes];
+  Lanes x, y, z, m[3], t1[3], t2[3];
+  int32_t idx[kMaxStencil][kLanes];
+  Lanes dx[kMaxStencil], dy[kMaxStencil], dz[kMaxStencil], nx[kMaxStencil], ny[kMaxStencil], nz[kMaxStencil],
+      live[kMaxStencil];
+
+  __attribute__((always_inline)) void Load(const Work& W, const double* from, const int64_t* slots, int n) {
+    xn = from, count = n, rows = 0;
+    for (int l = 0; l < kLanes; ++l) {
+      const int64_t k = slot[l] = slots[l < n ? l : 0];
+      const double* self = xn + 6 * k;
+      x[l] = self[0], y[l] = self[1], z[l] = self[2], m[0][l] = self[3], m[1][l] = self[4], m[2][l] = self[5];
+      if (l < n) rows = std::max(rows, W.Size(k) - 1);
+    }
+#pragma omp simd
+    for (int l = 0; l < kLanes; ++l)
+      FrameTangents(m[0][l], m[1][l], m[2][l], t1[0][l], t1[1][l], t1[2][l], t2[0][l], t2[1][l], t2[2][l]);
+    for (int l = 0; l < kLanes; ++l) {
+      const int32_t* pts = W.points + W.offsets[slot[l]];
+      const int size = l < n ? std::max(1, W.Size(slot[l])) : 1;
+      for (int i = 1; i < size; ++i) idx[i - 1][l] = pts[i], live[i - 1][l] = 1;
+      for (int i = size - 1; i < rows; ++i) idx[i][l] = static_cast<int32_t>(slot[l]), live[i][l] = 0;
+    }
+    const double* __restrict q = xn;
+    for (int i = 0; i < rows; ++i)
+#pragma omp simd
+      for (int l = 0; l < kLanes; ++l) {
+        const int j = idx[i][l];  // vector gathers
+        dx[i][l] = q[6 * j] - x[l], dy[i][l] = q[6 * j + 1] - y[l], dz[i][l] = q[6 * j + 2] - z[l];
+        nx[i][l] = q[6 * j + 3], ny[i][l] = q[6 * j + 4], nz[i][l] = q[6 * j + 5];
+      }
+  }
 };
 
-__attribute__((always_inline)) inline void Gather(int v, const Neighborhoods& nb, const Slots& s, Stencil& st) {
-  const int32_t* pts = nb.Points(v);
-  const int n = std::min(nb.Size(v), kMaxStencil);
-  const double* self = s.At(v);
-  st.count = n - 1;
-  for (int i = 1; i < n; ++i) {
-    const double* q = s.At(pts[i]);
-    st.dx[i - 1] = q[0] - self[0], st.dy[i - 1] = q[1] - self[1], st.dz[i - 1] = q[2] - self[2];
-    st.nx[i - 1] = q[3], st.ny[i - 1] = q[4], st.nz[i - 1] = q[5], st.live[i - 1] = 1;
-  }
-  for (int i = n - 1; i < (n - 1 + kLanes - 1) / kLanes * kLanes; ++i)
-    st.dx[i] = st.dy[i] = st.dz[i] = st.nx[i] = st.ny[i] = st.nz[i] = st.live[i] = 0;
+// Row i of lane l in the lane's frame: tangent coordinates (u, w), height h, and the
+// point's normal's components nm = n.m, nt1 = n.t1, nt2 = n.t2. (Scalars, not a struct:
+// struct locals in a simd loop keep GCC from vectorizing it.)
+__attribute__((always_inline)) inline void Project(const Batch& B, int i, int l, double& u, double& w, double& h,
+                                                   double& nm, double& nt1, double& nt2) {
+  const double dx = B.dx[i][l], dy = B.dy[i][l], dz = B.dz[i][l], nx = B.nx[i][l], ny = B.ny[i][l], nz = B.nz[i][l];
+  u = dx * B.t1[0][l] + dy * B.t1[1][l] + dz * B.t1[2][l];
+  w = dx * B.t2[0][l] + dy * B.t2[1][l] + dz * B.t2[2][l];
+  h = dx * B.m[0][l] + dy * B.m[1][l] + dz * B.m[2][l];
+  nm = nx * B.m[0][l] + ny * B.m[1][l] + nz * B.m[2][l];
+  nt1 = nx * B.t1[0][l] + ny * B.t1[1][l] + nz * B.t1[2][l];
+  nt2 = nx * B.t2[0][l] + ny * B.t2[1][l] + nz * B.t2[2][l];
 }
 
-// Sum of the kLanes partial sums, in a fixed order.
-inline double LaneSum(const double* a) {
-  return ((a[0] + a[4]) + (a[2] + a[6])) + ((a[1] + a[5]) + (a[3] + a[7]));
-}
-
-// Pass 1 at vertex v (see slopes.h): the refined normal, written to `out` (3 doubles), and
-// the stencil's squared radius; false (out untouched) when the fit is ill-posed. The 5x5
-// normal equations are built from the 12 moments of (u, w) of degrees 2-4.
-__attribute__((always_inline)) inline bool SlopeNormal(const double* self, const Stencil& st, double cos_cut,
-                                                       double* out, double* radius2) {
-  const LocalFrame fr = FrameFromNormal(Eigen::Vector3d(self[0], self[1], self[2]),
-                                        Eigen::Vector3d(self[3], self[4], self[5]));
-  const double t1x = fr.t1[0], t1y = fr.t1[1], t1z = fr.t1[2], t2x = fr.t2[0], t2y = fr.t2[1], t2z = fr.t2[2];
-  const double mx = self[3], my = self[4], mz = self[5];
-  double scale = 0;  // lengths in units of the first neighbour's distance (conditioning)
-  for (int i = 0; i < st.count && scale == 0; ++i) {
-    const double l2 = st.dx[i] * st.dx[i] + st.dy[i] * st.dy[i] + st.dz[i] * st.dz[i];
-    if (l2 > 0) scale = 1 / std::sqrt(l2);
+// Pass 1 on a batch (see slopes.h): each lane's refined normal into `out` (6 doubles per
+// slot: the position copied, then the normal; the centre's own normal where the fit is
+// ill-posed or the vertex not refinable) and its stencil's squared radius (0 then).
+__attribute__((always_inline)) inline void SlopeNormals(const Work& W, const Batch& B, double* out) {
+  // Lengths in units of the first (nonzero) neighbour's distance (conditioning).
+  alignas(64) Lanes scale;
+#pragma omp simd
+  for (int l = 0; l < B.lanes; ++l) {
+    const double l2 = B.dx[0][l] * B.dx[0][l] + B.dy[0][l] * B.dy[0][l] + B.dz[0][l] * B.dz[0][l];
+    scale[l] = 1 / std::sqrt(l2 > 0 ? l2 : 1.0) * (l2 > 0 ? 1.0 : 0.0);
   }
-  if (scale == 0) return false;
+  for (int l = 0; l < kLanes; ++l)  // a first point on the centre (rare)
+    for (int i = 1; i < B.rows && scale[l] == 0; ++i) {
+      const double l2 = B.dx[i][l] * B.dx[i][l] + B.dy[i][l] * B.dy[i][l] + B.dz[i][l] * B.dz[i][l];
+      if (l2 > 0) scale[l] = 1 / std::sqrt(l2);
+    }
   enum { k20, k11, k02, k30, k21, k12, k03, k40, k31, k22, k13, k04, kb0, kb1, kb2, kb3, kb4, kSums };
   alignas(64) double acc[kSums][kLanes] = {};
-  alignas(64) double r2max[kLanes] = {};
-  for (int b = 0; b < st.count; b += kLanes) {
+  alignas(64) Lanes r2max = {};
+  const double cos_cut = W.cos_cut;
+  for (int i = 0; i < B.rows; ++i) {
 #pragma omp simd
-    for (int l = 0; l < kLanes; ++l) {
-      const int i = b + l;
-      const double dx = st.dx[i], dy = st.dy[i], dz = st.dz[i], nx = st.nx[i], ny = st.ny[i], nz = st.nz[i];
-      const double nm = nx * mx + ny * my + nz * mz;
-      const double ok = nm >= cos_cut ? st.live[i] : 0.0;  // the safeguard gamma of (2.2.1), 0 or 1
-      const double u = (dx * t1x + dy * t1y + dz * t1z) * scale, w = (dx * t2x + dy * t2y + dz * t2z) * scale,
-                   h = (dx * mx + dy * my + dz * mz) * scale;
-      const double r2 = u * u + w * w;
+    for (int l = 0; l < B.lanes; ++l) {
+      double pu, pw, ph, nm, nt1, nt2;
+      Project(B, i, l, pu, pw, ph, nm, nt1, nt2);
+      const double ok = (nm >= cos_cut ? 1.0 : 0.0) * B.live[i][l];  // the safeguard gamma of (2.2.1), 0 or 1
+      const double u = pu * scale[l], w = pw * scale[l], h = ph * scale[l], r2 = u * u + w * w;
       // h - p.G / 3 with G = -(n.t1, n.t2) / n.m
-      const double rhs = h + (u * (nx * t1x + ny * t1y + nz * t1z) + w * (nx * t2x + ny * t2y + nz * t2z)) /
-                                 (3 * (ok > 0 ? nm : 1.0));
+      const double rhs = h + (u * nt1 + w * nt2) / (3 * (ok > 0 ? nm : 1.0));
       const double wt = ok * nm / (r2 + 0.01);  // (2.2.1)'s degree-2 weights, squared
       r2max[l] = std::max(r2max[l], ok * r2);
       const double uu = u * u, uw = u * w, ww = w * w;
@@ -125,146 +177,163 @@ __attribute__((always_inline)) inline bool SlopeNormal(const double* self, const
       acc[kb4][l] += www * rhs;
     }
   }
-  double r2m = 0;
-  for (int l = 0; l < kLanes; ++l) r2m = std::max(r2m, r2max[l]);
-  if (r2m == 0) return false;
-  double m[kSums];
-  for (int k = 0; k < kSums; ++k) m[k] = LaneSum(acc[k]);
   // Columns u, w, u^2/2, uw, w^2/2 (Taylor).
-  double a[5][5] = {{m[k20], m[k11], 0.5 * m[k30], m[k21], 0.5 * m[k12]},
-                    {0, m[k02], 0.5 * m[k21], m[k12], 0.5 * m[k03]},
-                    {0, 0, 0.25 * m[k40], 0.5 * m[k31], 0.25 * m[k22]},
-                    {0, 0, 0, m[k22], 0.5 * m[k13]},
-                    {0, 0, 0, 0, 0.25 * m[k04]}};
-  double rhs[5] = {m[kb0], m[kb1], 0.5 * m[kb2], m[kb3], 0.5 * m[kb4]};
-  if (!SolveSpd<5>(a, rhs, 1e-10)) return false;
-  // The fitted linear term itself (2/3 of the gradient it estimates): see slopes.h.
-  const double nn[3] = {mx - rhs[0] * t1x - rhs[1] * t2x, my - rhs[0] * t1y - rhs[1] * t2y,
-                        mz - rhs[0] * t1z - rhs[1] * t2z};
-  const double len = std::sqrt(Dot(nn, nn));
-  if (!(len > 0) || !std::isfinite(len)) return false;
-  for (int c = 0; c < 3; ++c) out[c] = nn[c] / len;
-  *radius2 = r2m / (scale * scale);
-  return true;
-}
-
-// Pass 2 at a vertex: the Hermite Hessian (c20, c11, c02) in `fr`, the refined frame;
-// false when the directions are too few or too clustered.
-__attribute__((always_inline)) inline bool HermiteHessian(const Stencil& st, const LocalFrame& fr, double radius2,
-                                                          double cos_cut, double* hess) {
-  const double t1x = fr.t1[0], t1y = fr.t1[1], t1z = fr.t1[2], t2x = fr.t2[0], t2y = fr.t2[1], t2z = fr.t2[2];
-  const double mx = fr.normal[0], my = fr.normal[1], mz = fr.normal[2];
-  // Row weights s / (s + 0.1)^2.5 in s = r^2 / radius^2, as FitOptions::hermite_hessian.
-  constexpr double kEps = 0.1;
-  const double inv_radius2 = 1 / radius2;
-  enum { a00, a01, a02, a11, a12, a22, b0, b1, b2, kSums };
-  alignas(64) double acc[kSums][kLanes] = {};
-  for (int b = 0; b < st.count; b += kLanes) {
+  alignas(64) double a[5][5][kLanes], b[5][kLanes];
+  alignas(64) Lanes ok;
 #pragma omp simd
-    for (int l = 0; l < kLanes; ++l) {
-      const int i = b + l;
-      const double dx = st.dx[i], dy = st.dy[i], dz = st.dz[i], nx = st.nx[i], ny = st.ny[i], nz = st.nz[i];
-      const double nm = nx * mx + ny * my + nz * mz;
-      const double u = dx * t1x + dy * t1y + dz * t1z, w = dx * t2x + dy * t2y + dz * t2z,
-                   h = dx * mx + dy * my + dz * mz, r2 = u * u + w * w;
-      const double ok = nm >= cos_cut && r2 > 0 ? st.live[i] : 0.0;
-      const double inv = 1 / (ok > 0 ? nm * r2 : 1.0);
-      // (4 h - (f_u u + f_v w)) / r^2 with (f_u, f_v) = -(n.t1, n.t2) / n.m
-      const double val = (4 * h * nm + ((nx * t1x + ny * t1y + nz * t1z) * u + (nx * t2x + ny * t2y + nz * t2z) * w)) * inv;
-      const double inv_r2 = nm * inv;
-      const double c0 = u * u * inv_r2, c1 = 2 * u * w * inv_r2, c2 = w * w * inv_r2;
-      const double sr = r2 * inv_radius2, root = std::sqrt(sr + kEps);
-      const double wt = ok * nm * sr / (root * root * root * root * root);
-      const double w0 = wt * c0, w1 = wt * c1, w2 = wt * c2;
-      acc[a00][l] += w0 * c0, acc[a01][l] += w0 * c1, acc[a02][l] += w0 * c2;
-      acc[a11][l] += w1 * c1, acc[a12][l] += w1 * c2, acc[a22][l] += w2 * c2;
-      acc[b0][l] += w0 * val, acc[b1][l] += w1 * val, acc[b2][l] += w2 * val;
-    }
+  for (int l = 0; l < kLanes; ++l) {
+    a[0][0][l] = acc[k20][l], a[0][1][l] = acc[k11][l], a[0][2][l] = 0.5 * acc[k30][l], a[0][3][l] = acc[k21][l],
+    a[0][4][l] = 0.5 * acc[k12][l];
+    a[1][1][l] = acc[k02][l], a[1][2][l] = 0.5 * acc[k21][l], a[1][3][l] = acc[k12][l], a[1][4][l] = 0.5 * acc[k03][l];
+    a[2][2][l] = 0.25 * acc[k40][l], a[2][3][l] = 0.5 * acc[k31][l], a[2][4][l] = 0.25 * acc[k22][l];
+    a[3][3][l] = acc[k22][l], a[3][4][l] = 0.5 * acc[k13][l];
+    a[4][4][l] = 0.25 * acc[k04][l];
+    b[0][l] = acc[kb0][l], b[1][l] = acc[kb1][l], b[2][l] = 0.5 * acc[kb2][l], b[3][l] = acc[kb3][l],
+    b[4][l] = 0.5 * acc[kb4][l];
+    ok[l] = r2max[l] > 0 && scale[l] > 0 ? 1.0 : 0.0;
   }
-  double m[kSums];
-  for (int k = 0; k < kSums; ++k) m[k] = LaneSum(acc[k]);
-  double a[3][3] = {{m[a00], m[a01], m[a02]}, {0, m[a11], m[a12]}, {0, 0, m[a22]}};
-  double rhs[3] = {m[b0], m[b1], m[b2]};
-  if (!SolveSpd<3>(a, rhs, 1e-3)) return false;
-  for (int k = 0; k < 3; ++k) hess[k] = rhs[k];
-  return true;
-}
-
-// Everything the passes read and write; slots k in [0, nv) in visiting order.
-struct Passes {
-  const Neighborhoods& nb;
-  const Slots& s;
-  const int32_t* order;  // vertex at slot k (null: k)
-  const VertexDiagnostics* diag;
-  double cos_cut;
-  double* refined;  // 3 per slot
-  double* radius2;  // per slot
-  LocalFrame* frames;
-  double* coefficients;  // 6 per vertex
-  int Vertex(int64_t k) const { return order ? order[k] : static_cast<int>(k); }
-  // The stencil slots of the vertex at slot k + ahead, into cache.
-  void Prefetch(int64_t k, int64_t end) const {
-    if (k + 8 < end) {
-      const int32_t* p = nb.Points(Vertex(k + 8));
-      __builtin_prefetch(p);
-      __builtin_prefetch(p + 16);
-    }
-    if (k + 4 < end) {
-      const int w = Vertex(k + 4);
-      const int32_t* p = nb.Points(w);
-      for (int i = 0, n = nb.Size(w); i < n; ++i) __builtin_prefetch(s.slot.data() + p[i]);
-    }
-    if (k + 2 < end) {  // and their positions and normals
-      const int w = Vertex(k + 2);
-      const int32_t* p = nb.Points(w);
-      for (int i = 0, n = nb.Size(w); i < n; ++i) {
-        const double* q = s.xn.data() + 6 * static_cast<int64_t>(s.slot[p[i]]);
-        __builtin_prefetch(q);
-        __builtin_prefetch(q + 5);
-      }
-    }
+  SolveSpdLanes<5>(a, b, 1e-10, ok);
+  // The fitted linear term itself (2/3 of the gradient it estimates): see slopes.h.
+  alignas(64) double nn[3][kLanes], radius2[kLanes];
+#pragma omp simd
+  for (int l = 0; l < B.lanes; ++l) {
+    double v[3];
+    for (int c = 0; c < 3; ++c) v[c] = B.m[c][l] - b[0][l] * B.t1[c][l] - b[1][l] * B.t2[c][l];
+    const double len = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+    const bool good = ok[l] > 0 && len > 0 && len < HUGE_VAL;
+    for (int c = 0; c < 3; ++c) nn[c][l] = good ? v[c] / len : B.m[c][l];
+    radius2[l] = good ? r2max[l] / (scale[l] * scale[l]) : 0.0;
   }
-};
-
-__attribute__((target_clones("arch=x86-64-v4", "avx2", "default"))) void NormalsRange(const Passes& P, int64_t k0,
-                                                                                       int64_t k1) {
-  Stencil st;
-  for (int64_t k = k0; k < k1; ++k) {
-    P.Prefetch(k, k1);
-    const int v = P.Vertex(k);
-    double* out = P.refined + 3 * k;
-    const double* self = P.s.xn.data() + 6 * k;
-    bool ok = P.diag[v].degree_used >= 2;
-    if (ok) {
-      Gather(v, P.nb, P.s, st);
-      ok = SlopeNormal(self, st, P.cos_cut, out, &P.radius2[k]);
-    }
-    if (!ok) out[0] = self[3], out[1] = self[4], out[2] = self[5];
+  for (int l = 0; l < B.count; ++l) {
+    const int64_t k = B.slot[l];
+    const bool refined = W.fitted[k] != 0;  // else its own normal
+    double* dst = out + 6 * k;
+    dst[0] = B.x[l], dst[1] = B.y[l], dst[2] = B.z[l];
+    for (int c = 0; c < 3; ++c) dst[3 + c] = refined ? nn[c][l] : B.m[c][l];
+    W.radius2[k] = refined ? radius2[l] : 0.0;
   }
 }
 
-__attribute__((target_clones("arch=x86-64-v4", "avx2", "default"))) void HessiansRange(const Passes& P, int64_t k0,
-                                                                                        int64_t k1) {
-  constexpr int kCoef = 6;  // NumCoefficients(2)
-  Stencil st;
-  for (int64_t k = k0; k < k1; ++k) {
-    P.Prefetch(k, k1);
-    const int v = P.Vertex(k);
-    if (!(P.diag[v].degree_used >= 2)) continue;
-    const double* self = P.s.xn.data() + 6 * k;
-    const LocalFrame fr = FrameFromNormal(Eigen::Vector3d(self[0], self[1], self[2]),
-                                          Eigen::Vector3d(self[3], self[4], self[5]));
-    double* c = P.coefficients + static_cast<int64_t>(v) * kCoef;
-    double hess[3];
-    bool ok = P.radius2[k] > 0;
-    if (ok) {
-      Gather(v, P.nb, P.s, st);
-      ok = HermiteHessian(st, fr, P.radius2[k], P.cos_cut, hess);
+// Pass 2 on a batch: each lane's Hessian (c20, c11, c02) in its frame (the refined
+// normal's), fitted to the Hermite rows (hermite.h) together with the cubic form C of
+// their remainder C r / 6 (four more unknowns; the rows' value is
+// e^T Hess e + C(p) / (6 r^2) + O(r^3)), so the cubic term no longer enters through the
+// stencil's odd moments. The cubic unknowns get a ridge of 1% of the Hessian block's
+// trace: on stencils whose directions barely determine them (marching-cubes meshes, points
+// at 1% of h) the fit falls back smoothly towards the three-unknown one. `hess` gets 3
+// values per lane; ok[l] = 0 where the lane keeps its plain Hessian.
+__attribute__((always_inline)) inline void HermiteHessians(const Work& W, const Batch& B, double (&hess)[3][kLanes], Lanes& ok) {
+  // Row weights s / (s + 0.3)^2.5 (hermite.h; FitOptions::hermite_hessian uses 0.1): with the
+  // cubic unknowns the near rows, whose normals' error over r is largest, are weighed less.
+  constexpr double kEps = 0.3, kRidge = 0.01;
+  alignas(64) Lanes radius2, inv_radius2, inv_radius;
+  for (int l = 0; l < kLanes; ++l) {
+    const double r2 = W.radius2[B.slot[l]];
+    ok[l] = l < B.count && r2 > 0 && W.fitted[B.slot[l]] ? 1.0 : 0.0;
+    radius2[l] = r2 > 0 ? r2 : 1.0;
+  }
+#pragma omp simd
+  for (int l = 0; l < kLanes; ++l) {
+    inv_radius2[l] = 1 / radius2[l];
+    inv_radius[l] = std::sqrt(inv_radius2[l]);
+  }
+  // Moments of (u, w) / radius: weights wt / r^4 at degrees 4-6 (the normal matrix), wt v / r^2
+  // at degrees 2-3 (the right-hand side).
+  enum { m40, m31, m22, m13, m04, m50, m41, m32, m23, m14, m05, m60, m51, m42, m33, m24, m15, m06,
+         v20, v11, v02, v30, v21, v12, v03, kSums };
+  alignas(64) double acc[kSums][kLanes] = {};
+  const double cos_cut = W.cos_cut;
+  for (int i = 0; i < B.rows; ++i) {
+#pragma omp simd
+    for (int l = 0; l < B.lanes; ++l) {
+      double pu, pw, ph, nm, nt1, nt2, value, c0, c1, c2, inv_r2, weight;
+      Project(B, i, l, pu, pw, ph, nm, nt1, nt2);
+      const double gamma = (nm >= cos_cut ? nm : 0.0) * B.live[i][l];
+      HermiteRowOf(pu, pw, ph, nt1, nt2, nm, gamma, inv_radius2[l], kEps, value, c0, c1, c2, inv_r2,
+                   weight);
+      const double u = pu * inv_radius[l], w = pw * inv_radius[l];
+      const double s = inv_r2 * radius2[l];  // radius^2 / r^2 (0 when excluded)
+      const double wm = weight * s * s, wv = weight * value * s;
+      const double u2 = u * u, uw = u * w, w2 = w * w, u3 = u2 * u, u2w = u2 * w, uw2 = u * w2, w3 = w2 * w;
+      const double p20 = wm * u2, p11 = wm * uw, p02 = wm * w2;
+      acc[m40][l] += p20 * u2, acc[m31][l] += p20 * uw, acc[m22][l] += p20 * w2, acc[m13][l] += p11 * w2,
+          acc[m04][l] += p02 * w2;
+      acc[m50][l] += p20 * u3, acc[m41][l] += p20 * u2w, acc[m32][l] += p20 * uw2, acc[m23][l] += p20 * w3,
+          acc[m14][l] += p11 * w3, acc[m05][l] += p02 * w3;
+      acc[m60][l] += p20 * u2 * u2, acc[m51][l] += p20 * u2 * uw, acc[m42][l] += p20 * u2 * w2,
+          acc[m33][l] += p20 * uw * w2, acc[m24][l] += p20 * w2 * w2, acc[m15][l] += p11 * w2 * w2,
+          acc[m06][l] += p02 * w2 * w2;
+      acc[v20][l] += wv * u2, acc[v11][l] += wv * uw, acc[v02][l] += wv * w2;
+      acc[v30][l] += wv * u3, acc[v21][l] += wv * u2w, acc[v12][l] += wv * uw2, acc[v03][l] += wv * w3;
     }
-    if (ok)
-      c[TaylorIndex(2, 0)] = hess[0], c[TaylorIndex(1, 1)] = hess[1], c[TaylorIndex(0, 2)] = hess[2];
-    c[TaylorIndex(1, 0)] = c[TaylorIndex(0, 1)] = 0;
-    P.frames[v] = fr;
+  }
+  // Columns (u^2, 2uw, w^2, u^3, u^2 w, u w^2, w^3) / r^2 in units of the radius: entry
+  // (i, j) is the moment of the summed exponents, times 2 for each uw column.
+  static constexpr int kP[7] = {2, 1, 0, 3, 2, 1, 0}, kQ[7] = {0, 1, 2, 0, 1, 2, 3};
+  static constexpr double kF[7] = {1, 2, 1, 1, 1, 1, 1};
+  // Index of the moment u^p w^q (p + q = 4..6) in acc.
+  auto moment = [](int p, int q) {
+    const int d = p + q;
+    return (d == 4 ? m40 : d == 5 ? m50 : m60) + q;
+  };
+  alignas(64) double a[7][7][kLanes], b[7][kLanes];
+  for (int i = 0; i < 7; ++i) {
+    for (int j = i; j < 7; ++j) {
+      const int k = moment(kP[i] + kP[j], kQ[i] + kQ[j]);
+      const double f = kF[i] * kF[j];
+#pragma omp simd
+      for (int l = 0; l < kLanes; ++l) a[i][j][l] = f * acc[k][l];
+    }
+    const int k = kP[i] + kQ[i] == 2 ? v20 + kQ[i] : v30 + kQ[i];
+#pragma omp simd
+    for (int l = 0; l < kLanes; ++l) b[i][l] = kF[i] * acc[k][l];
+  }
+#pragma omp simd
+  for (int l = 0; l < kLanes; ++l) {
+    const double ridge = kRidge * (a[0][0][l] + a[1][1][l] + a[2][2][l]);
+    for (int i = 3; i < 7; ++i) a[i][i][l] += ridge;
+  }
+  SolveSpdLanes<7>(a, b, 1e-3, ok);
+  for (int c = 0; c < 3; ++c)
+    for (int l = 0; l < kLanes; ++l) hess[c][l] = b[c][l];
+}
+
+// The slots [k0, k1) sorted by stencil size (a stable counting sort), so the lanes of a
+// batch (kLanes consecutive entries) differ little in size.
+std::vector<int64_t> BatchOrder(const Work& W, int64_t k0, int64_t k1) {
+  std::vector<int64_t> walk(k1 - k0);
+  int at[kMaxStencil + 2] = {};
+  for (int64_t k = k0; k < k1; ++k) ++at[W.Size(k) + 1];
+  for (int c = 1; c <= kMaxStencil + 1; ++c) at[c] += at[c - 1];
+  for (int64_t k = k0; k < k1; ++k) walk[at[W.Size(k)]++] = k;
+  return walk;
+}
+
+__attribute__((target_clones("arch=x86-64-v4", "avx2", "default"))) void NormalsRange(const Work& W, int from,
+                                                                                       int64_t k0, int64_t k1) {
+  std::unique_ptr<Batch> B(new Batch);
+  const std::vector<int64_t> walk = BatchOrder(W, k0, k1);
+  for (size_t j = 0; j < walk.size(); j += kLanes) {
+    B->Load(W, W.xn[from].get(), walk.data() + j, static_cast<int>(std::min<size_t>(kLanes, walk.size() - j)));
+    SlopeNormals(W, *B, W.xn[1 - from].get());
+  }
+}
+
+__attribute__((target_clones("arch=x86-64-v4", "avx2", "default"))) void HessiansRange(const Work& W, int from,
+                                                                                        int64_t k0, int64_t k1) {
+  std::unique_ptr<Batch> B(new Batch);
+  const std::vector<int64_t> walk = BatchOrder(W, k0, k1);
+  for (size_t j = 0; j < walk.size(); j += kLanes) {
+    const int n = static_cast<int>(std::min<size_t>(kLanes, walk.size() - j));
+    B->Load(W, W.xn[from].get(), walk.data() + j, n);
+    alignas(64) double hess[3][kLanes];
+    alignas(64) Lanes ok;
+    HermiteHessians(W, *B, hess, ok);
+    for (int l = 0; l < n; ++l) {
+      double* out = W.hessians.get() + 4 * B->slot[l];
+      for (int c = 0; c < 3; ++c) out[c] = hess[c][l];
+      out[3] = ok[l];
+    }
   }
 }
 
@@ -275,39 +344,65 @@ absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighbor
                           double* coefficients) {
   const int threads = ctx.threads();
   const int nv = mesh.NumVertices();
-  constexpr int kCoef = 6;  // NumCoefficients(2)
+  Work W;
+  W.nv = nv;
+  W.cos_cut = cos_cut;
+  // Stencils as slots: the neighbourhoods' own in the topology's locality order (built
+  // with them, else here), or their CSR in vertex order.
   const bool local = static_cast<int>(topo.locality_order.size()) == nv;
-  auto vertex_at = [&](int64_t k) { return local ? topo.locality_order[k] : static_cast<int32_t>(k); };
-  // Positions and the plain fits' normals, in visiting order.
-  Slots s;
-  s.xn.resize(6 * static_cast<size_t>(nv));
-  s.slot.resize(nv);
-  ParallelFor(nv, threads, [&](int64_t k) {
-    const int v = vertex_at(k);
-    s.slot[v] = static_cast<int32_t>(k);
-    double* dst = s.xn.data() + 6 * k;
+  OrderedStencils own;
+  if (local && static_cast<int>(nb.ordered.order.size()) != nv) own = OrderStencils(nb, topo.locality_order, threads);
+  const OrderedStencils* os = !local ? nullptr : own.empty() ? &nb.ordered : &own;
+  W.order = os ? os->order.data() : nullptr;
+  W.offsets = os ? os->offsets.data() : nb.offsets.data();
+  W.points = os ? os->points.data() : nb.indices.data();
+  for (auto& x : W.xn) x.reset(new double[6 * static_cast<size_t>(nv)]);
+  W.radius2.reset(new double[nv]);
+  W.fitted.reset(new uint8_t[nv]);
+  W.hessians.reset(new double[4 * static_cast<size_t>(nv)]);
+  // Positions and the plain fits' normals, in visiting order. Here and at the end, the
+  // loops run in the input numbering (the fits' arrays read and written in sequence, the
+  // slots at random: one line a vertex instead of three).
+  const int32_t* rank = os ? os->rank.data() : nullptr;
+  auto slot_of = [&](int64_t v) -> int64_t { return rank ? rank[v] : v; };
+  ParallelFor(nv, threads, [&](int64_t v) {
+    if (v + 16 < nv) __builtin_prefetch(W.xn[0].get() + 6 * slot_of(v + 16), 1);
+    const int64_t k = slot_of(v);
+    double* dst = W.xn[0].get() + 6 * k;
     const LocalFrame& fr = frames[v];
-    const double* c = coefficients + static_cast<int64_t>(v) * kCoef;
+    const double* c = coefficients + v * kCoef;
     const Eigen::Vector3d n = (fr.normal - c[TaylorIndex(1, 0)] * fr.t1 - c[TaylorIndex(0, 1)] * fr.t2).normalized();
     for (int i = 0; i < 3; ++i) dst[i] = mesh.positions(v, i), dst[3 + i] = n[i];
+    W.fitted[k] = diagnostics[v].degree_used >= 2;
   }, 4096);
-  // Normal passes (into a copy: every vertex reads its neighbours' previous normals).
-  std::vector<double> refined(3 * static_cast<size_t>(nv));
-  std::vector<double> radius2(nv, 0.0);
-  const Passes P{nb, s, local ? topo.locality_order.data() : nullptr, diagnostics, cos_cut,
-                 refined.data(), radius2.data(), frames, coefficients};
+  // Normal passes, from one copy of the normals into the other (every vertex reads its
+  // neighbours' previous normals), then the Hessians in the refined frames.
   constexpr int64_t kGrain = 1024;
   const int64_t chunks = (nv + kGrain - 1) / kGrain;
-  for (int pass = 0; pass < passes; ++pass) {
+  int from = 0;
+  for (int pass = 0; pass < passes; ++pass, from = 1 - from)
     GF_RETURN_IF_ERROR(ParallelFor(
-        chunks, ctx, [&](int64_t c) { NormalsRange(P, c * kGrain, std::min<int64_t>(nv, (c + 1) * kGrain)); }, 1));
-    ParallelFor(nv, threads, [&](int64_t k) {
-      for (int i = 0; i < 3; ++i) s.xn[6 * k + 3 + i] = refined[3 * k + i];
-    }, 4096);
-  }
-  // Pass 2: frames of the refined normals, Hermite Hessians.
-  return ParallelFor(
-      chunks, ctx, [&](int64_t c) { HessiansRange(P, c * kGrain, std::min<int64_t>(nv, (c + 1) * kGrain)); }, 1);
+        chunks, ctx, [&](int64_t c) { NormalsRange(W, from, c * kGrain, std::min<int64_t>(nv, (c + 1) * kGrain)); }, 1));
+  GF_RETURN_IF_ERROR(ParallelFor(
+      chunks, ctx, [&](int64_t c) { HessiansRange(W, from, c * kGrain, std::min<int64_t>(nv, (c + 1) * kGrain)); },
+      1));
+  // The refined frames and Hessians into the fits (the tangent plane is the frame's).
+  const double* refined = W.xn[from].get();
+  ParallelFor(nv, threads, [&](int64_t v) {
+    if (v + 16 < nv) {
+      __builtin_prefetch(refined + 6 * slot_of(v + 16));
+      __builtin_prefetch(W.hessians.get() + 4 * slot_of(v + 16));
+    }
+    const int64_t k = slot_of(v);
+    if (!W.fitted[k]) return;
+    const double* x = refined + 6 * k;
+    frames[v] = FrameFromNormal(Eigen::Vector3d(x[0], x[1], x[2]), Eigen::Vector3d(x[3], x[4], x[5]));
+    double* c = coefficients + v * kCoef;
+    const double* hess = W.hessians.get() + 4 * k;
+    if (hess[3] > 0) c[TaylorIndex(2, 0)] = hess[0], c[TaylorIndex(1, 1)] = hess[1], c[TaylorIndex(0, 2)] = hess[2];
+    c[TaylorIndex(1, 0)] = c[TaylorIndex(0, 1)] = 0;
+  }, 4096);
+  return absl::OkStatus();
 }
 
 }  // namespace geomfit

@@ -27,16 +27,23 @@ namespace geomfit {
 ///    smooth part of the bias cancels (e_0 - mean e_j) / 3; what is left is the bias's
 ///    variation over the stencil and the quartic term's D r^4 / 72.
 ///    Each further pass (`passes` in all) repeats this with the previous pass's normals.
-/// 2. Curvatures. The Hessian is the Hermite fit of FitOptions::hermite_hessian
-///    (4 h_j / r_j^2 - g_j / r_j = e^T H e + C r / 6 + O(r^3), the quartic term cancels),
-///    solved in the frame of the refined normal with the refined normals of the neighbours.
+/// 2. Curvatures. The Hermite rows of FitOptions::hermite_hessian (hermite.h:
+///    4 h_j / r_j^2 - g_j / r_j = e^T H e + C(p_j) / (6 r_j^2) + O(r^3), the quartic term
+///    cancels), in the frame of the refined normal with the refined normals of the
+///    neighbours, fitted with the cubic form C as four more unknowns (ridge: 1% of the
+///    Hessian block's trace), so the cubic term no longer enters through the stencil's odd
+///    moments; row weights s / (s + 0.3)^2.5. (The three-unknown fit of hermite_hessian left
+///    the coarsest quad torus's and the finest marching-cubes torus's K Linf at 0.63x / 0.54x
+///    CGAL's; this one at 0.41x, bench/README.md.)
 ///
 /// Frames get the refined normals (the fits keep their tangent plane: c10 = c01 = 0);
 /// vertices whose fit used degree < 2, or whose passes are ill-posed, keep their plain fit
 /// (normal) or plain Hessian. `fits` must be interpolating LHF fits of degree 2, with
 /// `coefficients` holding 6 Taylor coefficients per vertex; the neighbourhoods list the
-/// centre first. Vertices are visited in `topo.locality_order` when it is set. Polls `ctx`
-/// between chunks (a cancelled run leaves the fits partly refined: callers discard them).
+/// centre first. Vertices are visited in `topo.locality_order` when it is set (the
+/// neighbourhoods' ordered stencils), 8 at a time in vector lanes; every vertex's
+/// result is independent of its batch and of the instruction set. Polls `ctx` between
+/// chunks; the fits are written only at the end (a cancelled run leaves them unrefined).
 absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighborhoods& nb, double cos_cut, int passes,
                           const RunContext& ctx, const VertexDiagnostics* diagnostics, LocalFrame* frames,
                           double* coefficients);

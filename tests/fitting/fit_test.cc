@@ -349,6 +349,49 @@ TEST(FitTest, CancellationStopsTheFit) {
             absl::StatusCode::kDeadlineExceeded);
 }
 
+// The slope refinement polls the RunContext: cancelled once the plain fit's last chunk is
+// done, it runs none of its own (no progress after the cancellation, where the same run
+// uncancelled reports the refinement's chunks), returns CANCELLED and streams no block;
+// a token cancelled before the start or past its deadline stops it as the plain fit.
+TEST(FitTest, SlopeRefinementIsCancellable) {
+  const Mesh m = Torus(40);
+  const Topology t = BuildTopology(m).value();
+  FitOptions o;
+  o.slope_refinement = 2;
+  ASSERT_EQ(o.SlopePasses(), 2);
+  for (const bool cancel : {false, true}) {
+    CancellationToken token;
+    bool fit_done = false;
+    int after_fit = 0;  // progress reports after the fit phase's last one
+    const RunContext ctx(&token, 1, [&](const Progress& p) {
+      if (fit_done) {
+        ++after_fit;
+      } else if (p.phase == "fit" && p.done == p.total) {
+        fit_done = true;
+        if (cancel) token.Cancel();
+      }
+    });
+    int blocks = 0;
+    const auto fits = FitSurface(m, t, o, nullptr, {}, ctx, [&](const SurfaceFits&, int64_t, int64_t) { ++blocks; });
+    EXPECT_TRUE(fit_done);
+    if (cancel) {
+      EXPECT_EQ(fits.status().code(), absl::StatusCode::kCancelled);
+      EXPECT_EQ(after_fit, 0);
+      EXPECT_EQ(blocks, 0);
+    } else {
+      ASSERT_TRUE(fits.ok()) << fits.status();
+      EXPECT_GT(after_fit, 0);  // the refinement's chunks
+      EXPECT_EQ(blocks, 1);
+    }
+  }
+  CancellationToken token;
+  token.Cancel();
+  EXPECT_EQ(FitSurface(m, t, o, nullptr, {}, RunContext(&token)).status().code(), absl::StatusCode::kCancelled);
+  CancellationToken expired(CancellationToken::Clock::now() - std::chrono::seconds(1));
+  EXPECT_EQ(FitSurface(m, t, o, nullptr, {}, RunContext(&expired)).status().code(),
+            absl::StatusCode::kDeadlineExceeded);
+}
+
 TEST(FitTest, TwoPassRefitsInFittedFrames) {
   const Mesh m = Torus(16);
   const Topology t = BuildTopology(m).value();
@@ -466,8 +509,9 @@ TEST(FitTest, HermiteHessianCancelsTheQuarticTermAtDegreeTwo) {
 // Hessians in the refined frame, on the fit's own stencils. Errors against CGAL Jet_fitting_3 at degree 2 on the
 // same stencils (Monge_via_jet_fitting(2, 2); CGAL is not linked into the tests: its
 // errors below are `cgal_compare 2 2 torus,quadtorus,ellipsoid 16,32,64`'s, bench/README.md
-// "Degree 2 from the neighbours' normals"): every norm at most 0.5x CGAL's but the coarsest
-// quad torus's K Linf (0.63x / 0.58x), and the orders of the refined quantities above CGAL's.
+// "Degree 2 from the neighbours' normals"): every norm at most 0.5x CGAL's (the largest
+// 0.47x / 0.49x, the coarsest quad torus's normal Linf), and the orders of the refined
+// quantities above CGAL's.
 TEST(FitTest, SlopeRefinementHalvesCgalsErrorsAtDegreeTwo) {
   struct Case {
     const char* mesh;
@@ -499,8 +543,7 @@ TEST(FitTest, SlopeRefinementHalvesCgalsErrorsAtDegreeTwo) {
       const DifferentialErrors e = MeasureErrors(m, *surface, ComputeDifferentials(*fits));
       const double ours[6] = {e.normal.l2, e.normal.linf, e.mean.l2, e.mean.linf, e.gaussian.l2, e.gaussian.linf};
       for (int k = 0; k < 6; ++k) {
-        const double bound = std::string(c.mesh) == "quadtorus" && c.n == 16 && k == 5 ? 0.7 : 0.5;
-        EXPECT_LT(ours[k], bound * c.cgal[k]) << c.mesh << " n " << c.n << " norm " << k << " passes " << passes;
+        EXPECT_LT(ours[k], 0.5 * c.cgal[k]) << c.mesh << " n " << c.n << " norm " << k << " passes " << passes;
       }
       levels[c.mesh].push_back({e.h, e.normal.l2, e.mean.l2, e.gaussian.l2});
       // The refined frame is the fit's tangent plane: its normal is the reported one.
@@ -519,11 +562,11 @@ TEST(FitTest, SlopeRefinementHalvesCgalsErrorsAtDegreeTwo) {
     for (const char* mesh : {"torus", "quadtorus"}) {
       std::vector<double> h, nrm, mean, gauss;
       for (const auto& l : levels[mesh]) h.push_back(l[0]), nrm.push_back(l[1]), mean.push_back(l[2]), gauss.push_back(l[3]);
-      // Measured (one pass): normals 2.92 / 3.10, H 2.25 / 2.32, K 1.63 / 1.61 (CGAL
+      // Measured (one pass): normals 2.92 / 3.10, H 2.74 / 2.86, K 1.96 / 2.05 (CGAL
       // 2.23-2.43, 1.76-2.00, 1.26-1.57).
       EXPECT_GE(ConvergenceOrder(h, nrm), 2.8) << mesh << " passes " << passes;
-      EXPECT_GE(ConvergenceOrder(h, mean), 2.1) << mesh << " passes " << passes;
-      EXPECT_GE(ConvergenceOrder(h, gauss), 1.5) << mesh << " passes " << passes;
+      EXPECT_GE(ConvergenceOrder(h, mean), 2.5) << mesh << " passes " << passes;
+      EXPECT_GE(ConvergenceOrder(h, gauss), 1.8) << mesh << " passes " << passes;
     }
   }
 
