@@ -310,7 +310,8 @@ class SurfaceFitter {
       return absl::InvalidArgumentError(absl::StrFormat(
           "topology (%d vertices, %d faces) does not match the mesh (%d vertices, %d faces)",
           topo.num_vertices, topo.num_faces, mesh.NumVertices(), mesh.NumFaces()));
-    if (!nb) nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, mesh, RingSpecFor(o), ctx.threads()));
+    const bool own_nb = !nb;  // stencils of this fit alone: nothing to cache with them
+    if (own_nb) nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, mesh, RingSpecFor(o), ctx.threads()));
     if (static_cast<int>(nb->offsets.size()) != mesh.NumVertices() + 1)
       return absl::InvalidArgumentError("neighborhoods do not match the mesh");
 
@@ -318,7 +319,8 @@ class SurfaceFitter {
     // with their point records in the stencils' order; copied once a pass changes them.
     const Neighborhoods* const cached_nb = nb.get();
     const std::shared_ptr<const FitInputs> inputs =
-        nb->fit_inputs.Get(mesh, topo, o.frame_normals, &nb->ordered.order, ctx.threads());
+        own_nb ? MakeFitInputs(mesh, topo, o.frame_normals, &nb->ordered.order, ctx.threads())
+               : nb->fit_inputs.Get(mesh, topo, o.frame_normals, &nb->ordered.order, ctx.threads());
     Positions own_normals;
     const Positions* frame_normals = &inputs->normals;
     auto writable_normals = [&]() -> Positions& {

@@ -8,6 +8,16 @@
 
 namespace geomfit {
 
+std::shared_ptr<FitInputs> MakeFitInputs(const Mesh& mesh, const Topology& topo, NormalWeighting weighting,
+                                         const std::vector<int32_t>* order, int num_threads) {
+  auto made = std::make_shared<FitInputs>();
+  made->weighting = weighting;
+  made->normals = ApproximateVertexNormals(mesh, topo, weighting, num_threads);
+  if (order && !order->empty())
+    made->records = MakePointRecords(mesh.positions, made->normals, order->data(), num_threads);
+  return made;
+}
+
 FitInputCache& FitInputCache::operator=(const FitInputCache&) {
   std::lock_guard<std::mutex> lock(mu_);
   for (auto& e : entries_) e.reset();
@@ -38,11 +48,8 @@ std::shared_ptr<const FitInputs> FitInputCache::Get(const Mesh& mesh, const Topo
   if (kept && kept->positions.rows() == mesh.positions.rows() && kept->records.empty() != with_records &&
       std::memcmp(kept->positions.data(), mesh.positions.data(), sizeof(double) * mesh.positions.size()) == 0)
     return kept;
-  auto made = std::make_shared<FitInputs>();
-  made->weighting = weighting;
+  auto made = MakeFitInputs(mesh, topo, weighting, order, num_threads);
   made->positions = mesh.positions;
-  made->normals = ApproximateVertexNormals(mesh, topo, weighting, num_threads);
-  if (with_records) made->records = MakePointRecords(mesh.positions, made->normals, order->data(), num_threads);
   std::lock_guard<std::mutex> lock(mu_);
   entries_[slot] = made;
   return made;

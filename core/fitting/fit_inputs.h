@@ -24,6 +24,11 @@ struct FitInputs {
   }
 };
 
+/// The FitInputs of `mesh` computed now, without the key (`positions` empty): a one-off
+/// fit's, over stencils nobody else fits over.
+std::shared_ptr<FitInputs> MakeFitInputs(const Mesh& mesh, const Topology& topo, NormalWeighting weighting,
+                                         const std::vector<int32_t>* order, int num_threads);
+
 /// The FitInputs of the geometries fitted over one Neighborhoods, one per normal
 /// weighting, computed on first use and kept while the positions stay the same (a new
 /// geometry replaces them: the server keeps one Neighborhoods for every revision of a
