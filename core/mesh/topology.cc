@@ -436,30 +436,42 @@ absl::StatusOr<LocalityRelabelling> RelabelForLocality(const Mesh& mesh, RowOrde
   }
   std::partial_sum(start.begin(), start.end(), start.begin());
   r.face_source.resize(nf);
+  r.order = order;
+  const bool rotational = order == RowOrder::kRotational;
+  // kRotational: each vertex's distance along kRowDirection, computed once (not once
+  // per incident face); each face rotated as it is filed, the first corner chosen with
+  // no branch (which corner is furthest is anyone's guess on an irregular mesh).
+  std::vector<double> along;
+  if (rotational) {
+    along.resize(nv);
+    const double* Q = r.mesh.positions.data();
+    for (int v = 0; v < nv; ++v) {
+      const double* x = Q + 3 * static_cast<int64_t>(v);
+      along[v] = x[0] * kRowDirection[0] + x[1] * kRowDirection[1] + x[2] * kRowDirection[2];
+    }
+  }
   Faces faces(nf, 4);
   for (int f = 0; f < nf; ++f) {
     const int32_t* in = rows.data() + 4 * static_cast<int64_t>(f);
     const int32_t g = start[std::min({in[0], in[1], in[2], in[3] < 0 ? in[0] : in[3]})]++;
     r.face_source[g] = f;
-    std::copy_n(in, 4, faces.data() + 4 * static_cast<int64_t>(g));
-  }
-  r.order = order;
-  if (order == RowOrder::kRotational) {
-    const double* Q = r.mesh.positions.data();
-    auto along = [&](int32_t v) {
-      const double* x = Q + 3 * static_cast<int64_t>(v);
-      return x[0] * kRowDirection[0] + x[1] * kRowDirection[1] + x[2] * kRowDirection[2];
-    };
-    for (int f = 0; f < nf; ++f) {
-      int32_t* row = faces.data() + 4 * static_cast<int64_t>(f);
-      const int n = row[3] < 0 ? 3 : 4;
-      int first = 0;
-      double best = along(row[0]);
-      for (int c = 1; c < n; ++c) {
-        const double a = along(row[c]);
-        if (a > best) best = a, first = c;
-      }
-      std::rotate(row, row + first, row + n);
+    int32_t* out = faces.data() + 4 * static_cast<int64_t>(g);
+    if (!rotational) {
+      std::copy_n(in, 4, out);
+      continue;
+    }
+    // The corner furthest along kRowDirection, the first of equals.
+    const int n = in[3] < 0 ? 3 : 4;
+    int first = 0;
+    double best = along[in[0]];
+    for (int c = 1; c < n; ++c) {
+      const double a = along[in[c]];
+      first = a > best ? c : first;
+      best = a > best ? a : best;
+    }
+    for (int c = 0; c < 4; ++c) {
+      const int q = first + c;
+      out[c] = c < n ? in[q < n ? q : q - n] : -1;
     }
   }
   r.mesh.faces = std::move(faces);
