@@ -522,6 +522,45 @@ TEST(LocalityRelabellingTest, RotationalRowsAreFans) {
   EXPECT_EQ(isolated, 18);  // the holed tori's
 }
 
+// kRotational's rows are exactly kSource's rotated to their first corner furthest
+// along kRowDirection (std::rotate, as RelabelForLocality did before it rotated rows
+// as it filed them), ties included: positions snapped to a coarse grid make many
+// corners equally far (coincident vertices), triangles and quads, open and closed.
+TEST(LocalityRelabellingTest, RotationalRowsEqualTheRotatedSourceRows) {
+  GeneratorOptions g;
+  g.n = 10;
+  GeneratorOptions q = g;
+  q.quads = true;
+  const Mesh meshes[] = {GenerateTorusMesh(g), GenerateBumpMesh(q), GenerateTorusMesh(q),
+                         GenerateDelaunaySphereMesh(500, 0.3), GenerateOpenCylinderMesh(g), HoledTorus(q)};
+  int ties = 0;
+  for (const Mesh& base : meshes)
+    for (double grid : {0.0, 0.5}) {
+      Mesh m = testing_util::ShuffleVertices(base, 7);
+      if (grid > 0) m.positions = (m.positions.array() / grid).round() * grid;
+      const LocalityRelabelling r = RelabelForLocality(m).value();
+      const LocalityRelabelling rs = RelabelForLocality(m, RowOrder::kSource).value();
+      ASSERT_EQ(r.face_source, rs.face_source);
+      const Mesh& rm = r.mesh;
+      for (int f = 0; f < rm.NumFaces(); ++f) {
+        std::array<int32_t, 4> row;
+        for (int c = 0; c < 4; ++c) row[c] = rs.mesh.faces(f, c);
+        const int n = row[3] < 0 ? 3 : 4;
+        int first = 0;
+        double best = -std::numeric_limits<double>::infinity();
+        for (int c = 0; c < n; ++c) {
+          const double a = rm.positions(row[c], 0) * kRowDirection[0] + rm.positions(row[c], 1) * kRowDirection[1] +
+                           rm.positions(row[c], 2) * kRowDirection[2];
+          ties += a == best;
+          if (a > best) best = a, first = c;
+        }
+        std::rotate(row.begin(), row.begin() + first, row.begin() + n);
+        for (int c = 0; c < 4; ++c) ASSERT_EQ(rm.faces(f, c), row[c]) << "face " << f;
+      }
+    }
+  EXPECT_GT(ties, 100);
+}
+
 // BuildTopology of a relabelling (built from each vertex's fan, no half-edge sort)
 // succeeds exactly when BuildTopology of the source does, with the same boundary,
 // isolated vertices and row sets: small meshes with random damage (faces flipped,
