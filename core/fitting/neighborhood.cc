@@ -24,14 +24,15 @@ RingSpec RingSpecFor(const FitOptions& o) {
 namespace {
 
 // The order to grow stencils in. Meshes numbered with locality (edges join near
-// indices: generators, most meshers) keep their order; others (an external mesher's
-// or a shuffled numbering) are grown in breadth-first order over the edges, from each
-// unvisited vertex in index order, so consecutive stencils share cache lines.
+// indices: generators, most meshers, a LocalityRelabelling, whose topology has no
+// locality_order: no pass over the edges to tell) keep their order; others (an external
+// mesher's or a shuffled numbering) are grown in breadth-first order over the edges,
+// from each unvisited vertex in index order, so consecutive stencils share cache lines.
 std::vector<int32_t> GrowthOrder(const Topology& t) {
   const int nv = t.num_vertices;
   std::vector<int32_t> order;
   order.reserve(nv);
-  if (HasLocalNumbering(t)) {
+  if (t.locality_order.empty() || HasLocalNumbering(t)) {
     for (int v = 0; v < nv; ++v) order.push_back(v);
     return order;
   }
