@@ -304,5 +304,42 @@ TEST(NeighborhoodTest, StencilsEqualThePlainRingRuleInOrderOnAMixedMesh) {
   }
 }
 
+// The same on the topology of a LocalityRelabelling (rows in fan or source order, no
+// locality_order: grown in vertex order with no test of the numbering), triangles and
+// the mixed mesh, open and closed, 1 and 2 threads.
+TEST(NeighborhoodTest, RelabelledTopologyStencilsEqualThePlainRingRuleInOrder) {
+  GeneratorOptions g;
+  g.n = 16;
+  GeneratorOptions q = g;
+  q.quads = true;
+  const Mesh meshes[] = {testing_util::ShuffleVertices(GenerateTorusMesh(g), 3),
+                         testing_util::ShuffleVertices(GenerateOpenCylinderMesh(g), 4),
+                         testing_util::ShuffleVertices(GenerateBumpMesh(q), 5)};
+  int checked = 0;
+  for (const Mesh& source : meshes)
+    for (RowOrder order : {RowOrder::kRotational, RowOrder::kSource}) {
+      const LocalityRelabelling r = RelabelForLocality(source, order).value();
+      const Topology t = BuildTopology(r).value();
+      ASSERT_TRUE(t.locality_order.empty());
+      for (int degree : {2, 4}) {
+        FitOptions o;
+        o.degree = degree;
+        const RingSpec spec = RingSpecFor(o);
+        for (int threads : {1, 2}) {
+          const Neighborhoods nb = BuildNeighborhoods(t, r.mesh, spec, threads);
+          int mismatches = 0;
+          for (int v = 0; v < r.mesh.NumVertices(); ++v, ++checked) {
+            float ring = 0;
+            const std::vector<int32_t> want = PlainStencil(t, r.mesh, v, spec, &ring);
+            mismatches +=
+                std::vector<int32_t>(nb.Points(v), nb.Points(v) + nb.Size(v)) != want || nb.rings[v] != ring;
+          }
+          EXPECT_EQ(mismatches, 0) << "degree " << degree << ", threads " << threads;
+        }
+      }
+    }
+  EXPECT_GT(checked, 10000);
+}
+
 }  // namespace
 }  // namespace geomfit
