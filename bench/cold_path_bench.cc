@@ -4,6 +4,7 @@
 // mesher's order: neighbours anywhere in memory). One thread unless stated.
 //
 //   BM_Topology/shuffled:<0|1>              BuildTopology
+//   BM_MeshChecks/shuffled:<0|1>            HasLocalNumbering(mesh) + ValidateGeometry
 //   BM_Neighborhoods/shuffled:<0|1>/deg:<d>/threads:<t>  BuildNeighborhoods(RingSpecFor(degree d))
 //   BM_Parse/shuffled:<0|1>/fmt:<f>         ParseMesh of bytes in memory; f = 0 OBJ, 1 OFF,
 //                                           2 ascii PLY (%.17g coordinates, as FormatObj)
@@ -215,6 +216,17 @@ void BM_RelabelledTopology(benchmark::State& state) {
   state.counters["verts"] = x.mesh.NumVertices();
 }
 
+// The CLI's per-mesh checks before it relabels: HasLocalNumbering of the face rows and
+// ValidateGeometry (finite coordinates, no zero-area face), one thread.
+void BM_MeshChecks(benchmark::State& state) {
+  const Variant& x = F().v[state.range(0)];
+  for (auto _ : state) {
+    benchmark::DoNotOptimize(HasLocalNumbering(x.mesh));
+    benchmark::DoNotOptimize(ValidateGeometry(x.mesh, 1).ok());
+  }
+  state.counters["verts"] = x.mesh.NumVertices();
+}
+
 void BM_Neighborhoods(benchmark::State& state) {
   const Variant& x = F().v[state.range(0)];
   FitOptions o;
@@ -253,6 +265,7 @@ void BM_ReadObj(benchmark::State& state) {
 }
 
 BENCHMARK(BM_Topology)->ArgName("shuffled")->DenseRange(0, 1)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_MeshChecks)->ArgName("shuffled")->DenseRange(0, 1)->Unit(benchmark::kMillisecond)->UseRealTime();
 BENCHMARK(BM_Neighborhoods)
     ->ArgNames({"shuffled", "deg", "threads"})
     ->ArgsProduct({{0, 1}, {2, 4}, {1, 2}})
