@@ -418,7 +418,15 @@ class SurfaceFitter {
                                                  : std::string("frames");
       // The final frames from a higher-degree fit, or (noise schedule with final_rings) from
       // the same degree's fit on the clean stencils, which the final fit's smaller ones keep.
-      if (last && (eff.NormalDegree() > eff.degree || clean_tangent)) {
+      const bool slope_final = last && eff.noise == NoiseMode::kOn && schedule.slope_passes > 0;
+      if (slope_final) {  // degree 2 under light noise: interpolating, slope refinement (noise.h)
+        pass_options.noise = NoiseMode::kOff;
+        pass_options.interpolate = true;
+        pass_options.weight_epsilon = o.weight_epsilon;
+        pass_options.normal_degree = 0;
+        pass_options.slope_refinement = schedule.slope_passes;
+      }
+      if (last && !slope_final && (eff.NormalDegree() > eff.degree || clean_tangent)) {
         FitOptions pre = eff;
         pre.degree = pre.normal_degree = eff.NormalDegree();
         pre.rings = pre.min_points_factor = 0;

@@ -41,6 +41,8 @@ NoiseSchedule NoiseScheduleFor(int degree, double residual_ratio) {
   if (degree == 2 && residual_ratio >= kModerateNoiseResidualRatio) s.normal_points_factor = kHeavyNoiseNormalPointsFactor;
   if (degree == 3 && residual_ratio >= kModerateNoiseResidualRatio)  // noise.h, TwoScaleFinalFit
     s.final_clean_stencils = s.two_scale_final = s.curvature_steps = true, s.smoothing_passes = 2, s.local_passes = 3;
+  if (degree == 2 && residual_ratio < kSlopeRefinementResidualRatio)  // noise.h, slope_passes
+    s.smoothing_degree = 5, s.slope_passes = kNoiseSlopePasses;
   return s;
 }
 

@@ -48,7 +48,21 @@ struct NoiseSchedule {
   bool two_scale_final = false;
   /// The local passes' steps from CurvatureSmoothingSteps instead of LocalSmoothingSteps.
   bool curvature_steps = false;
+  /// Degree 2: the final fit interpolates the smoothed mesh with this many slope-refinement
+  /// passes (slopes.h) instead of the cubic normal pre-fit (0: off).
+  int slope_passes = 0;
 };
+/// Nearly clean meshes at degree 2 (residual ratio below kSlopeRefinementResidualRatio: O(h^3)
+/// noise, alpha 0.5: 0.040-0.082 at n = 32-64; O(h^2) alpha 0.1 at n = 16-32: 0.113-0.145):
+/// after two smoothing passes of degree 5 the smoothed mesh is as good as clean, and the
+/// final fit interpolates it with the slope refinement (FitOptions::slope_refinement,
+/// slopes.h), whose normals and Hermite curvatures cancel the cubic term the cubic normal
+/// pre-fit and the approximating quadratic keep: torus O(h^3) alpha 0.5 at n = 64, K Linf
+/// 0.94 -> 0.19x the best CGAL, bump H / K Linf 0.72 / 0.81 -> 0.25 / 0.19x (degree 4
+/// smoothing: 0.46 / 0.39x). Above it (the bump at alpha 0.1 h^2, n = 32: K 0.70 -> 0.75x)
+/// the interpolated centre keeps too much noise (bench/README.md, seventh round).
+inline constexpr double kSlopeRefinementResidualRatio = 0.095;
+inline constexpr int kNoiseSlopePasses = 2;
 /// LocalSmoothingSteps: the top-degree part's scale against the noise level.
 inline constexpr double kLocalSmoothingSignal = 0.3;
 /// Light noise from this residual ratio on (O(h^3), alpha 0.5: 0.040-0.048 at n = 64)
