@@ -416,16 +416,18 @@ class SurfaceFitter {
       const std::string phase = pass < smoothing ? absl::StrFormat("smooth %d/%d", pass + 1, smoothing)
                                 : last           ? std::string("fit")
                                                  : std::string("frames");
-      // The final frames from a higher-degree fit, or (noise schedule with final_rings) from
-      // the same degree's fit on the clean stencils, which the final fit's smaller ones keep.
-      const bool slope_final = last && eff.noise == NoiseMode::kOn && schedule.slope_passes > 0;
-      if (slope_final) {  // degree 2 under light noise: interpolating, slope refinement (noise.h)
+      // Degree 2 on a nearly clean mesh: the smoothed mesh interpolated, slope refinement (noise.h).
+      const bool slope_final = last && eff.noise == NoiseMode::kOn && schedule.slope_passes > 0 &&
+                               o.normal_degree <= o.degree && !o.hermite_hessian;
+      if (slope_final) {
         pass_options.noise = NoiseMode::kOff;
         pass_options.interpolate = true;
         pass_options.weight_epsilon = o.weight_epsilon;
         pass_options.normal_degree = 0;
         pass_options.slope_refinement = schedule.slope_passes;
       }
+      // The final frames from a higher-degree fit, or (noise schedule with final_rings) from
+      // the same degree's fit on the clean stencils, which the final fit's smaller ones keep.
       if (last && !slope_final && (eff.NormalDegree() > eff.degree || clean_tangent)) {
         FitOptions pre = eff;
         pre.degree = pre.normal_degree = eff.NormalDegree();
