@@ -51,6 +51,8 @@ struct NoiseSchedule {
   /// Degree 2: the final fit interpolates the smoothed mesh with this many slope-refinement
   /// passes (slopes.h) instead of the cubic normal pre-fit (0: off).
   int slope_passes = 0;
+  /// Passes after the local ones that move strongly curved vertices back (UnshrinkSteps).
+  int unshrink_passes = 0;
 };
 /// Nearly clean meshes at degree 2 (residual ratio below kSlopeRefinementResidualRatio: O(h^3)
 /// noise, alpha 0.5: 0.040-0.082 at n = 32-64; O(h^2) alpha 0.1 at n = 16-32: 0.113-0.145):
@@ -168,6 +170,17 @@ void BlendLargeStencilNormals(const SurfaceFits& large, const std::vector<uint8_
 /// mildly curved (marching cubes: its noise varies at scale h), none where it is strongly
 /// curved (the cubic smoothing fits' bias). bench/README.md, "Noisy meshes, sixth round".
 inline constexpr double kTwoScaleSpread = 2;
+/// The same fit on two stencil sets elsewhere (bench/README.md, seventh round): at degree 3
+/// under light noise the 1.5-ring final fit (own) with the fit on the clean 2 rings whose
+/// tangent plane it keeps (other; the mean over those): its noise at the torus's inner
+/// equator set the K Linf (O(h^3) alpha 0.5, n = 64: K 0.65 (Linf 0.80) -> 0.55 (0.53)x the
+/// best CGAL); at degree 4 under moderate noise (residual ratio in [0.2, 0.35)) the final fit
+/// on the clean stencils grown to kModerateNoiseFinalPointsFactor x the coefficients (own)
+/// with the 3x-coefficient noise stencils of the smoothing fits (other): the large
+/// stencil's bias on the bump's flank set its K Linf (alpha 0.1 h^2: 0.61 (0.71) -> 0.41
+/// (0.52)x; torus normal 0.63 -> 0.60x). Under heavy noise at degree 4 the torus's
+/// normals want the noise stencils (alpha 0.2: 0.62 -> 0.72x two-scale).
+inline constexpr double kModerateNoiseFinalPointsFactor = 2;
 /// `coefficients` (`own`'s LHF fits on the clean stencils, written in place) from `own`
 /// and `other` (the same frames and degree on the noise stencils `other_nb`); vertices
 /// whose frames differ keep `own`'s.
@@ -176,6 +189,24 @@ void TwoScaleFinalFit(const SurfaceFits& own, const SurfaceFits& other, const Ne
 /// Per-vertex steps 1 / (1 + (|Hess_v| / (spread x median |Hess|))^2) from `fits`' Hessians
 /// (LHF fits; 0 where unfitted).
 std::vector<double> CurvatureSmoothingSteps(const SurfaceFits& fits, double spread, int num_threads = 0);
+
+/// Heavy noise at degree >= 3 (residual ratio >= kModerateNoiseResidualRatio): every
+/// smoothing pass flattens the strongly curved bump's peak (its foot points lie below a
+/// surface whose quartic terms the cubic fit averages over the stencil), and the final fit
+/// then underestimates K there (alpha 0.2 at n = 64: 98 against 102 at the centre, where
+/// the bump's K Linf sat; CGAL's largest errors are elsewhere, from noise). After the
+/// schedule's passes, kUnshrinkPasses more move each vertex *away* from its smoothing fit's
+/// foot point, x -= kUnshrinkStep (1 - w) (foot - x), w = CurvatureSmoothingSteps(fits,
+/// kUnshrinkSpread): the bias estimate S(x) - x of the smoothed, nearly noise-free mesh
+/// taken back (a Taubin-like step), only where the surface is strongly curved (w -> 0), so
+/// the noise the passes removed elsewhere stays removed. Bump K Linf at alpha 0.5 / 0.2:
+/// d3 0.85 / 0.86 -> 0.65 / 0.56x the best CGAL, d4 (alpha 0.2) 0.99 -> 0.59x
+/// (bench/README.md, seventh round).
+inline constexpr int kUnshrinkPasses = 2;
+inline constexpr double kUnshrinkStep = 2;
+inline constexpr double kUnshrinkSpread = 3;
+/// The unshrink passes' per-vertex steps (negative; 0 where unfitted) from `fits`.
+std::vector<double> UnshrinkSteps(const SurfaceFits& fits, int num_threads = 0);
 
 /// The noise test of NoiseMode::kAuto, on a sample of vertices: approximating degree-2
 /// and degree-4 fits on the same (>= 40-point) stencil. On smooth data the quartic's
