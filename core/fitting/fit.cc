@@ -422,7 +422,7 @@ class SurfaceFitter {
                                 : last           ? std::string("fit")
                                                  : std::string("frames");
       // Degree 2 on a nearly clean mesh: the smoothed mesh interpolated, slope refinement (noise.h).
-      const bool slope_final = last && eff.noise == NoiseMode::kOn && schedule.slope_passes > 0 &&
+      const bool slope_final = last && eff.noise == NoiseMode::kOn && schedule.slope_passes > 0 && !req.stencils &&
                                o.normal_degree <= o.degree && !o.hermite_hessian;
       if (slope_final) {
         pass_options.noise = NoiseMode::kOff;
