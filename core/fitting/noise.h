@@ -198,13 +198,15 @@ std::vector<double> CurvatureSmoothingSteps(const SurfaceFits& fits, double spre
 /// schedule's passes, kUnshrinkPasses more move each vertex *away* from its smoothing fit's
 /// foot point, x -= kUnshrinkStep (1 - w) (foot - x), w = CurvatureSmoothingSteps(fits,
 /// kUnshrinkSpread): the bias estimate S(x) - x of the smoothed, nearly noise-free mesh
-/// taken back (a Taubin-like step), only where the surface is strongly curved (w -> 0), so
-/// the noise the passes removed elsewhere stays removed. Bump K Linf at alpha 0.5 / 0.2:
-/// d3 0.85 / 0.86 -> 0.65 / 0.56x the best CGAL, d4 (alpha 0.2) 0.99 -> 0.59x
-/// (bench/README.md, seventh round).
+/// taken back (a Taubin-like step), only where the surface is strongly curved (w -> 0: the
+/// bump's centre, |Hess| ~ 10x the median), so the noise the passes removed elsewhere stays
+/// removed. Bump K Linf at alpha 0.5 / 0.2: d3 0.85 / 0.86 -> 0.66 / 0.52x the best CGAL, d4
+/// (alpha 0.2) 0.99 -> 0.52x. A wider weight (step 2, spread 3) moved the torus and the
+/// marching-cubes meshes too (torus alpha 0.2 d4 normal 0.62 -> 0.66x, marching cubes N = 64
+/// d4 K Linf 0.72 -> 0.77x; bench/README.md, seventh round).
 inline constexpr int kUnshrinkPasses = 2;
-inline constexpr double kUnshrinkStep = 2;
-inline constexpr double kUnshrinkSpread = 3;
+inline constexpr double kUnshrinkStep = 4;
+inline constexpr double kUnshrinkSpread = 8;
 /// The unshrink passes' per-vertex steps (negative; 0 where unfitted) from `fits`.
 std::vector<double> UnshrinkSteps(const SurfaceFits& fits, int num_threads = 0);
 
