@@ -20,7 +20,9 @@ namespace geomfit {
 /// (cubic, flat-weighted) fit's foot point, which averages the noise of its stencil away,
 /// and the mesh is refitted; (4) at degree 2 the final fit keeps the tangent plane of a
 /// cubic pre-fit on the smoothed mesh (the normal refinement of FitOptions::normal_degree),
-/// under heavy noise blended with a cubic pre-fit on larger stencils.
+/// under heavy noise blended with a cubic pre-fit on larger stencils; on nearly clean
+/// meshes the final fit interpolates the smoothed mesh with the slope refinement instead
+/// (kSlopeRefinementResidualRatio).
 
 /// The weights' eps of (2.2.1) in the noise mode's smoothing fits (and the final fit at
 /// degree >= 4): nearly uniform weights (1 to 2^(-d/4) across the stencil) average the
@@ -108,6 +110,10 @@ inline constexpr double kModerateNoiseResidualRatio = 0.35;
 /// and which average as much noise as two cubic passes; within a ring of the boundary,
 /// where they extrapolate one-sided stencils, the smoothing fits stay cubic
 /// (bench/README.md, third round).
+/// Seventh round (Linf): degree 2 below kSlopeRefinementResidualRatio: quintic smoothing and
+/// the slope refinement; degree 3 under light noise and degree 4 under moderate noise: the
+/// two-scale final fit (TwoScaleFinalFit); degree >= 3 from kModerateNoiseResidualRatio:
+/// the unshrink passes (UnshrinkSteps).
 NoiseSchedule NoiseScheduleFor(int degree, double residual_ratio);
 /// The options of a smoothing pass's fits: approximating, flat weights, the schedule's
 /// degree on the noise mode's own stencils (`options`' rings and factor are the final fit's).
@@ -115,6 +121,7 @@ FitOptions NoiseSmoothingOptions(const FitOptions& options, const NoiseSchedule&
 
 /// Every vertex moved onto its own fit (the fit's point at its origin, x(0, 0) of
 /// Table 3.1); vertices without a fit, or not marked in `only` (when given), keep `positions`.
+/// With `step`, each moves that fraction of the way (negative: away, UnshrinkSteps).
 Positions ProjectOntoFits(const SurfaceFits& fits, const Positions& positions, int num_threads = 0,
                           const double* step = nullptr);
 
