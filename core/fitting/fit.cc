@@ -354,7 +354,8 @@ class SurfaceFitter {
     if (eff.noise == NoiseMode::kOn) eff.weight_epsilon = kNoiseWeightEpsilon;
     // The schedule's passes, then its local ones (noise.h), when the count is automatic.
     const bool scheduled = eff.noise == NoiseMode::kOn && o.smoothing_passes < 0;
-    const int smoothing = scheduled ? schedule.smoothing_passes + schedule.local_passes : eff.SmoothingPasses();
+    const int smoothing = scheduled ? schedule.smoothing_passes + schedule.local_passes + schedule.unshrink_passes
+                                    : eff.SmoothingPasses();
     std::vector<double> local_smoothing;  // the local passes' steps per vertex
     const int passes = smoothing + (o.two_pass ? 2 : 1);
     Mesh smoothed;  // positions after the smoothing passes (faces unused)
@@ -375,15 +376,19 @@ class SurfaceFitter {
     };
     std::vector<uint8_t> fixed_tangent;  // normal refinement (FitOptions::normal_degree)
     std::shared_ptr<const Neighborhoods> smoothing_nb;  // the noise mode's smoothing fits' stencils
+    std::shared_ptr<const Neighborhoods> tangent_nb;    // the clean tangent pre-fit's stencils (final_rings)
     std::shared_ptr<SurfaceFits> boundary_fits;  // cubic smoothing fits for the boundary vertices
     const bool has_boundary = topo.num_boundary_edges > 0;
     for (int pass = 0; pass < passes; ++pass) {
       if (pass > 0) adopt_normals(*fits, nullptr);
       if (pass > 0 && pass <= smoothing) {
         const bool local = scheduled && pass > schedule.smoothing_passes;
+        const bool unshrink = scheduled && pass > schedule.smoothing_passes + schedule.local_passes;
+        std::vector<double> back;
+        if (unshrink) back = UnshrinkSteps(*fits, ctx.threads());
         smoothed.positions = ProjectOntoFits(*fits, input->positions, ctx.threads(),
-                                             local ? local_smoothing.data() : nullptr);
-        if (boundary_fits)  // vertices within a ring of the boundary onto their cubic fits
+                                             unshrink ? back.data() : local ? local_smoothing.data() : nullptr);
+        if (boundary_fits && !unshrink)  // vertices within a ring of the boundary onto their cubic fits
           ParallelFor(mesh.NumVertices(), ctx.threads(), [&](int64_t v) {
             bool near = topo.is_boundary[v];
             for (int k = 0; k < topo.NumNeighbors(static_cast<int>(v)); ++k)
@@ -416,9 +421,19 @@ class SurfaceFitter {
       const std::string phase = pass < smoothing ? absl::StrFormat("smooth %d/%d", pass + 1, smoothing)
                                 : last           ? std::string("fit")
                                                  : std::string("frames");
+      // Degree 2 on a nearly clean mesh: the smoothed mesh interpolated, slope refinement (noise.h).
+      const bool slope_final = last && eff.noise == NoiseMode::kOn && schedule.slope_passes > 0 && !req.stencils &&
+                               o.normal_degree <= o.degree && !o.hermite_hessian;
+      if (slope_final) {
+        pass_options.noise = NoiseMode::kOff;
+        pass_options.interpolate = true;
+        pass_options.weight_epsilon = o.weight_epsilon;
+        pass_options.normal_degree = 0;
+        pass_options.slope_refinement = schedule.slope_passes;
+      }
       // The final frames from a higher-degree fit, or (noise schedule with final_rings) from
       // the same degree's fit on the clean stencils, which the final fit's smaller ones keep.
-      if (last && (eff.NormalDegree() > eff.degree || clean_tangent)) {
+      if (last && !slope_final && (eff.NormalDegree() > eff.degree || clean_tangent)) {
         FitOptions pre = eff;
         pre.degree = pre.normal_degree = eff.NormalDegree();
         pre.rings = pre.min_points_factor = 0;
@@ -429,6 +444,7 @@ class SurfaceFitter {
         if (eff.noise == NoiseMode::kOn && !clean_tangent)  // one-sided stencils: more points (noise.h)
           pre.boundary_points_factor = std::max(pre.boundary_points_factor, kNoiseNormalBoundaryPointsFactor);
         const auto pre_nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, *input, RingSpecFor(pre), ctx.threads()));
+        if (clean_tangent) tangent_nb = pre_nb;
         SurfaceFits pre_fits;
         if (absl::Status s = FitAll(*input, topo, pre, pre_nb, *frame_normals, FitRequest{}, ctx, nullptr, nullptr, "normals",
                                     pre_fits);
@@ -452,7 +468,7 @@ class SurfaceFitter {
       const bool slopes = last && pass_options.SlopePasses() > 0 && !req.stencils;
       // The noise schedule's final fit from two stencil sets (noise.h).
       const bool blend = last && eff.noise == NoiseMode::kOn && schedule.two_scale_final && !req.stencils &&
-                         smoothing_nb && pass_options.method == FitMethod::kLHF && !clean_tangent;
+                         pass_options.method == FitMethod::kLHF && (clean_tangent ? tangent_nb : smoothing_nb);
       // The cached point records while the geometry, normals and stencils are the cache's.
       const bool cached = input == &mesh && frame_normals == &inputs->normals && pass_nb.get() == cached_nb;
       if (absl::Status s = FitAll(*input, topo, pass_options, pass_nb, *frame_normals, req, ctx,
@@ -469,9 +485,10 @@ class SurfaceFitter {
       }
       if (blend) {
         SurfaceFits other;
-        GF_RETURN_IF_ERROR(FitAll(*input, topo, pass_options, smoothing_nb, *frame_normals, FitRequest{}, ctx, nullptr,
+        const std::shared_ptr<const Neighborhoods>& other_nb = clean_tangent ? tangent_nb : smoothing_nb;
+        GF_RETURN_IF_ERROR(FitAll(*input, topo, pass_options, other_nb, *frame_normals, FitRequest{}, ctx, nullptr,
                                   fixed_tangent.empty() ? nullptr : fixed_tangent.data(), phase, other));
-        TwoScaleFinalFit(*fits, other, *smoothing_nb, kTwoScaleSpread, fits->coefficients_.data(), ctx.threads());
+        TwoScaleFinalFit(*fits, other, *other_nb, kTwoScaleSpread, fits->coefficients_.data(), ctx.threads());
         if (on_fitted) on_fitted(*fits, 0, mesh.NumVertices());
       }
       if (scheduled && pass == 0 && schedule.local_passes > 0)

@@ -17,7 +17,7 @@ Positions ProjectOntoFits(const SurfaceFits& fits, const Positions& positions, i
     if (fits.diagnostics(static_cast<int>(v)).degree_used < 1) return;
     const Eigen::Vector3d x = fits.Jet(static_cast<int>(v)).x;
     if (!step) out.row(v) = x.transpose();
-    else if (step[v] > 0) out.row(v) += step[v] * (x.transpose() - positions.row(v));
+    else if (step[v] != 0) out.row(v) += step[v] * (x.transpose() - positions.row(v));
   });
   return out;
 }
@@ -41,6 +41,12 @@ NoiseSchedule NoiseScheduleFor(int degree, double residual_ratio) {
   if (degree == 2 && residual_ratio >= kModerateNoiseResidualRatio) s.normal_points_factor = kHeavyNoiseNormalPointsFactor;
   if (degree == 3 && residual_ratio >= kModerateNoiseResidualRatio)  // noise.h, TwoScaleFinalFit
     s.final_clean_stencils = s.two_scale_final = s.curvature_steps = true, s.smoothing_passes = 2, s.local_passes = 3;
+  if (degree == 3 && s.final_rings > 0) s.two_scale_final = true;  // light: noise.h, TwoScaleFinalFit
+  if (degree >= 4 && residual_ratio >= kHeavyNoiseResidualRatio && residual_ratio < kModerateNoiseResidualRatio)
+    s.final_clean_stencils = s.two_scale_final = true, s.final_points_factor = kModerateNoiseFinalPointsFactor;
+  if (degree >= 3 && residual_ratio >= kModerateNoiseResidualRatio) s.unshrink_passes = kUnshrinkPasses;
+  if (degree == 2 && residual_ratio < kSlopeRefinementResidualRatio)  // noise.h, slope_passes
+    s.smoothing_degree = 5, s.slope_passes = kNoiseSlopePasses;
   return s;
 }
 
@@ -134,6 +140,14 @@ std::vector<double> CurvatureSmoothingSteps(const SurfaceFits& fits, double spre
   if (fits.dims() != 1) return std::vector<double>(c.size(), 0);
   ParallelFor(fits.num_vertices(), num_threads, [&](int64_t v) { c[v] = HessianNorm(fits, static_cast<int>(v)); });
   return RelativeWeights(std::move(c), spread);
+}
+
+std::vector<double> UnshrinkSteps(const SurfaceFits& fits, int num_threads) {
+  std::vector<double> w = CurvatureSmoothingSteps(fits, kUnshrinkSpread, num_threads);
+  ParallelFor(fits.num_vertices(), num_threads, [&](int64_t v) {
+    w[v] = fits.diagnostics(static_cast<int>(v)).degree_used < 2 ? 0 : -kUnshrinkStep * (1 - w[v]);
+  });
+  return w;
 }
 
 void TwoScaleFinalFit(const SurfaceFits& own, const SurfaceFits& other, const Neighborhoods& other_nb,

@@ -20,7 +20,9 @@ namespace geomfit {
 /// (cubic, flat-weighted) fit's foot point, which averages the noise of its stencil away,
 /// and the mesh is refitted; (4) at degree 2 the final fit keeps the tangent plane of a
 /// cubic pre-fit on the smoothed mesh (the normal refinement of FitOptions::normal_degree),
-/// under heavy noise blended with a cubic pre-fit on larger stencils.
+/// under heavy noise blended with a cubic pre-fit on larger stencils; on nearly clean
+/// meshes the final fit interpolates the smoothed mesh with the slope refinement instead
+/// (kSlopeRefinementResidualRatio).
 
 /// The weights' eps of (2.2.1) in the noise mode's smoothing fits (and the final fit at
 /// degree >= 4): nearly uniform weights (1 to 2^(-d/4) across the stencil) average the
@@ -48,7 +50,23 @@ struct NoiseSchedule {
   bool two_scale_final = false;
   /// The local passes' steps from CurvatureSmoothingSteps instead of LocalSmoothingSteps.
   bool curvature_steps = false;
+  /// Degree 2: the final fit interpolates the smoothed mesh with this many slope-refinement
+  /// passes (slopes.h) instead of the cubic normal pre-fit (0: off).
+  int slope_passes = 0;
+  /// Passes after the local ones that move strongly curved vertices back (UnshrinkSteps).
+  int unshrink_passes = 0;
 };
+/// Nearly clean meshes at degree 2 (residual ratio below kSlopeRefinementResidualRatio: O(h^3)
+/// noise, alpha 0.5: 0.040-0.082 at n = 32-64; O(h^2) alpha 0.1 at n = 16-32: 0.113-0.145):
+/// after two smoothing passes of degree 5 the smoothed mesh is as good as clean, and the
+/// final fit interpolates it with the slope refinement (FitOptions::slope_refinement,
+/// slopes.h), whose normals and Hermite curvatures cancel the cubic term the cubic normal
+/// pre-fit and the approximating quadratic keep: torus O(h^3) alpha 0.5 at n = 64, K Linf
+/// 0.94 -> 0.19x the best CGAL, bump H / K Linf 0.72 / 0.81 -> 0.25 / 0.19x (degree 4
+/// smoothing: 0.46 / 0.39x). Above it (the bump at alpha 0.1 h^2, n = 32: K 0.70 -> 0.75x)
+/// the interpolated centre keeps too much noise (bench/README.md, seventh round).
+inline constexpr double kSlopeRefinementResidualRatio = 0.095;
+inline constexpr int kNoiseSlopePasses = 2;
 /// LocalSmoothingSteps: the top-degree part's scale against the noise level.
 inline constexpr double kLocalSmoothingSignal = 0.3;
 /// Light noise from this residual ratio on (O(h^3), alpha 0.5: 0.040-0.048 at n = 64)
@@ -92,6 +110,10 @@ inline constexpr double kModerateNoiseResidualRatio = 0.35;
 /// and which average as much noise as two cubic passes; within a ring of the boundary,
 /// where they extrapolate one-sided stencils, the smoothing fits stay cubic
 /// (bench/README.md, third round).
+/// Seventh round (Linf): degree 2 below kSlopeRefinementResidualRatio: quintic smoothing and
+/// the slope refinement; degree 3 under light noise and degree 4 under moderate noise: the
+/// two-scale final fit (TwoScaleFinalFit); degree >= 3 from kModerateNoiseResidualRatio:
+/// the unshrink passes (UnshrinkSteps).
 NoiseSchedule NoiseScheduleFor(int degree, double residual_ratio);
 /// The options of a smoothing pass's fits: approximating, flat weights, the schedule's
 /// degree on the noise mode's own stencils (`options`' rings and factor are the final fit's).
@@ -99,6 +121,7 @@ FitOptions NoiseSmoothingOptions(const FitOptions& options, const NoiseSchedule&
 
 /// Every vertex moved onto its own fit (the fit's point at its origin, x(0, 0) of
 /// Table 3.1); vertices without a fit, or not marked in `only` (when given), keep `positions`.
+/// With `step`, each moves that fraction of the way (negative: away, UnshrinkSteps).
 Positions ProjectOntoFits(const SurfaceFits& fits, const Positions& positions, int num_threads = 0,
                           const double* step = nullptr);
 
@@ -154,6 +177,17 @@ void BlendLargeStencilNormals(const SurfaceFits& large, const std::vector<uint8_
 /// mildly curved (marching cubes: its noise varies at scale h), none where it is strongly
 /// curved (the cubic smoothing fits' bias). bench/README.md, "Noisy meshes, sixth round".
 inline constexpr double kTwoScaleSpread = 2;
+/// The same fit on two stencil sets elsewhere (bench/README.md, seventh round): at degree 3
+/// under light noise the 1.5-ring final fit (own) with the fit on the clean 2 rings whose
+/// tangent plane it keeps (other; the mean over those): its noise at the torus's inner
+/// equator set the K Linf (O(h^3) alpha 0.5, n = 64: K 0.65 (Linf 0.80) -> 0.55 (0.53)x the
+/// best CGAL); at degree 4 under moderate noise (residual ratio in [0.2, 0.35)) the final fit
+/// on the clean stencils grown to kModerateNoiseFinalPointsFactor x the coefficients (own)
+/// with the 3x-coefficient noise stencils of the smoothing fits (other): the large
+/// stencil's bias on the bump's flank set its K Linf (alpha 0.1 h^2: 0.61 (0.71) -> 0.41
+/// (0.52)x; torus normal 0.63 -> 0.60x). Under heavy noise at degree 4 the torus's
+/// normals want the noise stencils (alpha 0.2: 0.62 -> 0.72x two-scale).
+inline constexpr double kModerateNoiseFinalPointsFactor = 2;
 /// `coefficients` (`own`'s LHF fits on the clean stencils, written in place) from `own`
 /// and `other` (the same frames and degree on the noise stencils `other_nb`); vertices
 /// whose frames differ keep `own`'s.
@@ -162,6 +196,26 @@ void TwoScaleFinalFit(const SurfaceFits& own, const SurfaceFits& other, const Ne
 /// Per-vertex steps 1 / (1 + (|Hess_v| / (spread x median |Hess|))^2) from `fits`' Hessians
 /// (LHF fits; 0 where unfitted).
 std::vector<double> CurvatureSmoothingSteps(const SurfaceFits& fits, double spread, int num_threads = 0);
+
+/// Heavy noise at degree >= 3 (residual ratio >= kModerateNoiseResidualRatio): every
+/// smoothing pass flattens the strongly curved bump's peak (its foot points lie below a
+/// surface whose quartic terms the cubic fit averages over the stencil), and the final fit
+/// then underestimates K there (alpha 0.2 at n = 64: 98 against 102 at the centre, where
+/// the bump's K Linf sat; CGAL's largest errors are elsewhere, from noise). After the
+/// schedule's passes, kUnshrinkPasses more move each vertex *away* from its smoothing fit's
+/// foot point, x -= kUnshrinkStep (1 - w) (foot - x), w = CurvatureSmoothingSteps(fits,
+/// kUnshrinkSpread): the bias estimate S(x) - x of the smoothed, nearly noise-free mesh
+/// taken back (a Taubin-like step), only where the surface is strongly curved (w -> 0: the
+/// bump's centre, |Hess| ~ 10x the median), so the noise the passes removed elsewhere stays
+/// removed. Bump K Linf at alpha 0.5 / 0.2: d3 0.85 / 0.86 -> 0.66 / 0.52x the best CGAL, d4
+/// (alpha 0.2) 0.99 -> 0.52x. A wider weight (step 2, spread 3) moved the torus and the
+/// marching-cubes meshes too (torus alpha 0.2 d4 normal 0.62 -> 0.66x, marching cubes N = 64
+/// d4 K Linf 0.72 -> 0.77x; bench/README.md, seventh round).
+inline constexpr int kUnshrinkPasses = 2;
+inline constexpr double kUnshrinkStep = 4;
+inline constexpr double kUnshrinkSpread = 8;
+/// The unshrink passes' per-vertex steps (negative; 0 where unfitted) from `fits`.
+std::vector<double> UnshrinkSteps(const SurfaceFits& fits, int num_threads = 0);
 
 /// The noise test of NoiseMode::kAuto, on a sample of vertices: approximating degree-2
 /// and degree-4 fits on the same (>= 40-point) stencil. On smooth data the quartic's

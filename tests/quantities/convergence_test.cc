@@ -10,6 +10,8 @@
 
 #include <gtest/gtest.h>
 
+#include "absl/strings/str_format.h"
+
 #include "core/fitting/noise.h"
 #include "core/mesh/topology.h"
 #include "core/quantities/differentials.h"
@@ -297,6 +299,44 @@ TEST(NoiseAwareTest, TwoScaleCubicUnderHeavyNoise) {
   EXPECT_LT(b.k_l2.back(), 0.7 * 4.57e-2);   // 0.68x
 }
 
+// Issue 16 item 1, Linf (bench/README.md, "Noisy meshes, seventh round"): the cells of
+// noise_study's grid whose Linf main left above 0.7x the best CGAL at n = 64. Degree 2 on the
+// nearly clean O(h^3) meshes interpolates the quintic-smoothed mesh with the slope
+// refinement; the bump's centre under heavy noise gets the unshrink passes (its peak was
+// flattened by the smoothing); the torus's degree-3 K (light noise) and the bump's degree-4
+// K (moderate noise) the two-scale final fit. CGAL's Linf errors are the bench's (best of
+// its two stencil sets; CGAL is not linked into the tests).
+struct LinfCell {
+  const char* surface;
+  int power;
+  double alpha;
+  int degree;
+  double cgal_h_linf, cgal_k_linf;  // 0: not asserted
+  double main_h, main_k;            // main's ratios (ec9090a), which fail 0.7
+};
+
+TEST(NoiseAwareTest, LinfBelowSevenTenthsOfCgal) {
+  const LinfCell cells[] = {
+      {"torus", 3, 0.5, 2, 0, 1.014e-1, 0, 0.94},       // now 0.19x
+      {"torus", 3, 0.5, 3, 0, 2.938e-2, 0, 0.80},       // 0.53x
+      {"bump", 3, 0.5, 2, 5.195e-2, 8.122e-2, 0.72, 0.81},  // 0.25 / 0.19x
+      {"bump", 2, 0.5, 3, 0, 6.492e-2, 0, 0.85},        // 0.66x
+      {"bump", 2, 0.2, 3, 0, 4.887e-2, 0, 0.86},        // 0.52x
+      {"bump", 2, 0.2, 4, 0, 3.072e-2, 0, 0.99},        // 0.52x
+      {"bump", 2, 0.1, 4, 0, 2.186e-2, 0, 0.71},        // 0.52x
+  };
+  for (const LinfCell& c : cells) {
+    FitOptions o;
+    o.noise = NoiseMode::kOn;
+    o.degree = c.degree;
+    const Study s = RunStudy(c.surface, {64}, o, c.alpha, c.power);
+    const std::string cell = absl::StrFormat("%s O(h^%d) alpha %g d%d", c.surface, c.power, c.alpha, c.degree);
+    std::printf("%s: H Linf %.2e K Linf %.2e\n", cell.c_str(), s.h_linf.back(), s.k_linf.back());
+    if (c.cgal_h_linf > 0) EXPECT_LT(s.h_linf.back(), 0.7 * c.cgal_h_linf) << cell << " (main " << c.main_h << "x)";
+    if (c.cgal_k_linf > 0) EXPECT_LT(s.k_linf.back(), 0.7 * c.cgal_k_linf) << cell << " (main " << c.main_k << "x)";
+  }
+}
+
 // The residual test picks the schedule: heavy O(h^2) noise gets cubic smoothing fits,
 // light (O(h^3)) noise degree d + 2 smoothing and the clean final stencils.
 TEST(NoiseAwareTest, ScheduleFollowsTheResidualRatio) {
@@ -309,7 +349,22 @@ TEST(NoiseAwareTest, ScheduleFollowsTheResidualRatio) {
   EXPECT_TRUE(NoiseScheduleFor(3, 0.7).final_clean_stencils);  // degree 3: two-scale from 0.35 on
   EXPECT_FALSE(NoiseScheduleFor(4, 0.7).final_clean_stencils);
   EXPECT_EQ(light.smoothing_degree, 5);
-  EXPECT_EQ(NoiseScheduleFor(2, 0.05).smoothing_degree, 4);
+  EXPECT_EQ(NoiseScheduleFor(2, 0.15).smoothing_degree, 4);
+  // nearly clean at degree 2 (below 0.095): quintic smoothing, the slope refinement
+  EXPECT_EQ(NoiseScheduleFor(2, 0.05).smoothing_degree, 5);
+  EXPECT_EQ(NoiseScheduleFor(2, 0.05).slope_passes, kNoiseSlopePasses);
+  for (double r : {0.15, 0.5}) EXPECT_EQ(NoiseScheduleFor(2, r).slope_passes, 0) << r;
+  for (int d : {3, 4}) EXPECT_EQ(NoiseScheduleFor(d, 0.05).slope_passes, 0) << d;
+  // heavy noise at degree >= 3: unshrink passes; two-scale final fits at degree 3 (light)
+  // and degree 4 (moderate, clean stencils of 2x the coefficients)
+  for (int d : {3, 4})
+    for (double r : {0.4, 0.7}) EXPECT_EQ(NoiseScheduleFor(d, r).unshrink_passes, kUnshrinkPasses) << d << " " << r;
+  for (double r : {0.05, 0.3}) EXPECT_EQ(NoiseScheduleFor(3, r).unshrink_passes, 0) << r;
+  EXPECT_EQ(NoiseScheduleFor(2, 0.7).unshrink_passes, 0);
+  EXPECT_TRUE(NoiseScheduleFor(3, 0.05).two_scale_final);
+  EXPECT_TRUE(NoiseScheduleFor(4, 0.28).two_scale_final);
+  EXPECT_EQ(NoiseScheduleFor(4, 0.28).final_points_factor, kModerateNoiseFinalPointsFactor);
+  EXPECT_FALSE(NoiseScheduleFor(4, 0.05).two_scale_final);
   EXPECT_TRUE(light.final_clean_stencils);
   EXPECT_EQ(heavy.smoothing_passes, 2);
   // moderate noise: degree >= 3 smooths with 4 passes of degree d + 2 (cubic near the boundary)
@@ -340,7 +395,8 @@ TEST(NoiseAwareTest, ScheduleFollowsTheResidualRatio) {
   EXPECT_TRUE(NoiseScheduleFor(3, 0.7).two_scale_final);
   EXPECT_EQ(NoiseScheduleFor(3, 0.7).smoothing_passes, 2);
   EXPECT_EQ(NoiseScheduleFor(3, 0.7).local_passes, 3);
-  for (double r : {0.05, 0.3}) EXPECT_FALSE(NoiseScheduleFor(3, r).two_scale_final || NoiseScheduleFor(3, r).curvature_steps) << r;
+  EXPECT_FALSE(NoiseScheduleFor(3, 0.3).two_scale_final);
+  for (double r : {0.05, 0.3}) EXPECT_FALSE(NoiseScheduleFor(3, r).curvature_steps) << r;
   for (int d : {2, 4}) EXPECT_FALSE(NoiseScheduleFor(d, 0.5).two_scale_final || NoiseScheduleFor(d, 0.5).curvature_steps);
   for (int d : {2, 4}) {
     EXPECT_EQ(NoiseScheduleFor(d, 0.7).smoothing_passes, 3);
