@@ -134,24 +134,6 @@ absl::Status WriteNpy(const std::string& path, int64_t rows, int64_t cols,
 /// Whole-file helpers shared by the writers and the CLI. Errors name the path and
 /// the errno text.
 absl::StatusOr<std::string> ReadFileToString(const std::string& path);
-/// A whole file's bytes for reading once: a regular file is mapped read-only (the
-/// page cache's pages, no copy and no fresh memory to clear), anything else is read
-/// into memory. The file must not shrink while mapped.
-class FileBytes {
- public:
-  FileBytes() = default;
-  FileBytes(FileBytes&& o) noexcept { *this = std::move(o); }
-  FileBytes& operator=(FileBytes&& o) noexcept;
-  ~FileBytes();
-  std::string_view view() const { return map_ != nullptr ? std::string_view(map_, size_) : std::string_view(text_); }
-
- private:
-  friend absl::StatusOr<FileBytes> ReadFileBytes(const std::string& path);
-  char* map_ = nullptr;
-  size_t size_ = 0;
-  std::string text_;  ///< when not mapped
-};
-absl::StatusOr<FileBytes> ReadFileBytes(const std::string& path);
 /// Writes `path + ".tmp"`, then renames it to `path`. "-" writes to standard output,
 /// and an existing file that is not a regular file (/dev/null, a FIFO, /dev/stdout)
 /// is written in place.

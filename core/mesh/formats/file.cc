@@ -1,19 +1,16 @@
 // Whole-file reads and atomic writes.
-#include <fcntl.h>
-#include <sys/mman.h>
 #include <sys/stat.h>
-#include <unistd.h>
 
 #include <cerrno>
 #include <cstdio>
 #include <functional>
 #include <memory>
 #include <string>
-#include <utility>
+
+#include <sys/stat.h>
 
 #include "absl/strings/str_cat.h"
 #include "core/mesh/io.h"
-#include "core/util/status_macros.h"
 
 namespace geomfit {
 
@@ -36,42 +33,6 @@ absl::StatusOr<std::string> ReadFileToString(const std::string& path) {
   out.resize(used);
   if (std::ferror(f.get()))
     return absl::ErrnoToStatus(errno, absl::StrCat("cannot read '", path, "'"));
-  return out;
-}
-
-FileBytes& FileBytes::operator=(FileBytes&& o) noexcept {
-  if (this != &o) {
-    this->~FileBytes();
-    map_ = std::exchange(o.map_, nullptr);
-    size_ = std::exchange(o.size_, 0);
-    text_ = std::move(o.text_);
-  }
-  return *this;
-}
-
-FileBytes::~FileBytes() {
-  if (map_ != nullptr) munmap(map_, size_);
-  map_ = nullptr;
-}
-
-absl::StatusOr<FileBytes> ReadFileBytes(const std::string& path) {
-  FileBytes out;
-  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
-  if (fd >= 0) {
-    struct stat st;
-    if (fstat(fd, &st) == 0 && S_ISREG(st.st_mode) && st.st_size > 0) {
-      // Every page mapped at once (MAP_POPULATE): no fault per page while parsing.
-      void* p = mmap(nullptr, static_cast<size_t>(st.st_size), PROT_READ, MAP_PRIVATE | MAP_POPULATE, fd, 0);
-      if (p != MAP_FAILED) {
-        out.map_ = static_cast<char*>(p);
-        out.size_ = static_cast<size_t>(st.st_size);
-      }
-    }
-    ::close(fd);
-    if (out.map_ != nullptr) return out;
-  }
-  // Not a regular file, or not mappable: read it (its errors name the path).
-  GF_ASSIGN_OR_RETURN(out.text_, ReadFileToString(path));
   return out;
 }
 
