@@ -9,6 +9,7 @@
 //   BM_Parse/shuffled:<0|1>/fmt:<f>         ParseMesh of bytes in memory; f = 0 OBJ, 1 OFF,
 //                                           2 ascii PLY (%.17g coordinates, as FormatObj)
 //   BM_ReadObj/shuffled:<0|1>               ReadMesh of the OBJ file (file read + parse)
+//   BM_ReadFile                             ReadMesh of FILE (with --mesh=FILE)
 //
 // Counters: MB/s of file text (parse and read), verts. See bench/README.md.
 //
@@ -264,6 +265,20 @@ void BM_ReadObj(benchmark::State& state) {
       benchmark::Counter(x.text[0].size() * 1e-6, benchmark::Counter::kIsIterationInvariantRate);
 }
 
+/// ReadMesh of FILE (--mesh), e.g. the gmsh torus: an external mesher's text.
+void BM_ReadFile(benchmark::State& state) {
+  size_t bytes = 0;
+  for (auto _ : state) {
+    Mesh m = ReadMesh(g_mesh_path).value();
+    benchmark::DoNotOptimize(m.positions.data());
+    benchmark::ClobberMemory();
+  }
+  FILE* f = std::fopen(g_mesh_path.c_str(), "rb");
+  if (f != nullptr && std::fseek(f, 0, SEEK_END) == 0) bytes = static_cast<size_t>(std::ftell(f));
+  if (f != nullptr) std::fclose(f);
+  state.counters["MB/s"] = benchmark::Counter(bytes * 1e-6, benchmark::Counter::kIsIterationInvariantRate);
+}
+
 BENCHMARK(BM_Topology)->ArgName("shuffled")->DenseRange(0, 1)->Unit(benchmark::kMillisecond)->UseRealTime();
 BENCHMARK(BM_MeshChecks)->ArgName("shuffled")->DenseRange(0, 1)->Unit(benchmark::kMillisecond)->UseRealTime();
 BENCHMARK(BM_Neighborhoods)
@@ -372,6 +387,7 @@ int main(int argc, char** argv) {
         ->DenseRange(2, 3)
         ->Unit(benchmark::kMillisecond)
         ->UseRealTime();
+    benchmark::RegisterBenchmark("BM_ReadFile", BM_ReadFile)->Unit(benchmark::kMillisecond)->UseRealTime();
     benchmark::RegisterBenchmark("BM_RelabelledTopology", BM_RelabelledTopology)
         ->ArgNames({"shuffled", "order"})
         ->ArgsProduct({{1, 2}, {0, 1}})

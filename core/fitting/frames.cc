@@ -17,17 +17,25 @@ Eigen::Vector3d FaceNormal(const Mesh& mesh, int f) {
 Positions ApproximateVertexNormals(const Mesh& mesh, const Topology& topo, NormalWeighting weighting,
                                    int num_threads) {
   const int nv = mesh.NumVertices(), nf = mesh.NumFaces();
-  Positions normals = Positions::Zero(nv, 3);
+  // Each vertex sums its corner normals in the order of topo.VertexFaces. When those
+  // rows are in increasing face order (a mesh's own topology) the faces are read in
+  // storage order and each corner added to its vertex, instead of walking each vertex's
+  // fan (on a mesh numbered in any order that was a cache miss per face): the same sums
+  // bit for bit. A thread owns a range of vertices and scans every face for its corners.
+  // Otherwise (a LocalityRelabelling's topology, rows in the source's face order, faces
+  // stored near their vertices) each vertex walks its fan, its sum in registers.
+  const bool face_order = topo.vertex_faces_ascending || topo.num_vertices != nv;
+  Positions normals(nv, 3);
+  if (face_order) normals.setZero();
   const double* P = mesh.positions.data();
-  // Adds the normal of corner c of face row idx (n corners) to its vertex's sum.
-  auto add_corner = [&](const int32_t* idx, int n, int c) {
+  // The normal of corner c of face row idx (n corners), added to sum[0..3).
+  auto add_corner = [&](const int32_t* idx, int n, int c, double* sum) __attribute__((always_inline)) {
     using Vec = Eigen::Map<const Eigen::Vector3d>;
     const int32_t v = idx[c];
     const Eigen::Vector3d x = Vec(P + 3 * static_cast<int64_t>(v));
     const Eigen::Vector3d a = Vec(P + 3 * static_cast<int64_t>(idx[c + 1 < n ? c + 1 : 0])) - x;
     const Eigen::Vector3d b = Vec(P + 3 * static_cast<int64_t>(idx[c > 0 ? c - 1 : n - 1])) - x;
     const Eigen::Vector3d cr = a.cross(b);  // corner normal, |cr| = 2 x corner triangle area
-    double* sum = normals.data() + 3 * static_cast<int64_t>(v);
     if (weighting == NormalWeighting::kArea) {
       for (int k = 0; k < 3; ++k) sum[k] += cr[k];
     } else {
@@ -38,42 +46,40 @@ Positions ApproximateVertexNormals(const Mesh& mesh, const Topology& topo, Norma
       }
     }
   };
-  // Each vertex sums its corner normals in the order of topo.VertexFaces. When those
-  // rows are in increasing face order (a mesh's own topology) the faces are read in
-  // storage order and each corner added to its vertex, instead of walking each vertex's
-  // fan (on a mesh numbered in any order that was a cache miss per face): the same sums
-  // bit for bit. A thread owns a range of vertices and scans every face for its corners.
-  // Otherwise (a LocalityRelabelling's topology, rows in the source's face order, faces
-  // stored near their vertices) each vertex walks its fan.
-  const bool face_order = topo.vertex_faces_ascending || topo.num_vertices != nv;
+  auto store_unit = [&](int64_t v, const double* sum) {
+    const Eigen::Vector3d s(sum[0], sum[1], sum[2]);
+    const double len = s.norm();
+    normals.row(v) = len > 0 ? Eigen::Vector3d(s / len) : Eigen::Vector3d::Zero();
+  };
   ParallelForBlocks(nv, num_threads, [&](int64_t begin, int64_t end, int) {
     if (face_order) {
+      double* const sums = normals.data();
       for (int f = 0; f < nf; ++f) {
         const int32_t* idx = mesh.faces.data() + 4 * static_cast<int64_t>(f);
         if (f + 8 < nf) {  // the corners' positions and sums 8 faces ahead: random reads
           const int32_t* ahead = idx + 32;
           for (int c = 0; c < 3; ++c) {
             __builtin_prefetch(P + 3 * static_cast<int64_t>(ahead[c]));
-            __builtin_prefetch(normals.data() + 3 * static_cast<int64_t>(ahead[c]), 1);
+            __builtin_prefetch(sums + 3 * static_cast<int64_t>(ahead[c]), 1);
           }
         }
         const int n = idx[3] < 0 ? 3 : 4;
         for (int c = 0; c < n; ++c)
-          if (idx[c] >= begin && idx[c] < end) add_corner(idx, n, c);
+          if (idx[c] >= begin && idx[c] < end) add_corner(idx, n, c, sums + 3 * static_cast<int64_t>(idx[c]));
       }
+      for (int64_t v = begin; v < end; ++v) store_unit(v, sums + 3 * v);
     } else {
-      for (int64_t v = begin; v < end; ++v)
-        for (int j = 0; j < topo.NumVertexFaces(static_cast<int>(v)); ++j) {
-          const int32_t* idx = mesh.faces.data() + 4 * static_cast<int64_t>(topo.VertexFaces(static_cast<int>(v))[j]);
+      for (int64_t v = begin; v < end; ++v) {
+        double sum[3] = {0, 0, 0};  // as the zeroed rows of the face-order path
+        const int32_t* fan = topo.VertexFaces(static_cast<int>(v));
+        for (int j = 0, nj = topo.NumVertexFaces(static_cast<int>(v)); j < nj; ++j) {
+          const int32_t* idx = mesh.faces.data() + 4 * static_cast<int64_t>(fan[j]);
           // v's corner, branch-free (rows start at any corner of an irregular mesh)
           const int c = (idx[1] == v) + 2 * (idx[2] == v) + 3 * (idx[3] == v);
-          add_corner(idx, idx[3] < 0 ? 3 : 4, c);
+          add_corner(idx, idx[3] < 0 ? 3 : 4, c, sum);
         }
-    }
-    for (int64_t v = begin; v < end; ++v) {
-      const Eigen::Vector3d sum = normals.row(v).transpose();
-      const double len = sum.norm();
-      normals.row(v) = len > 0 ? Eigen::Vector3d(sum / len) : Eigen::Vector3d::Zero();
+        store_unit(v, sum);
+      }
     }
   });
   return normals;

@@ -106,8 +106,8 @@ absl::StatusOr<Mesh> ParseMesh(std::string_view bytes_in, MeshFormat format,
 absl::StatusOr<Mesh> ReadMesh(const std::string& path) {
   GF_ASSIGN_OR_RETURN(const MeshFormat format, FormatFromPath(path));
   if (IsOutputOnly(format)) return OutputOnlyError(path, format);
-  GF_ASSIGN_OR_RETURN(const std::string bytes, ReadFileToString(path));
-  return ParseMesh(bytes, format, path);
+  GF_ASSIGN_OR_RETURN(const FileBytes bytes, ReadFileBytes(path));
+  return ParseMesh(bytes.view(), format, path);
 }
 
 absl::StatusOr<std::string> FormatMesh(const Mesh& mesh, MeshFormat format) {

@@ -1,6 +1,7 @@
 #pragma once
 #include <Eigen/Core>
 #include <functional>
+#include <memory>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -134,6 +135,14 @@ absl::Status WriteNpy(const std::string& path, int64_t rows, int64_t cols,
 /// Whole-file helpers shared by the writers and the CLI. Errors name the path and
 /// the errno text.
 absl::StatusOr<std::string> ReadFileToString(const std::string& path);
+/// A whole file's bytes, read into memory that is not zeroed first (ReadMesh: a
+/// std::string would first fill its ~9 MB with zeros only to overwrite them).
+struct FileBytes {
+  std::unique_ptr<char[]> data;
+  size_t size = 0;
+  std::string_view view() const { return {data.get(), size}; }
+};
+absl::StatusOr<FileBytes> ReadFileBytes(const std::string& path);
 /// Writes `path + ".tmp"`, then renames it to `path`. "-" writes to standard output,
 /// and an existing file that is not a regular file (/dev/null, a FIFO, /dev/stdout)
 /// is written in place.

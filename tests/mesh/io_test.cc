@@ -11,6 +11,7 @@
 #include <limits>
 #include <random>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "absl/strings/ascii.h"
@@ -733,6 +734,39 @@ TEST(FileTest, AtomicWriteReplacesExistingFile) {
   EXPECT_EQ(*ReadFileToString(path), "second");
   EXPECT_FALSE(FileExists(path + ".tmp"));
   std::remove(path.c_str());
+}
+
+// ReadFileBytes: a regular file in one read of its size; a pipe (size unknown) in
+// doubling blocks from 64 KB, here 300,001 bytes (five blocks), byte for byte.
+TEST(FileTest, ReadFileBytesReadsRegularFilesAndPipesWhole) {
+  std::string text(300001, '\0');
+  for (size_t i = 0; i < text.size(); ++i) text[i] = static_cast<char>('a' + (i * 7919) % 26);
+  const std::string path = TempPath("bytes.txt");
+  ASSERT_TRUE(WriteFileAtomically(path, text).ok());
+  absl::StatusOr<FileBytes> file = ReadFileBytes(path);
+  ASSERT_TRUE(file.ok()) << file.status();
+  EXPECT_EQ(file->view(), text);
+  EXPECT_EQ(*ReadFileToString(path), text);
+  std::remove(path.c_str());
+
+  int fds[2];
+  ASSERT_EQ(pipe(fds), 0);
+  std::thread writer([&] {
+    size_t done = 0;
+    while (done < text.size()) {
+      const ssize_t n = write(fds[1], text.data() + done, text.size() - done);
+      if (n <= 0) break;
+      done += static_cast<size_t>(n);
+    }
+    close(fds[1]);
+  });
+  absl::StatusOr<FileBytes> piped = ReadFileBytes("/dev/fd/" + std::to_string(fds[0]));
+  writer.join();
+  close(fds[0]);
+  ASSERT_TRUE(piped.ok()) << piped.status();
+  EXPECT_EQ(piped->view(), text);
+
+  EXPECT_EQ(ReadFileBytes(TempPath("missing.txt")).status().code(), absl::StatusCode::kNotFound);
 }
 
 // ---------------------------------------------------------------------------

@@ -42,7 +42,7 @@ size_t ReadHeapBytes(int64_t file_bytes) { return static_cast<size_t>(2.3 * stat
 /// resident heap, reading included, of runs that back nothing ahead). An estimate: what
 /// it leaves out faults in on use.
 size_t FitHeapBytes(int vertices, int degree) {
-  constexpr int kBytesPerVertex[] = {415, 415, 455, 530, 605, 690, 820};  // degrees 0-6
+  constexpr int kBytesPerVertex[] = {415, 415, 455, 530, 590, 675, 820};  // degrees 0-6
   const int d = std::max(degree, 0);
   return static_cast<size_t>(vertices) * (d <= 6 ? kBytesPerVertex[d] : kBytesPerVertex[6] + 150 * (d - 6));
 }

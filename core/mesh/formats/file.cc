@@ -3,6 +3,7 @@
 
 #include <cerrno>
 #include <cstdio>
+#include <cstring>
 #include <functional>
 #include <memory>
 #include <string>
@@ -14,26 +15,33 @@
 
 namespace geomfit {
 
-absl::StatusOr<std::string> ReadFileToString(const std::string& path) {
+absl::StatusOr<FileBytes> ReadFileBytes(const std::string& path) {
   std::unique_ptr<FILE, int (*)(FILE*)> f(std::fopen(path.c_str(), "rb"), &std::fclose);
   if (!f) return absl::ErrnoToStatus(errno, absl::StrCat("cannot open '", path, "'"));
   // One block: the whole file when its size is known (a regular file), read straight
-  // into the string; pipes and growing files continue in doubling blocks.
+  // into the buffer; pipes and growing files continue in doubling blocks.
   struct stat st;
-  size_t block = 1 << 16;
+  size_t capacity = 1 << 16;
   if (fstat(fileno(f.get()), &st) == 0 && S_ISREG(st.st_mode) && st.st_size > 0)
-    block = static_cast<size_t>(st.st_size) + 1;  // + 1: EOF in the same read
-  std::string out(block, '\0');
-  size_t used = 0;
+    capacity = static_cast<size_t>(st.st_size) + 1;  // + 1: EOF in the same read
+  FileBytes out;
+  out.data.reset(new char[capacity]);  // not zeroed
   for (;;) {
-    used += std::fread(out.data() + used, 1, out.size() - used, f.get());
-    if (used < out.size()) break;  // end of file or an error
-    out.resize(2 * out.size());
+    out.size += std::fread(out.data.get() + out.size, 1, capacity - out.size, f.get());
+    if (out.size < capacity) break;  // end of file or an error
+    std::unique_ptr<char[]> grown(new char[2 * capacity]);
+    std::memcpy(grown.get(), out.data.get(), out.size);
+    out.data = std::move(grown);
+    capacity *= 2;
   }
-  out.resize(used);
-  if (std::ferror(f.get()))
-    return absl::ErrnoToStatus(errno, absl::StrCat("cannot read '", path, "'"));
+  if (std::ferror(f.get())) return absl::ErrnoToStatus(errno, absl::StrCat("cannot read '", path, "'"));
   return out;
+}
+
+absl::StatusOr<std::string> ReadFileToString(const std::string& path) {
+  absl::StatusOr<FileBytes> bytes = ReadFileBytes(path);
+  if (!bytes.ok()) return bytes.status();
+  return std::string(bytes->view());
 }
 
 bool IsStreamPath(const std::string& path) {

@@ -63,8 +63,8 @@ absl::StatusOr<Mesh> ParseObj(absl::string_view bytes, absl::string_view source,
   MeshBuilder b;
   // Room for a typical file's vertices and faces (~60 and ~20 bytes a line): reserved
   // address space, touched only as far as it is used.
-  b.ReserveVertices(static_cast<int64_t>(bytes.size() / 32));
   b.ReserveFaces(static_cast<int64_t>(bytes.size() / 32));
+  b.ReserveVertices(static_cast<int64_t>(bytes.size() / 32));
   std::vector<absl::string_view> tok;
   // Faces naming a vertex not defined yet: checked once all vertices are read.
   struct ForwardReference {
