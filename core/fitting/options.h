@@ -98,10 +98,11 @@ struct FitOptions {
   /// neighbours' fitted normals, normals from h_j - p_j.G_j/3 in which the cubic term
   /// cancels, then the Hermite Hessian (hermite.h) with the cubic remainder as four more
   /// unknowns, in the refined frame (core/fitting/slopes.h). 0 = off (default), 1..3. The
-  /// recipe for the best clean-mesh accuracy at degree 2: at 1, normals 0.03-0.42x (Linf
-  /// <= 0.47x), H 0.02-0.34x, K 0.04-0.41x CGAL Jet_fitting_3's on gmsh, marching-cubes,
-  /// structured and quad meshes, for ~2x the CPU time of a plain degree-2 fit; at 2,
-  /// normals 0.02-0.49x, H 0.01-0.38x, K 0.03-0.38x, ~2.4x (bench/README.md). Not for
+  /// recipe for the best clean-mesh accuracy at degree 2 is 2: normals 0.01-0.49x, H
+  /// 0.01-0.38x, K 0.03-0.38x CGAL Jet_fitting_3's on gmsh, marching-cubes, structured and
+  /// quad meshes (marching cubes up to 342k vertices: <= 0.29x), for ~3x the CPU time of a
+  /// plain degree-2 fit; at 1, ~2.5x, normals 0.03-0.42x, H 0.02-0.46x, K 0.04-0.48x, the
+  /// max-norm ones growing towards 0.5x on fine marching-cubes meshes (bench/README.md). Not for
   /// noisy input.
   int slope_refinement = 0;
 

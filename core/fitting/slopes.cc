@@ -18,6 +18,11 @@ namespace {
 // core/CMakeLists.txt).
 constexpr int kLanes = 8;
 constexpr int kCoef = 6;  // NumCoefficients(2)
+// One slot's record in the normal copies: one aligned 64-byte line, read whole by a row's
+// gather. kRadius2: the stencil's squared radius from the last normal pass (0: the pass
+// failed); kFitted: 1 for a degree-2 fit to refine, else 0. After the Hessian pass the
+// other copy holds per slot (c20, c11, c02, ok, the refined normal, kFitted).
+constexpr int kRec = 8, kRadius2 = 6, kFitted = 7;
 using Lanes = double[kLanes];
 
 // Solves kLanes symmetric positive definite N x N systems (upper triangles of `a` used,
@@ -72,14 +77,39 @@ struct Work {
   const int32_t* order = nullptr;    // vertex at each slot (null: the slot itself)
   const int32_t* offsets = nullptr;  // slot k's stencil: points[offsets[k] .. offsets[k+1]) as slots,
   const int32_t* points = nullptr;   //   centre first
-  std::unique_ptr<double[]> xn[2];   // x, y, z, nx, ny, nz per slot; normals of the previous / next pass
-  std::unique_ptr<double[]> radius2;  // the stencil's squared radius (0: the pass failed)
-  std::unique_ptr<uint8_t[]> fitted;  // a degree-2 fit to refine
-  std::unique_ptr<double[]> hessians;  // c20, c11, c02 and 1 (or 0: keep the plain fit's) per slot
+  double* xn[2] = {};                // kRec doubles per slot; normals of the previous / next pass
+  std::vector<int32_t> walk;         // the slots in batch order: each chunk's sorted by stencil size
   double cos_cut = 0;
   int Vertex(int64_t k) const { return order ? order[k] : static_cast<int>(k); }
   int Size(int64_t k) const { return std::min(offsets[k + 1] - offsets[k], kMaxStencil); }
 };
+
+// kLanes doubles as one generic vector (one AVX-512 register; pairs / quads of narrower
+// ones in the other clones).
+typedef double V __attribute__((vector_size(kLanes * sizeof(double))));
+
+// q[c] = component c (x y z nx ny nz) of the records of slots at[0..7], each one aligned
+// line: unpacks of lane pairs, then two-source permutes and 256-bit joins (the records'
+// transposition of wls_batch.cc's Avx512Rows). Data movement only: exact.
+__attribute__((always_inline)) inline void Transpose(const double* xn, const int32_t (&at)[kLanes], V* q) {
+  V lo[4], hi[4];
+  for (int k = 0; k < 4; ++k) {
+    const V a = *reinterpret_cast<const V*>(xn + kRec * static_cast<int64_t>(at[2 * k])),
+            b = *reinterpret_cast<const V*>(xn + kRec * static_cast<int64_t>(at[2 * k + 1]));
+    lo[k] = __builtin_shufflevector(a, b, 0, 8, 2, 10, 4, 12, 6, 14);
+    hi[k] = __builtin_shufflevector(a, b, 1, 9, 3, 11, 5, 13, 7, 15);
+  }
+  for (int h = 0; h < 2; ++h) {
+    const V* t = h ? hi : lo;
+    const V a = __builtin_shufflevector(t[0], t[1], 0, 1, 8, 9, 2, 3, 10, 11);
+    const V b = __builtin_shufflevector(t[2], t[3], 0, 1, 8, 9, 2, 3, 10, 11);
+    const V c = __builtin_shufflevector(t[0], t[1], 4, 5, 12, 13, 6, 7, 14, 15);
+    const V d = __builtin_shufflevector(t[2], t[3], 4, 5, 12, 13, 6, 7, 14, 15);
+    q[h] = __builtin_shufflevector(a, b, 0, 1, 2, 3, 8, 9, 10, 11);
+    q[h + 2] = __builtin_shufflevector(a, b, 4, 5, 6, 7, 12, 13, 14, 15);
+    q[h + 4] = __builtin_shufflevector(c, d, 0, 1, 2, 3, 8, 9, 10, 11);
+  }
+}
 
 // A batch of kLanes vertices: their centres, frames (FrameFromNormal's, in lanes) and
 // stencils' rows, transposed (row i of every lane together, as the slot of the point).
@@ -88,17 +118,17 @@ struct alignas(64) Batch {
   int count = 0, rows = 0;  // vertices; rows = the largest stencil less its centre
   int lanes = kLanes;       // (not a constant: GCC unrolls a constant 8 before vectorizing)
   const double* xn = nullptr;
-  int64_t slot[kLanes];
-  Lanes x, y, z, m[3], t1[3], t2[3];
+  int32_t slot[kLanes];
+  alignas(64) Lanes x, y, z, m[3], t1[3], t2[3];  // aligned: loaded as vectors
   int32_t idx[kMaxStencil][kLanes];
-  Lanes dx[kMaxStencil], dy[kMaxStencil], dz[kMaxStencil], nx[kMaxStencil], ny[kMaxStencil], nz[kMaxStencil],
+  alignas(64) Lanes dx[kMaxStencil], dy[kMaxStencil], dz[kMaxStencil], nx[kMaxStencil], ny[kMaxStencil], nz[kMaxStencil],
       live[kMaxStencil];
 
-  __attribute__((always_inline)) void Load(const Work& W, const double* from, const int64_t* slots, int n) {
+  __attribute__((always_inline)) void Load(const Work& W, const double* from, const int32_t* slots, int n) {
     xn = from, count = n, rows = 0;
     for (int l = 0; l < kLanes; ++l) {
       const int64_t k = slot[l] = slots[l < n ? l : 0];
-      const double* self = xn + 6 * k;
+      const double* self = xn + kRec * k;
       x[l] = self[0], y[l] = self[1], z[l] = self[2], m[0][l] = self[3], m[1][l] = self[4], m[2][l] = self[5];
       if (l < n) rows = std::max(rows, W.Size(k) - 1);
     }
@@ -109,16 +139,18 @@ struct alignas(64) Batch {
       const int32_t* pts = W.points + W.offsets[slot[l]];
       const int size = l < n ? std::max(1, W.Size(slot[l])) : 1;
       for (int i = 1; i < size; ++i) idx[i - 1][l] = pts[i], live[i - 1][l] = 1;
-      for (int i = size - 1; i < rows; ++i) idx[i][l] = static_cast<int32_t>(slot[l]), live[i][l] = 0;
+      for (int i = size - 1; i < rows; ++i) idx[i][l] = slot[l], live[i][l] = 0;
     }
-    const double* __restrict q = xn;
-    for (int i = 0; i < rows; ++i)
-#pragma omp simd
-      for (int l = 0; l < kLanes; ++l) {
-        const int j = idx[i][l];  // vector gathers
-        dx[i][l] = q[6 * j] - x[l], dy[i][l] = q[6 * j + 1] - y[l], dz[i][l] = q[6 * j + 2] - z[l];
-        nx[i][l] = q[6 * j + 3], ny[i][l] = q[6 * j + 4], nz[i][l] = q[6 * j + 5];
-      }
+    // Row i's 8 records (one aligned line each) loaded whole and transposed in registers.
+    const V cx = *reinterpret_cast<const V*>(x), cy = *reinterpret_cast<const V*>(y),
+            cz = *reinterpret_cast<const V*>(z);
+    for (int i = 0; i < rows; ++i) {
+      V q[6];
+      Transpose(xn, idx[i], q);
+      *reinterpret_cast<V*>(dx[i]) = q[0] - cx, *reinterpret_cast<V*>(dy[i]) = q[1] - cy,
+      *reinterpret_cast<V*>(dz[i]) = q[2] - cz;
+      *reinterpret_cast<V*>(nx[i]) = q[3], *reinterpret_cast<V*>(ny[i]) = q[4], *reinterpret_cast<V*>(nz[i]) = q[5];
+    }
   }
 };
 
@@ -136,9 +168,9 @@ __attribute__((always_inline)) inline void Project(const Batch& B, int i, int l,
   nt2 = nx * B.t2[0][l] + ny * B.t2[1][l] + nz * B.t2[2][l];
 }
 
-// Pass 1 on a batch (see slopes.h): each lane's refined normal into `out` (6 doubles per
-// slot: the position copied, then the normal; the centre's own normal where the fit is
-// ill-posed or the vertex not refinable) and its stencil's squared radius (0 then).
+// Pass 1 on a batch (see slopes.h): each lane's record into `out`: the position copied, the
+// refined normal (the centre's own where the fit is ill-posed or the vertex not refinable),
+// its stencil's squared radius (0 then) and the fitted flag copied.
 __attribute__((always_inline)) inline void SlopeNormals(const Work& W, const Batch& B, double* out) {
   // Lengths in units of the first (nonzero) neighbour's distance (conditioning).
   alignas(64) Lanes scale;
@@ -206,11 +238,13 @@ __attribute__((always_inline)) inline void SlopeNormals(const Work& W, const Bat
   }
   for (int l = 0; l < B.count; ++l) {
     const int64_t k = B.slot[l];
-    const bool refined = W.fitted[k] != 0;  // else its own normal
-    double* dst = out + 6 * k;
+    const double fitted = B.xn[kRec * k + kFitted];
+    const bool refined = fitted != 0;  // else its own normal
+    double* dst = out + kRec * k;
     dst[0] = B.x[l], dst[1] = B.y[l], dst[2] = B.z[l];
     for (int c = 0; c < 3; ++c) dst[3 + c] = refined ? nn[c][l] : B.m[c][l];
-    W.radius2[k] = refined ? radius2[l] : 0.0;
+    dst[kRadius2] = refined ? radius2[l] : 0.0;
+    dst[kFitted] = fitted;
   }
 }
 
@@ -223,13 +257,15 @@ __attribute__((always_inline)) inline void SlopeNormals(const Work& W, const Bat
 // at 1% of h) the fit falls back smoothly towards the three-unknown one. `hess` gets 3
 // values per lane; ok[l] = 0 where the lane keeps its plain Hessian.
 __attribute__((always_inline)) inline void HermiteHessians(const Work& W, const Batch& B, double (&hess)[3][kLanes], Lanes& ok) {
+  (void)W;
   // Row weights s / (s + 0.3)^2.5 (hermite.h; FitOptions::hermite_hessian uses 0.1): with the
   // cubic unknowns the near rows, whose normals' error over r is largest, are weighed less.
   constexpr double kEps = 0.3, kRidge = 0.01;
   alignas(64) Lanes radius2, inv_radius2, inv_radius;
   for (int l = 0; l < kLanes; ++l) {
-    const double r2 = W.radius2[B.slot[l]];
-    ok[l] = l < B.count && r2 > 0 && W.fitted[B.slot[l]] ? 1.0 : 0.0;
+    const double* self = B.xn + kRec * static_cast<int64_t>(B.slot[l]);
+    const double r2 = self[kRadius2];
+    ok[l] = l < B.count && r2 > 0 && self[kFitted] != 0 ? 1.0 : 0.0;
     radius2[l] = r2 > 0 ? r2 : 1.0;
   }
 #pragma omp simd
@@ -300,39 +336,53 @@ __attribute__((always_inline)) inline void HermiteHessians(const Work& W, const 
 
 // The slots [k0, k1) sorted by stencil size (a stable counting sort), so the lanes of a
 // batch (kLanes consecutive entries) differ little in size.
-std::vector<int64_t> BatchOrder(const Work& W, int64_t k0, int64_t k1) {
-  std::vector<int64_t> walk(k1 - k0);
+// Written to walk[k0, k1); every pass visits the batches in this order.
+void BatchOrder(const Work& W, int64_t k0, int64_t k1, int32_t* walk) {
   int at[kMaxStencil + 2] = {};
   for (int64_t k = k0; k < k1; ++k) ++at[W.Size(k) + 1];
   for (int c = 1; c <= kMaxStencil + 1; ++c) at[c] += at[c - 1];
-  for (int64_t k = k0; k < k1; ++k) walk[at[W.Size(k)]++] = k;
-  return walk;
+  for (int64_t k = k0; k < k1; ++k) walk[k0 + at[W.Size(k)]++] = static_cast<int32_t>(k);
+}
+
+// Prefetches the records of the stencils of walk[j, j + kLanes) (the next batch's rows,
+// whose loads otherwise miss while the current batch computes).
+__attribute__((always_inline)) inline void PrefetchBatch(const Work& W, const double* xn, int64_t j, int64_t k1) {
+  for (int64_t e = std::min<int64_t>(j + kLanes, k1); j < e; ++j) {
+    const int32_t k = W.walk[j];
+    const int32_t* pts = W.points + W.offsets[k];
+    for (int i = 0, n = W.Size(k); i < n; ++i) __builtin_prefetch(xn + kRec * static_cast<int64_t>(pts[i]));
+  }
 }
 
 __attribute__((target_clones("arch=x86-64-v4", "avx2", "default"))) void NormalsRange(const Work& W, int from,
                                                                                        int64_t k0, int64_t k1) {
   std::unique_ptr<Batch> B(new Batch);
-  const std::vector<int64_t> walk = BatchOrder(W, k0, k1);
-  for (size_t j = 0; j < walk.size(); j += kLanes) {
-    B->Load(W, W.xn[from].get(), walk.data() + j, static_cast<int>(std::min<size_t>(kLanes, walk.size() - j)));
-    SlopeNormals(W, *B, W.xn[1 - from].get());
+  PrefetchBatch(W, W.xn[from], k0, k1);
+  for (int64_t j = k0; j < k1; j += kLanes) {
+    PrefetchBatch(W, W.xn[from], j + kLanes, k1);
+    B->Load(W, W.xn[from], W.walk.data() + j, static_cast<int>(std::min<int64_t>(kLanes, k1 - j)));
+    SlopeNormals(W, *B, W.xn[1 - from]);
   }
 }
 
 __attribute__((target_clones("arch=x86-64-v4", "avx2", "default"))) void HessiansRange(const Work& W, int from,
                                                                                         int64_t k0, int64_t k1) {
   std::unique_ptr<Batch> B(new Batch);
-  const std::vector<int64_t> walk = BatchOrder(W, k0, k1);
-  for (size_t j = 0; j < walk.size(); j += kLanes) {
-    const int n = static_cast<int>(std::min<size_t>(kLanes, walk.size() - j));
-    B->Load(W, W.xn[from].get(), walk.data() + j, n);
+  PrefetchBatch(W, W.xn[from], k0, k1);
+  for (int64_t j = k0; j < k1; j += kLanes) {
+    PrefetchBatch(W, W.xn[from], j + kLanes, k1);
+    const int n = static_cast<int>(std::min<int64_t>(kLanes, k1 - j));
+    B->Load(W, W.xn[from], W.walk.data() + j, n);
     alignas(64) double hess[3][kLanes];
     alignas(64) Lanes ok;
     HermiteHessians(W, *B, hess, ok);
+    // The results into the other copy (no pass reads it any more): one line per slot.
     for (int l = 0; l < n; ++l) {
-      double* out = W.hessians.get() + 4 * B->slot[l];
-      for (int c = 0; c < 3; ++c) out[c] = hess[c][l];
+      const int64_t k = B->slot[l];
+      double* out = W.xn[1 - from] + kRec * k;
+      for (int c = 0; c < 3; ++c) out[c] = hess[c][l], out[4 + c] = B->m[c][l];
       out[3] = ok[l];
+      out[kFitted] = B->xn[kRec * k + kFitted];
     }
   }
 }
@@ -356,29 +406,36 @@ absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighbor
   W.order = os ? os->order.data() : nullptr;
   W.offsets = os ? os->offsets.data() : nb.offsets.data();
   W.points = os ? os->points.data() : nb.indices.data();
-  for (auto& x : W.xn) x.reset(new double[6 * static_cast<size_t>(nv)]);
-  W.radius2.reset(new double[nv]);
-  W.fitted.reset(new uint8_t[nv]);
-  W.hessians.reset(new double[4 * static_cast<size_t>(nv)]);
+  // Both copies in one allocation of aligned lines, left uninitialised (every slot is
+  // written before it is read).
+  struct alignas(64) Line {
+    double d[kRec];
+  };
+  const std::unique_ptr<Line[]> lines(new Line[2 * static_cast<size_t>(nv)]);
+  W.xn[0] = lines[0].d, W.xn[1] = lines[nv].d;
   // Positions and the plain fits' normals, in visiting order. Here and at the end, the
   // loops run in the input numbering (the fits' arrays read and written in sequence, the
   // slots at random: one line a vertex instead of three).
   const int32_t* rank = os ? os->rank.data() : nullptr;
   auto slot_of = [&](int64_t v) -> int64_t { return rank ? rank[v] : v; };
   ParallelFor(nv, threads, [&](int64_t v) {
-    if (v + 16 < nv) __builtin_prefetch(W.xn[0].get() + 6 * slot_of(v + 16), 1);
+    if (v + 16 < nv) __builtin_prefetch(W.xn[0] + kRec * slot_of(v + 16), 1);
     const int64_t k = slot_of(v);
-    double* dst = W.xn[0].get() + 6 * k;
+    double* dst = W.xn[0] + kRec * k;
     const LocalFrame& fr = frames[v];
     const double* c = coefficients + v * kCoef;
     const Eigen::Vector3d n = (fr.normal - c[TaylorIndex(1, 0)] * fr.t1 - c[TaylorIndex(0, 1)] * fr.t2).normalized();
     for (int i = 0; i < 3; ++i) dst[i] = mesh.positions(v, i), dst[3 + i] = n[i];
-    W.fitted[k] = diagnostics[v].degree_used >= 2;
+    dst[kRadius2] = 0, dst[kFitted] = diagnostics[v].degree_used >= 2 ? 1.0 : 0.0;
   }, 4096);
   // Normal passes, from one copy of the normals into the other (every vertex reads its
   // neighbours' previous normals), then the Hessians in the refined frames.
   constexpr int64_t kGrain = 1024;
   const int64_t chunks = (nv + kGrain - 1) / kGrain;
+  W.walk.resize(nv);
+  ParallelFor(chunks, threads, [&](int64_t c) {
+    BatchOrder(W, c * kGrain, std::min<int64_t>(nv, (c + 1) * kGrain), W.walk.data());
+  }, 1);
   int from = 0;
   for (int pass = 0; pass < passes; ++pass, from = 1 - from)
     GF_RETURN_IF_ERROR(ParallelFor(
@@ -386,20 +443,17 @@ absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighbor
   GF_RETURN_IF_ERROR(ParallelFor(
       chunks, ctx, [&](int64_t c) { HessiansRange(W, from, c * kGrain, std::min<int64_t>(nv, (c + 1) * kGrain)); },
       1));
-  // The refined frames and Hessians into the fits (the tangent plane is the frame's).
-  const double* refined = W.xn[from].get();
+  // The refined frames and Hessians into the fits (the tangent plane is the frame's): the
+  // Hessian pass's records, the positions the mesh's own.
+  const double* refined = W.xn[1 - from];
   ParallelFor(nv, threads, [&](int64_t v) {
-    if (v + 16 < nv) {
-      __builtin_prefetch(refined + 6 * slot_of(v + 16));
-      __builtin_prefetch(W.hessians.get() + 4 * slot_of(v + 16));
-    }
-    const int64_t k = slot_of(v);
-    if (!W.fitted[k]) return;
-    const double* x = refined + 6 * k;
-    frames[v] = FrameFromNormal(Eigen::Vector3d(x[0], x[1], x[2]), Eigen::Vector3d(x[3], x[4], x[5]));
+    if (v + 16 < nv) __builtin_prefetch(refined + kRec * slot_of(v + 16));
+    const double* x = refined + kRec * slot_of(v);
+    if (x[kFitted] == 0) return;
+    frames[v] = FrameFromNormal(Eigen::Vector3d(mesh.positions(v, 0), mesh.positions(v, 1), mesh.positions(v, 2)),
+                                Eigen::Vector3d(x[4], x[5], x[6]));
     double* c = coefficients + v * kCoef;
-    const double* hess = W.hessians.get() + 4 * k;
-    if (hess[3] > 0) c[TaylorIndex(2, 0)] = hess[0], c[TaylorIndex(1, 1)] = hess[1], c[TaylorIndex(0, 2)] = hess[2];
+    if (x[3] > 0) c[TaylorIndex(2, 0)] = x[0], c[TaylorIndex(1, 1)] = x[1], c[TaylorIndex(0, 2)] = x[2];
     c[TaylorIndex(1, 0)] = c[TaylorIndex(0, 1)] = 0;
   }, 4096);
   return absl::OkStatus();

@@ -512,6 +512,35 @@ TEST(FitTest, HermiteHessianCancelsTheQuarticTermAtDegreeTwo) {
 // "Degree 2 from the neighbours' normals"): every norm at most 0.5x CGAL's (the largest
 // 0.47x / 0.49x, the coarsest quad torus's normal Linf), and the orders of the refined
 // quantities above CGAL's.
+// Every vertex's refinement is independent of the batch it lands in (vector lanes of 8,
+// stencils sorted by size within chunks) and of the threads: the slots in locality order
+// and in vertex order (other batches, other records) and 1 or 2 threads give the same bits.
+TEST(FitTest, SlopeRefinementIsIndependentOfOrderAndThreads) {
+  GeneratorOptions g;
+  g.n = 24;
+  const Mesh m = GenerateNamedMesh("ellipsoid", g).value();
+  const Topology t = BuildTopology(m).value();
+  ASSERT_EQ(static_cast<int>(t.locality_order.size()), m.NumVertices());
+  Topology plain_copy = t;  // slots = vertices
+  plain_copy.locality_order.clear();
+  const Topology& plain = plain_copy;
+  for (const int passes : {1, 2}) {
+    FitOptions o;
+    o.slope_refinement = passes;
+    const Differentials ref = ComputeDifferentials(*FitSurface(m, t, o, nullptr, {}, RunContext(nullptr, 1)).value());
+    const Differentials unrefined = ComputeDifferentials(*FitSurface(m, t, FitOptions()).value());
+    EXPECT_GT((ref.normals - unrefined.normals).norm(), 0) << passes;
+    for (const Topology* topo : {&t, &plain})
+      for (const int threads : {1, 2}) {
+        const Differentials d =
+            ComputeDifferentials(*FitSurface(m, *topo, o, nullptr, {}, RunContext(nullptr, threads)).value());
+        EXPECT_EQ(d.normals, ref.normals) << passes << " " << threads;
+        EXPECT_EQ(d.mean, ref.mean) << passes << " " << threads;
+        EXPECT_EQ(d.gaussian, ref.gaussian) << passes << " " << threads;
+      }
+  }
+}
+
 TEST(FitTest, SlopeRefinementHalvesCgalsErrorsAtDegreeTwo) {
   struct Case {
     const char* mesh;

@@ -211,8 +211,9 @@ void AddCurvatureOptions(ArgParser* p, CurvatureArgs* a) {
             "(quartic term cancels: H, K ~0.1-0.4x CGAL's); implies --normal-degree 3")
       .Int("slope-refinement", &f.slope_refinement,
            "degree 2: passes (1-3) refining normals and curvatures from the neighbours' fitted "
-           "normals on the same stencils (1: normals, H, K ~0.02-0.47x CGAL's on clean meshes at "
-           "~2x a plain fit; the best clean-mesh accuracy at degree 2); 0 = off")
+           "normals on the same stencils (2: normals, H, K ~0.01-0.49x CGAL's on clean meshes at "
+           "~3x a plain fit, the best clean-mesh accuracy at degree 2; 1: up to 0.48x on "
+           "marching-cubes meshes, ~2.5x); 0 = off")
       .String("solver", &a->solver, "least-squares solver: qr (the default) or svd", "qr|svd")
       .Flag("two-pass", &f.two_pass, "refit in frames from the first pass's fitted normals")
       .Flag("interpolate", &a->interpolate, "the fit passes through the vertex (the default)")
