@@ -6,6 +6,7 @@
 #include <vector>
 
 #include "core/fitting/hermite.h"
+#include "core/fitting/record_lanes.h"
 #include "core/util/parallel.h"
 #include "core/util/status_macros.h"
 
@@ -89,26 +90,12 @@ struct Work {
 typedef double V __attribute__((vector_size(kLanes * sizeof(double))));
 
 // q[c] = component c (x y z nx ny nz) of the records of slots at[0..7], each one aligned
-// line: unpacks of lane pairs, then two-source permutes and 256-bit joins (the records'
-// transposition of wls_batch.cc's Avx512Rows). Data movement only: exact.
+// line (record_lanes.h). Data movement only: exact.
 __attribute__((always_inline)) inline void Transpose(const double* xn, const int32_t (&at)[kLanes], V* q) {
-  V lo[4], hi[4];
-  for (int k = 0; k < 4; ++k) {
-    const V a = *reinterpret_cast<const V*>(xn + kRec * static_cast<int64_t>(at[2 * k])),
-            b = *reinterpret_cast<const V*>(xn + kRec * static_cast<int64_t>(at[2 * k + 1]));
-    lo[k] = __builtin_shufflevector(a, b, 0, 8, 2, 10, 4, 12, 6, 14);
-    hi[k] = __builtin_shufflevector(a, b, 1, 9, 3, 11, 5, 13, 7, 15);
-  }
-  for (int h = 0; h < 2; ++h) {
-    const V* t = h ? hi : lo;
-    const V a = __builtin_shufflevector(t[0], t[1], 0, 1, 8, 9, 2, 3, 10, 11);
-    const V b = __builtin_shufflevector(t[2], t[3], 0, 1, 8, 9, 2, 3, 10, 11);
-    const V c = __builtin_shufflevector(t[0], t[1], 4, 5, 12, 13, 6, 7, 14, 15);
-    const V d = __builtin_shufflevector(t[2], t[3], 4, 5, 12, 13, 6, 7, 14, 15);
-    q[h] = __builtin_shufflevector(a, b, 0, 1, 2, 3, 8, 9, 10, 11);
-    q[h + 2] = __builtin_shufflevector(a, b, 4, 5, 6, 7, 12, 13, 14, 15);
-    q[h + 4] = __builtin_shufflevector(c, d, 0, 1, 2, 3, 8, 9, 10, 11);
-  }
+  static_assert(kLanes == 8, "TransposeRecords8 fills 8 lanes");
+  const double* rec[kLanes];
+  for (int l = 0; l < kLanes; ++l) rec[l] = xn + kRec * static_cast<int64_t>(at[l]);
+  TransposeRecords8(rec, q);
 }
 
 // A batch of kLanes vertices: their centres, frames (FrameFromNormal's, in lanes) and

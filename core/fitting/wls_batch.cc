@@ -8,6 +8,7 @@
 #endif
 
 #include "core/fitting/fit.h"
+#include "core/fitting/record_lanes.h"
 #include "core/util/parallel.h"
 
 // Compiled with -fno-math-errno (core/CMakeLists.txt) so that square roots of vectors
@@ -114,28 +115,8 @@ struct Avx2Rows {
 struct Avx512Rows {
   static constexpr int kW = 8;
   using V = Lanes<8>::V;
-  // 8 records (x y z nx ny nz pad pad) transposed: unpacks of lane pairs give (x, z, ny,
-  // pad) and (y, nx, nz, pad) in pairs of lanes; two-source permutes put lanes 0-3 and 4-7
-  // of two components side by side, 256-bit joins finish. (Generic shuffles: GCC 12 warns
-  // on the intrinsics' undefined sources.)
-  GEOMFIT_AVX512 static inline void Records(const double* const* at, V* q) {
-    V lo[4], hi[4];
-    for (int k = 0; k < 4; ++k) {
-      const V a = *reinterpret_cast<const V*>(at[2 * k]), b = *reinterpret_cast<const V*>(at[2 * k + 1]);
-      lo[k] = __builtin_shufflevector(a, b, 0, 8, 2, 10, 4, 12, 6, 14);
-      hi[k] = __builtin_shufflevector(a, b, 1, 9, 3, 11, 5, 13, 7, 15);
-    }
-    for (int h = 0; h < 2; ++h) {
-      const V* t = h ? hi : lo;
-      const V a = __builtin_shufflevector(t[0], t[1], 0, 1, 8, 9, 2, 3, 10, 11);
-      const V b = __builtin_shufflevector(t[2], t[3], 0, 1, 8, 9, 2, 3, 10, 11);
-      const V c = __builtin_shufflevector(t[0], t[1], 4, 5, 12, 13, 6, 7, 14, 15);
-      const V d = __builtin_shufflevector(t[2], t[3], 4, 5, 12, 13, 6, 7, 14, 15);
-      q[h] = __builtin_shufflevector(a, b, 0, 1, 2, 3, 8, 9, 10, 11);
-      q[h + 2] = __builtin_shufflevector(a, b, 4, 5, 6, 7, 12, 13, 14, 15);
-      q[h + 4] = __builtin_shufflevector(c, d, 0, 1, 2, 3, 8, 9, 10, 11);
-    }
-  }
+  // 8 records transposed in registers (record_lanes.h).
+  GEOMFIT_AVX512 static inline void Records(const double* const* at, V* q) { TransposeRecords8(at, q); }
   GEOMFIT_AVX512 static inline V Gamma(V g, V cut, int i, const int32_t* rows) {
     const __mmask8 valid =
         _mm256_cmpgt_epi32_mask(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(rows)), _mm256_set1_epi32(i));
