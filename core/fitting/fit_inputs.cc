@@ -1,6 +1,5 @@
 #include "core/fitting/fit_inputs.h"
 
-#include <atomic>
 #include <cstring>
 #include <utility>
 
@@ -8,23 +7,6 @@
 #include "core/util/parallel.h"
 
 namespace geomfit {
-namespace {
-
-// memcmp(a, b, bytes) == 0, compared in parallel blocks when large (the cache's key check
-// would otherwise be a serial pass over the positions on every fit).
-bool BytesEqual(const void* a, const void* b, size_t bytes, int num_threads) {
-  constexpr size_t kBlock = size_t{1} << 18;
-  if (bytes < 2 * kBlock) return std::memcmp(a, b, bytes) == 0;
-  std::atomic<bool> equal{true};
-  const auto* x = static_cast<const char*>(a);
-  const auto* y = static_cast<const char*>(b);
-  ParallelForBlocks(static_cast<int64_t>(bytes), num_threads, [&](int64_t begin, int64_t end, int) {
-    if (std::memcmp(x + begin, y + begin, static_cast<size_t>(end - begin)) != 0) equal = false;
-  });
-  return equal;
-}
-
-}  // namespace
 
 std::shared_ptr<FitInputs> MakeFitInputs(const Mesh& mesh, const Topology& topo, NormalWeighting weighting,
                                          const std::vector<int32_t>* order, int num_threads) {
@@ -64,7 +46,7 @@ std::shared_ptr<const FitInputs> FitInputCache::Get(const Mesh& mesh, const Topo
   }
   const bool with_records = order && !order->empty();
   if (kept && kept->positions.rows() == mesh.positions.rows() && kept->records.empty() != with_records &&
-      BytesEqual(kept->positions.data(), mesh.positions.data(), sizeof(double) * mesh.positions.size(), num_threads))
+      std::memcmp(kept->positions.data(), mesh.positions.data(), sizeof(double) * mesh.positions.size()) == 0)
     return kept;
   auto made = MakeFitInputs(mesh, topo, weighting, order, num_threads);
   made->positions = mesh.positions;
