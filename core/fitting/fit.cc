@@ -518,9 +518,12 @@ class SurfaceFitter {
     const int nv = mesh.NumVertices();
     f.options_ = o;
     f.neighborhoods_ = nb;
+    // Frames, coefficients and diagnostics unwritten here (a serial pass over ~14 MB at
+    // 87k vertices, degree 2, ~10% of a 1-thread run): the fit loop resets each vertex's.
+    const int64_t stride = f.dims() * f.num_coefficients();
     f.frames_.resize(nv);
-    f.coefficients_.assign(static_cast<size_t>(nv) * f.dims() * f.num_coefficients(), 0.0);
-    f.diagnostics_.assign(nv, VertexDiagnostics{});
+    f.coefficients_.resize(static_cast<size_t>(nv) * stride);
+    f.diagnostics_.resize(nv);
     if (req.stencils) {
       const int order = req.stencil_order < 0 ? o.degree : std::min(req.stencil_order, o.degree);
       f.stencil_rows_ = NumCoefficients(order);
@@ -599,9 +602,9 @@ class SurfaceFitter {
           __builtin_prefetch(fr, 1);
           __builtin_prefetch(fr + sizeof(LocalFrame) - 1, 1);
           __builtin_prefetch(&f.diagnostics_[w], 1);
-          const double* c = f.coefficients_.data() + w * f.dims() * f.num_coefficients();
+          const double* c = f.coefficients_.data() + w * stride;
           __builtin_prefetch(c, 1);
-          __builtin_prefetch(c + f.dims() * f.num_coefficients() - 1, 1);
+          __builtin_prefetch(c + stride - 1, 1);
         }
         if (!ordered_lanes && os && j + 4 < n) {
           const int w = static_cast<int>(vertex_at(walk[j + 4]));
@@ -609,8 +612,11 @@ class SurfaceFitter {
           for (int i = 0, n = nb->Size(w); i < n; ++i) __builtin_prefetch(os->rank.data() + p[i]);
         }
         const int64_t v = vertex_at(k);
-        if (topo.is_boundary[v]) f.diagnostics_[v].flags |= kFlagBoundary;
-        const FitOutput out{&f.frames_[v], f.coefficients_.data() + v * f.dims() * f.num_coefficients(),
+        f.frames_[v] = LocalFrame{};
+        std::fill_n(f.coefficients_.data() + v * stride, stride, 0.0);
+        f.diagnostics_[v] = VertexDiagnostics{};
+        if (topo.is_boundary[v]) f.diagnostics_[v].flags = kFlagBoundary;
+        const FitOutput out{&f.frames_[v], f.coefficients_.data() + v * stride,
                             &f.diagnostics_[v], req.stencils ? f.stencils_.data() + f.stencil_offsets_[v] : nullptr,
                             f.stencil_rows_};
         if (lane_setup) {

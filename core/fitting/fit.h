@@ -11,6 +11,7 @@
 #include "core/fitting/neighborhood.h"
 #include "core/fitting/options.h"
 #include "core/util/run_context.h"
+#include "core/util/uninitialized.h"
 
 namespace geomfit {
 
@@ -61,7 +62,7 @@ class SurfaceFits {
     return coefficients_.data() + static_cast<size_t>(v) * dims() * num_coefficients();
   }
   const VertexDiagnostics& diagnostics(int v) const { return diagnostics_[v]; }
-  const std::vector<VertexDiagnostics>& diagnostics() const { return diagnostics_; }
+  const UninitializedVector<VertexDiagnostics>& diagnostics() const { return diagnostics_; }
   const Neighborhoods& neighborhoods() const { return *neighborhoods_; }
   /// Position and derivatives of vertex v's fit at its origin.
   SurfaceJet Jet(int v) const;
@@ -86,9 +87,10 @@ class SurfaceFits {
   friend class SurfaceFitter;
   FitOptions options_;
   std::shared_ptr<const Neighborhoods> neighborhoods_;
-  std::vector<LocalFrame> frames_;
-  std::vector<double> coefficients_;
-  std::vector<VertexDiagnostics> diagnostics_;
+  // Sized without a serial fill: FitAll's threads write each vertex's (first touch).
+  UninitializedVector<LocalFrame> frames_;
+  UninitializedVector<double> coefficients_;
+  UninitializedVector<VertexDiagnostics> diagnostics_;
   std::vector<size_t> stencil_offsets_;
   std::vector<double> stencils_;
   int stencil_rows_ = 0;
