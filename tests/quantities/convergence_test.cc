@@ -390,19 +390,27 @@ TEST(NoiseAwareTest, ScheduleFollowsTheResidualRatio) {
   // curvature-weighted local passes
   EXPECT_TRUE(NoiseScheduleFor(3, 0.5).two_scale_final);
   EXPECT_TRUE(NoiseScheduleFor(3, 0.5).curvature_steps);
-  EXPECT_EQ(NoiseScheduleFor(3, 0.5).local_passes, 3);
+  EXPECT_EQ(NoiseScheduleFor(3, 0.5).local_passes, kCurvatureLocalPasses);
   EXPECT_EQ(NoiseScheduleFor(3, 0.5).smoothing_passes, 2);
   EXPECT_TRUE(NoiseScheduleFor(3, 0.7).two_scale_final);
   EXPECT_EQ(NoiseScheduleFor(3, 0.7).smoothing_passes, 2);
   EXPECT_EQ(NoiseScheduleFor(3, 0.7).local_passes, 3);
   EXPECT_FALSE(NoiseScheduleFor(3, 0.3).two_scale_final);
   for (double r : {0.05, 0.3}) EXPECT_FALSE(NoiseScheduleFor(3, r).curvature_steps) << r;
-  for (int d : {2, 4}) EXPECT_FALSE(NoiseScheduleFor(d, 0.5).two_scale_final || NoiseScheduleFor(d, 0.5).curvature_steps);
+  EXPECT_FALSE(NoiseScheduleFor(2, 0.5).two_scale_final || NoiseScheduleFor(2, 0.5).curvature_steps);
+  EXPECT_FALSE(NoiseScheduleFor(4, 0.5).two_scale_final);
   for (int d : {2, 4}) {
     EXPECT_EQ(NoiseScheduleFor(d, 0.7).smoothing_passes, 3);
-    EXPECT_EQ(NoiseScheduleFor(d, 0.7).local_passes, 1);
     EXPECT_EQ(NoiseScheduleFor(d, 0.7).smoothing_degree, 3);
   }
+  EXPECT_EQ(NoiseScheduleFor(2, 0.7).local_passes, 1);
+  // heavy noise at degree >= 4 (eighth round): the degree-3 curvature-weighted local passes
+  for (double r : {0.4, 0.5, 0.7}) {
+    EXPECT_TRUE(NoiseScheduleFor(4, r).curvature_steps) << r;
+    EXPECT_EQ(NoiseScheduleFor(4, r).local_passes, kCurvatureLocalPasses) << r;
+  }
+  EXPECT_EQ(NoiseScheduleFor(4, 0.5).smoothing_passes, 2);
+  EXPECT_FALSE(NoiseScheduleFor(4, 0.28).curvature_steps);
 }
 
 TEST(NoiseAwareTest, CubicOnThirdOrderPerturbation) {
