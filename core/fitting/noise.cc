@@ -40,7 +40,10 @@ NoiseSchedule NoiseScheduleFor(int degree, double residual_ratio) {
   }
   if (degree == 2 && residual_ratio >= kModerateNoiseResidualRatio) s.normal_points_factor = kHeavyNoiseNormalPointsFactor;
   if (degree == 3 && residual_ratio >= kModerateNoiseResidualRatio)  // noise.h, TwoScaleFinalFit
-    s.final_clean_stencils = s.two_scale_final = s.curvature_steps = true, s.smoothing_passes = 2, s.local_passes = 3;
+    s.final_clean_stencils = s.two_scale_final = s.curvature_steps = true, s.smoothing_passes = 2,
+    s.local_passes = kCurvatureLocalPasses;
+  if (degree >= 4 && residual_ratio >= kModerateNoiseResidualRatio)  // noise.h, kCurvatureLocalPasses
+    s.curvature_steps = true, s.local_passes = kCurvatureLocalPasses;
   if (degree == 3 && s.final_rings > 0) s.two_scale_final = true;  // light: noise.h, TwoScaleFinalFit
   if (degree >= 4 && residual_ratio >= kHeavyNoiseResidualRatio && residual_ratio < kModerateNoiseResidualRatio)
     s.final_clean_stencils = s.two_scale_final = true, s.final_points_factor = kModerateNoiseFinalPointsFactor;

@@ -177,6 +177,16 @@ void BlendLargeStencilNormals(const SurfaceFits& large, const std::vector<uint8_
 /// mildly curved (marching cubes: its noise varies at scale h), none where it is strongly
 /// curved (the cubic smoothing fits' bias). bench/README.md, "Noisy meshes, sixth round".
 inline constexpr double kTwoScaleSpread = 2;
+/// The local passes (CurvatureSmoothingSteps) under heavy noise, at degree 3 and, since the
+/// eighth round, at degree >= 4 (after its 2, or very heavy 3, global passes; the very heavy
+/// tier's one LocalSmoothingSteps pass before): the marching-cubes tori's noise varies at
+/// scale h and their largest errors sit at isolated vertices where the raw positions are
+/// worst (the same vertices as CGAL's), which more global smoothing averages away where the
+/// surface is mildly curved while the bump's centre keeps its steps near 0. Marching cubes d4
+/// N = 64: K Linf 0.74 -> 0.53x the best CGAL, N = 128 normal Linf 0.73 -> 0.66x; the bump
+/// and torus at alpha 0.2 / 0.5 h^2 and the gmsh torus at 0.1 h^2 improve too
+/// (bench/README.md, eighth round).
+inline constexpr int kCurvatureLocalPasses = 3;
 /// The same fit on two stencil sets elsewhere (bench/README.md, seventh round): at degree 3
 /// under light noise the 1.5-ring final fit (own) with the fit on the clean 2 rings whose
 /// tangent plane it keeps (other; the mean over those): its noise at the torus's inner
