@@ -378,6 +378,8 @@ class SurfaceFitter {
     std::shared_ptr<const Neighborhoods> smoothing_nb;  // the noise mode's smoothing fits' stencils
     std::shared_ptr<const Neighborhoods> tangent_nb;    // the clean tangent pre-fit's stencils (final_rings)
     std::shared_ptr<SurfaceFits> boundary_fits;  // cubic smoothing fits for the boundary vertices
+    std::shared_ptr<SurfaceFits> high_fits;      // smoothing fits of smoothing_degree_high
+    std::shared_ptr<const Neighborhoods> high_nb;
     const bool has_boundary = topo.num_boundary_edges > 0;
     for (int pass = 0; pass < passes; ++pass) {
       if (pass > 0) adopt_normals(*fits, nullptr);
@@ -386,8 +388,13 @@ class SurfaceFitter {
         const bool unshrink = scheduled && pass > schedule.smoothing_passes + schedule.local_passes;
         std::vector<double> back;
         if (unshrink) back = UnshrinkSteps(*fits, ctx.threads());
-        smoothed.positions = ProjectOntoFits(*fits, input->positions, ctx.threads(),
-                                             unshrink ? back.data() : local ? local_smoothing.data() : nullptr);
+        const double* step = unshrink ? back.data() : local ? local_smoothing.data() : nullptr;
+        if (high_fits)  // two smoothing degrees (noise.h, BlendFootPoints)
+          smoothed.positions = BlendFootPoints(*fits, *high_fits, input->positions, mesh, noise_over_h,
+                                               kFootPointBlendSpread, step, ctx.threads());
+        else
+          smoothed.positions = ProjectOntoFits(*fits, input->positions, ctx.threads(), step);
+        high_fits.reset();
         if (boundary_fits && !unshrink)  // vertices within a ring of the boundary onto their cubic fits
           ParallelFor(mesh.NumVertices(), ctx.threads(), [&](int64_t v) {
             bool near = topo.is_boundary[v];
@@ -405,6 +412,7 @@ class SurfaceFitter {
       std::shared_ptr<const Neighborhoods> pass_nb = nb;
       if (eff.noise == NoiseMode::kOn) {  // the smoothing fits' degree, the final fit's weights (noise.h)
         if (last) pass_options.weight_epsilon = schedule.final_weight_epsilon;
+        if (last && schedule.final_interpolates) pass_options.interpolate = true;  // nearly clean (noise.h)
         if (pass < smoothing) {  // the noise mode's own stencils; rings and factor apply to the final fit
           pass_options = NoiseSmoothingOptions(eff, schedule);
           const RingSpec spec = RingSpecFor(pass_options), final_rings = RingSpecFor(final_spec);
@@ -439,7 +447,9 @@ class SurfaceFitter {
         pre.rings = pre.min_points_factor = 0;
         if (clean_tangent) {
           pre.noise = NoiseMode::kOff;
-          pre.weight_epsilon = schedule.final_weight_epsilon;
+          pre.weight_epsilon = schedule.tangent_weight_epsilon > 0 ? schedule.tangent_weight_epsilon
+                                                                   : schedule.final_weight_epsilon;
+          if (schedule.final_interpolates) pre.interpolate = true;
         }
         if (eff.noise == NoiseMode::kOn && !clean_tangent)  // one-sided stencils: more points (noise.h)
           pre.boundary_points_factor = std::max(pre.boundary_points_factor, kNoiseNormalBoundaryPointsFactor);
@@ -494,6 +504,16 @@ class SurfaceFitter {
       if (scheduled && pass == 0 && schedule.local_passes > 0)
         local_smoothing = schedule.curvature_steps ? CurvatureSmoothingSteps(*fits, kTwoScaleSpread, ctx.threads())
                                                    : LocalSmoothingSteps(*fits, mesh, noise_over_h, ctx.threads());
+      // Nearly clean: the smoothing and local passes' second degree (noise.h, BlendFootPoints).
+      if (scheduled && pass < schedule.smoothing_passes + schedule.local_passes && schedule.smoothing_degree_high > 0) {
+        NoiseSchedule high = schedule;
+        high.smoothing_degree = schedule.smoothing_degree_high;
+        const FitOptions ho = NoiseSmoothingOptions(eff, high);
+        if (!high_nb) high_nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, mesh, RingSpecFor(ho), ctx.threads()));
+        high_fits = std::make_shared<SurfaceFits>();
+        GF_RETURN_IF_ERROR(FitAll(*input, topo, ho, high_nb, *frame_normals, FitRequest{}, ctx, nullptr, nullptr, phase,
+                                  *high_fits));
+      }
       // Moderate noise: the smoothing fits above cubic extrapolate the one-sided stencils
       // of the boundary (normal Linf 1.3x there, bench/README.md third round); cubic ones.
       if (eff.noise == NoiseMode::kOn && pass < smoothing && schedule.cubic_near_boundary && has_boundary) {

@@ -48,6 +48,12 @@ NoiseSchedule NoiseScheduleFor(int degree, double residual_ratio) {
   if (degree >= 4 && residual_ratio >= kHeavyNoiseResidualRatio && residual_ratio < kModerateNoiseResidualRatio)
     s.final_clean_stencils = s.two_scale_final = true, s.final_points_factor = kModerateNoiseFinalPointsFactor;
   if (degree >= 3 && residual_ratio >= kModerateNoiseResidualRatio) s.unshrink_passes = kUnshrinkPasses;
+  if ((degree == 3 || degree == 4) && residual_ratio < kLocalSmoothingResidualRatio) {  // nearly clean, noise.h
+    s.smoothing_degree_high = kMaxDegree, s.local_passes = kNearlyCleanLocalPasses;
+    if (degree == 4)
+      s.final_interpolates = true, s.final_rings = (degree + 1) / 2.0, s.final_points_factor = 1.5,
+      s.tangent_weight_epsilon = kNearlyCleanTangentEpsilon;
+  }
   if (degree == 2 && residual_ratio < kSlopeRefinementResidualRatio)  // noise.h, slope_passes
     s.smoothing_degree = 5, s.slope_passes = kNoiseSlopePasses;
   return s;
@@ -63,6 +69,29 @@ FitOptions NoiseSmoothingOptions(const FitOptions& options, const NoiseSchedule&
   o.normal_degree = 0;
   o.two_pass = false;
   return o;
+}
+
+Positions BlendFootPoints(const SurfaceFits& low, const SurfaceFits& high, const Positions& positions,
+                          const Mesh& mesh, double noise_over_h, double spread, const double* step, int num_threads) {
+  Positions out = positions;
+  const double tau = spread * noise_over_h * AverageEdgeLength(mesh);
+  ParallelFor(low.num_vertices(), num_threads, [&](int64_t v) {
+    const int i = static_cast<int>(v);
+    const bool has_low = low.diagnostics(i).degree_used >= 1, has_high = high.diagnostics(i).degree_used >= 1;
+    if (!has_low && !has_high) return;
+    Eigen::Vector3d x;
+    if (!has_low || !has_high) {
+      x = (has_high ? high : low).Jet(i).x;
+    } else {
+      const Eigen::Vector3d xl = low.Jet(i).x, xh = high.Jet(i).x;
+      const double d = (xh - xl).norm();
+      const double w = d == 0 ? 0 : tau > 0 ? d * d / (d * d + tau * tau) : 1;
+      x = xl + w * (xh - xl);
+    }
+    if (!step) out.row(v) = x.transpose();
+    else if (step[v] != 0) out.row(v) += step[v] * (x.transpose() - positions.row(v));
+  });
+  return out;
 }
 
 std::vector<double> LocalSmoothingSteps(const SurfaceFits& fits, const Mesh& mesh, double noise_over_h,

@@ -55,7 +55,29 @@ struct NoiseSchedule {
   int slope_passes = 0;
   /// Passes after the local ones that move strongly curved vertices back (UnshrinkSteps).
   int unshrink_passes = 0;
+  /// The smoothing and local passes' foot points also from fits of this degree, blended
+  /// per vertex with smoothing_degree's (BlendFootPoints; 0: off).
+  int smoothing_degree_high = 0;
+  /// The final fit interpolates the smoothed mesh (with final_rings: also the tangent pre-fit).
+  bool final_interpolates = false;
+  /// eps of (2.2.1) in the clean tangent pre-fit of final_rings (0: final_weight_epsilon).
+  double tangent_weight_epsilon = 0;
 };
+/// Nearly clean meshes at degrees 3-4 (residual ratio below kLocalSmoothingResidualRatio:
+/// O(h^3) noise, alpha 0.1-0.2: 0.010-0.024 at n = 64; a gmsh torus at 0.1 h^3, h = 0.0126:
+/// 0.008). After quintic smoothing the torus keeps noise and the strongly curved bump the
+/// smoothing's bias, in the same residual-ratio range: every smoothing pass (two global,
+/// kNearlyCleanLocalPasses local) blends quintic and sextic foot points per vertex
+/// (BlendFootPoints, spread kFootPointBlendSpread), and at degree 4 the final fit
+/// interpolates the smoothed mesh on the clean stencils ((d+1)/2 rings, 1.5x the
+/// coefficients) with eps 0.1, in the tangent plane of the same fit with eps 0.01: torus
+/// alpha 0.1 at n = 64 d4 normal / H / K 0.72 / 0.63 / 0.61 (K Linf 1.10) -> 0.49 / 0.37 /
+/// 0.38 (0.49)x the best CGAL, bump 0.80 / 0.78 / 0.77 -> 0.69 / 0.60 / 0.54, gmsh torus 0.1
+/// h^3 d4 normal 0.75 -> 0.64x; torus d3 K Linf 0.81 / 0.94 -> 0.69 / 0.83 (alpha 0.2 / 0.1;
+/// bench/README.md, "Nearly clean meshes").
+inline constexpr int kNearlyCleanLocalPasses = 2;
+inline constexpr double kFootPointBlendSpread = 0.7;
+inline constexpr double kNearlyCleanTangentEpsilon = 0.01;
 /// Nearly clean meshes at degree 2 (residual ratio below kSlopeRefinementResidualRatio: O(h^3)
 /// noise, alpha 0.5: 0.040-0.082 at n = 32-64; O(h^2) alpha 0.1 at n = 16-32: 0.113-0.145):
 /// after two smoothing passes of degree 5 the smoothed mesh is as good as clean, and the
@@ -224,6 +246,19 @@ std::vector<double> CurvatureSmoothingSteps(const SurfaceFits& fits, double spre
 inline constexpr int kUnshrinkPasses = 2;
 inline constexpr double kUnshrinkStep = 4;
 inline constexpr double kUnshrinkSpread = 8;
+/// Every vertex moved onto a per-vertex blend of its two smoothing fits' foot points x_l
+/// (`low`) and x_h (`high`, of a higher degree; x(0, 0) of Table 3.1):
+/// x_l + w (x_h - x_l), w = t^2 / (1 + t^2), t = |x_h - x_l| / (spread x noise), noise =
+/// noise_over_h x the mean edge length. Where the two differ by less than the noise, the
+/// lower degree, which averages more of it, wins (the gmsh torus: t ~ 0.1-0.4); where they
+/// differ by more (the lower degree's bias from the surface's higher terms: the generated
+/// torus at n = 64, t ~ 0.5, and the bump's flanks, t up to ~10) the higher degree does.
+/// With `step` (the local passes), each vertex moves that fraction of the way there.
+/// Vertices fitted by one only take its foot point; by none, keep `positions`.
+Positions BlendFootPoints(const SurfaceFits& low, const SurfaceFits& high, const Positions& positions,
+                          const Mesh& mesh, double noise_over_h, double spread, const double* step = nullptr,
+                          int num_threads = 0);
+
 /// The unshrink passes' per-vertex steps (negative; 0 where unfitted) from `fits`.
 std::vector<double> UnshrinkSteps(const SurfaceFits& fits, int num_threads = 0);
 
