@@ -275,7 +275,7 @@ absl::StatusOr<NoiseEstimate> EstimateNoise(const Mesh& mesh, const Topology& to
   spec.max_points = 80;
   const Neighborhoods nb = BuildNeighborhoods(topo, mesh, spec, ctx.threads());
   const int samples = (nv + stride - 1) / stride;
-  std::vector<double> ratio(samples, -1), level(samples, -1);
+  std::vector<double> ratio(samples, -1), level(samples, -1), sextic(samples, -1);
   const double h = AverageEdgeLength(mesh);
   absl::Status s = ParallelFor(samples, ctx, [&](int64_t i) {
     const int v = static_cast<int>(i * stride);
@@ -296,6 +296,10 @@ absl::StatusOr<NoiseEstimate> EstimateNoise(const Mesh& mesh, const Topology& to
     if (P.rows < 30) return;
     const double r2 = ResidualRms(P, 2), r4 = ResidualRms(P, 4);
     if (r2 > 0) ratio[i] = r4 / r2, level[i] = r4 / h;
+    // The sextic's residual against the quartic's, both per remaining degree of freedom.
+    constexpr int c4 = NumCoefficients(4), c6 = NumCoefficients(6);
+    const double r6 = r4 > 0 && P.rows > c6 ? ResidualRms(P, 6) : 0;
+    if (r6 > 0) sextic[i] = r6 / r4 * std::sqrt((P.rows - c4) / double(P.rows - c6));
   }, 64, "noise test");
   if (!s.ok()) return s;
   NoiseEstimate est;
@@ -308,7 +312,8 @@ absl::StatusOr<NoiseEstimate> EstimateNoise(const Mesh& mesh, const Topology& to
   est.samples = static_cast<int>(std::count_if(ratio.begin(), ratio.end(), [](double a) { return a >= 0; }));
   est.residual_ratio = median(ratio);
   est.noise_over_h = median(level);
-  est.noisy = est.residual_ratio > kNoisyResidualRatio;
+  est.sextic_ratio = median(sextic);
+  est.noisy = est.residual_ratio > kNoisyResidualRatio || est.sextic_ratio > kNoisySexticRatio;
   return est;
 }
 
