@@ -6,6 +6,7 @@
 //   BM_Topology/shuffled:<0|1>              BuildTopology
 //   BM_MeshChecks/shuffled:<0|1>            HasLocalNumbering(mesh) + ValidateGeometry
 //   BM_Neighborhoods/shuffled:<0|1>/deg:<d>/threads:<t>  BuildNeighborhoods(RingSpecFor(degree d))
+//   BM_RelabelledNormals/shuffled:<1|2>/spokes:<0|1>  (--mesh) vertex normals, relabelled
 //   BM_Parse/shuffled:<0|1>/fmt:<f>         ParseMesh of bytes in memory; f = 0 OBJ, 1 OFF,
 //                                           2 ascii PLY (%.17g coordinates, as FormatObj)
 //   BM_ReadObj/shuffled:<0|1>               ReadMesh of the OBJ file (file read + parse)
@@ -50,6 +51,7 @@
 #include <benchmark/benchmark.h>
 
 #include "absl/strings/str_format.h"
+#include "core/fitting/frames.h"
 #include "core/fitting/neighborhood.h"
 #include "core/mesh/io.h"
 #include "core/mesh/topology.h"
@@ -212,6 +214,22 @@ void BM_RelabelledTopology(benchmark::State& state) {
     LocalityRelabelling r = RelabelForLocality(x.mesh, order).value();
     Topology t = BuildTopology(r).value();
     benchmark::DoNotOptimize(t.vv.data());
+    benchmark::ClobberMemory();
+  }
+  state.counters["verts"] = x.mesh.NumVertices();
+}
+
+// ApproximateVertexNormals (area weights, one thread) on the CLI's relabelled mesh
+// (kRotational): spokes:1 reads each corner's spokes from the fan-ordered neighbour rows
+// (Topology::fan_rows, the CLI's path), spokes:0 walks the face rows (fan_rows cleared).
+void BM_RelabelledNormals(benchmark::State& state) {
+  const Variant& x = F().v[state.range(0)];
+  const LocalityRelabelling r = RelabelForLocality(x.mesh, RowOrder::kRotational).value();
+  Topology t = BuildTopology(r).value();
+  t.fan_rows = state.range(1) != 0;
+  for (auto _ : state) {
+    Positions n = ApproximateVertexNormals(r.mesh, t, NormalWeighting::kArea, 1);
+    benchmark::DoNotOptimize(n.data());
     benchmark::ClobberMemory();
   }
   state.counters["verts"] = x.mesh.NumVertices();
@@ -390,6 +408,11 @@ int main(int argc, char** argv) {
     benchmark::RegisterBenchmark("BM_ReadFile", BM_ReadFile)->Unit(benchmark::kMillisecond)->UseRealTime();
     benchmark::RegisterBenchmark("BM_RelabelledTopology", BM_RelabelledTopology)
         ->ArgNames({"shuffled", "order"})
+        ->ArgsProduct({{1, 2}, {0, 1}})
+        ->Unit(benchmark::kMillisecond)
+        ->UseRealTime();
+    benchmark::RegisterBenchmark("BM_RelabelledNormals", BM_RelabelledNormals)
+        ->ArgNames({"shuffled", "spokes"})
         ->ArgsProduct({{1, 2}, {0, 1}})
         ->Unit(benchmark::kMillisecond)
         ->UseRealTime();

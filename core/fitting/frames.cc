@@ -23,18 +23,19 @@ Positions ApproximateVertexNormals(const Mesh& mesh, const Topology& topo, Norma
   // fan (on a mesh numbered in any order that was a cache miss per face): the same sums
   // bit for bit. A thread owns a range of vertices and scans every face for its corners.
   // Otherwise (a LocalityRelabelling's topology, rows in the source's face order, faces
-  // stored near their vertices) each vertex walks its fan, its sum in registers.
+  // stored near their vertices) each vertex walks its fan, its sum in registers; rows in
+  // fan order (Topology::fan_rows) give each corner's two other ends as neighbours.
   const bool face_order = topo.vertex_faces_ascending || topo.num_vertices != nv;
   Positions normals(nv, 3);
   if (face_order) normals.setZero();
   const double* P = mesh.positions.data();
-  // The normal of corner c of face row idx (n corners), added to sum[0..3).
-  auto add_corner = [&](const int32_t* idx, int n, int c, double* sum) __attribute__((always_inline)) {
+  // The normal of the corner at v between the spokes `after` and `before` (the corners
+  // after and before v in its face), added to sum[0..3).
+  auto add_spokes = [&](int32_t v, int32_t after, int32_t before, double* sum) __attribute__((always_inline)) {
     using Vec = Eigen::Map<const Eigen::Vector3d>;
-    const int32_t v = idx[c];
     const Eigen::Vector3d x = Vec(P + 3 * static_cast<int64_t>(v));
-    const Eigen::Vector3d a = Vec(P + 3 * static_cast<int64_t>(idx[c + 1 < n ? c + 1 : 0])) - x;
-    const Eigen::Vector3d b = Vec(P + 3 * static_cast<int64_t>(idx[c > 0 ? c - 1 : n - 1])) - x;
+    const Eigen::Vector3d a = Vec(P + 3 * static_cast<int64_t>(after)) - x;
+    const Eigen::Vector3d b = Vec(P + 3 * static_cast<int64_t>(before)) - x;
     const Eigen::Vector3d cr = a.cross(b);  // corner normal, |cr| = 2 x corner triangle area
     if (weighting == NormalWeighting::kArea) {
       for (int k = 0; k < 3; ++k) sum[k] += cr[k];
@@ -45,6 +46,10 @@ Positions ApproximateVertexNormals(const Mesh& mesh, const Topology& topo, Norma
         for (int k = 0; k < 3; ++k) sum[k] += w[k];
       }
     }
+  };
+  // The normal of corner c of face row idx (n corners), added to sum[0..3).
+  auto add_corner = [&](const int32_t* idx, int n, int c, double* sum) __attribute__((always_inline)) {
+    add_spokes(idx[c], idx[c + 1 < n ? c + 1 : 0], idx[c > 0 ? c - 1 : n - 1], sum);
   };
   auto store_unit = [&](int64_t v, const double* sum) {
     const Eigen::Vector3d s(sum[0], sum[1], sum[2]);
@@ -68,6 +73,17 @@ Positions ApproximateVertexNormals(const Mesh& mesh, const Topology& topo, Norma
           if (idx[c] >= begin && idx[c] < end) add_corner(idx, n, c, sums + 3 * static_cast<int64_t>(idx[c]));
       }
       for (int64_t v = begin; v < end; ++v) store_unit(v, sums + 3 * v);
+    } else if (topo.fan_rows) {
+      // Rows in fan order: each corner's spokes are consecutive neighbours (no face row
+      // read, no corner search), the corners in the same order as VertexFaces.
+      for (int64_t v = begin; v < end; ++v) {
+        double sum[3] = {0, 0, 0};
+        const int32_t* spoke = topo.Neighbors(static_cast<int>(v));
+        const int m = topo.NumNeighbors(static_cast<int>(v));
+        for (int j = 0, nj = topo.NumVertexFaces(static_cast<int>(v)); j < nj; ++j)
+          add_spokes(static_cast<int32_t>(v), spoke[j], spoke[j + 1 < m ? j + 1 : 0], sum);
+        store_unit(v, sum);
+      }
     } else {
       for (int64_t v = begin; v < end; ++v) {
         double sum[3] = {0, 0, 0};  // as the zeroed rows of the face-order path

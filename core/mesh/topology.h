@@ -32,6 +32,10 @@ struct Topology {
   /// source's face order or the fan's (RowOrder). Face-by-face passes that accumulate per vertex match per-fan
   /// passes only in the first case.
   bool vertex_faces_ascending = true;
+  /// True when each vertex's vf and vv rows are in fan order (BuildTopology of a
+  /// RowOrder::kRotational relabelling): face j's corner at v has the spokes vv[j] (the
+  /// corner after v) and vv[j + 1] (before v), with vv[k] read as vv[0] in a closed fan.
+  bool fan_rows = false;
 
   int NumVertexFaces(int v) const { return vf_offsets[v + 1] - vf_offsets[v]; }
   const int32_t* VertexFaces(int v) const { return vf_faces.data() + vf_offsets[v]; }

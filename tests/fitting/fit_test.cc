@@ -102,6 +102,34 @@ TEST(FitTest, VertexNormalsEqualTheSumsOverEachFanInOrder) {
   }
 }
 
+// On a kRotational relabelling's topology (Topology::fan_rows, the CLI's) each corner's
+// spokes are read from the fan-ordered neighbour rows instead of the face rows: the same
+// sums bit for bit as the walk over the face rows (fan_rows cleared), on closed and open
+// fans, triangles and quads, either weighting, 1 and 2 threads.
+TEST(FitTest, FanRowNormalsEqualTheFaceRowWalk) {
+  GeneratorOptions g;
+  g.n = 9;
+  GeneratorOptions q = g;
+  q.quads = true;
+  for (const Mesh& base : {GenerateTorusMesh(g), GenerateBumpMesh(q), GenerateDelaunaySphereMesh(400, 0.3),
+                           GenerateOpenCylinderMesh(g)}) {
+    const LocalityRelabelling r =
+        RelabelForLocality(testing_util::ShuffleVertices(base, 3), RowOrder::kRotational).value();
+    Topology fan = BuildTopology(r).value();
+    ASSERT_TRUE(fan.fan_rows);
+    Topology walk = fan;
+    walk.fan_rows = false;
+    for (NormalWeighting w : {NormalWeighting::kArea, NormalWeighting::kAngle})
+      for (int threads : {1, 2}) {
+        const Positions got = ApproximateVertexNormals(r.mesh, fan, w, threads);
+        const Positions want = ApproximateVertexNormals(r.mesh, walk, w, threads);
+        for (int v = 0; v < r.mesh.NumVertices(); ++v)
+          for (int k = 0; k < 3; ++k) ASSERT_EQ(got(v, k), want(v, k)) << "vertex " << v;
+      }
+  }
+  EXPECT_FALSE(BuildTopology(RelabelForLocality(GenerateTorusMesh(g), RowOrder::kSource).value())->fan_rows);
+}
+
 // A mesh relabelled for locality (what `geomfit curvature --local` fits on a scattered
 // numbering). With RowOrder::kSource rows it gives the source's stencils point for point,
 // its vertex normals and every differential quantity bit for bit, in relabelled order.

@@ -389,6 +389,53 @@ TEST(ObjTest, FastPathReadsLikeTheGeneralPath) {
   ExpectPathsAgree(mesh_io::ParseObj, *FormatMesh(Tetrahedron(), MeshFormat::kObj));
 }
 
+// Face lines of spaces and 1-8 digit indices are read from their bytes classified at
+// once (PlainFace, 32 bytes at a time): the same faces as the general path for indices
+// of 1-10 digits (leading zeros), 2-5 of them, any blanks, LF or CRLF, values in and out
+// of range, each line followed by at least 40 bytes or near the end of the text; and
+// the expected rows for plain lines (written rows, read back exactly).
+TEST(ObjTest, PlainFaceLinesReadLikeTheGeneralPath) {
+  std::mt19937_64 rng(13);
+  const std::vector<std::string> gaps = {" ", " ", " ", "  ", "\t", " \t "};
+  const std::vector<std::string> ends = {"\n", "\n", "\n", "\r\n", " \n", "\n# a comment long enough to pass 40 bytes\n"};
+  constexpr int kVertices = 120;
+  std::string vertices;
+  for (int i = 0; i < kVertices; ++i) vertices += absl::StrCat("v ", i, " ", i % 7, " ", i % 3, "\n");
+  int faces_read = 0;
+  for (int file = 0; file < 400; ++file) {
+    std::string text = vertices, plain = vertices;
+    std::vector<std::array<int32_t, 4>> rows;
+    for (int line = 0; line < 20; ++line) {
+      const int count = rng() % 8 == 0 ? 2 + static_cast<int>(rng() % 4) : 3 + static_cast<int>(rng() % 2);
+      text += "f";
+      std::array<int32_t, 4> row = {-1, -1, -1, -1};
+      for (int c = 0; c < count; ++c) {
+        const int index = rng() % 16 == 0 ? kVertices + 1 + static_cast<int>(rng() % 3) : 1 + static_cast<int>(rng() % kVertices);
+        const int zeros = rng() % 4 == 0 ? static_cast<int>(rng() % 9) : 0;  // up to 10 digits in all
+        text += (rng() % 6 == 0 ? gaps[rng() % gaps.size()] : " ") + std::string(zeros, '0') + std::to_string(index);
+        if (count <= 4 && c < 4) row[c] = (c * 37 + line * 11) % kVertices;
+      }
+      text += rng() % 5 == 0 ? ends[rng() % ends.size()] : "\n";
+      if (count >= 3 && count <= 4) {
+        plain += "f";
+        for (int c = 0; c < count; ++c) plain += absl::StrCat(" ", std::string(c, '0'), row[c] + 1);
+        plain += "\n";
+        rows.push_back(row);
+        if (count == 3) rows.back()[3] = -1;
+      }
+    }
+    ExpectPathsAgree(mesh_io::ParseObj, text);
+    const absl::StatusOr<Mesh> m = mesh_io::ParseObj(plain, "p.obj");
+    ASSERT_TRUE(m.ok()) << m.status();
+    ASSERT_EQ(m->NumFaces(), static_cast<int>(rows.size())) << plain;
+    for (int f = 0; f < m->NumFaces(); ++f)
+      for (int c = 0; c < 4; ++c) ASSERT_EQ(m->faces(f, c), rows[f][c]) << plain;
+    faces_read += m->NumFaces();
+    ExpectPathsAgree(mesh_io::ParseObj, plain);
+  }
+  EXPECT_GT(faces_read, 5000);
+}
+
 // The same for OFF's fast path (vertex lines "X Y Z", face lines "N I J K [L]").
 TEST(OffTest, FastPathReadsLikeTheGeneralPath) {
   const std::vector<std::string> pieces = {

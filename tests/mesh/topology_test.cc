@@ -647,6 +647,43 @@ TEST(LocalityRelabellingTest, LocalNumbering) {
   EXPECT_FALSE(IsLocalIndexGap(kLocalIndexGap * 10 + 1, 10));
 }
 
+// HasLocalNumbering(mesh) stops once the gap sum exceeds the bound for the most edges
+// the mesh can have: the same answer as the whole sum, here for face rows whose first k
+// (triangles, then mixed with quads) come from a scattered numbering and the rest from a
+// local one, k across the threshold (both answers occur), and with the scattered rows
+// last instead.
+TEST(LocalityRelabellingTest, LocalNumberingStopsEarlyWithTheSameAnswer) {
+  GeneratorOptions g;
+  g.n = 160;  // shuffled: a mean gap of ~nv / 3, well above kLocalIndexGap
+  GeneratorOptions q = g;
+  q.quads = true;
+  for (const Mesh& local : {GenerateTorusMesh(g), GenerateBumpMesh(q)}) {
+    const Mesh scattered = testing_util::ShuffleVertices(local, 7);
+    const int nf = local.NumFaces();
+    auto whole_sum = [](const Mesh& m) {
+      int64_t gap = 0, edges = 0;
+      for (int f = 0; f < m.NumFaces(); ++f)
+        for (int c = 0; c < m.FaceSize(f); ++c, ++edges)
+          gap += std::abs(int64_t{m.faces(f, c)} - m.faces(f, (c + 1) % m.FaceSize(f)));
+      return IsLocalIndexGap(gap, edges);
+    };
+    int answers[2] = {0, 0};
+    for (int k = 0; k <= nf; k += std::max(1, nf / 100))
+      for (bool scattered_first : {true, false}) {
+        Mesh m = local;
+        for (int f = 0; f < k; ++f) {
+          const int g2 = scattered_first ? f : nf - 1 - f;
+          for (int c = 0; c < 4; ++c) m.faces.Mutable()(g2, c) = scattered.faces(g2, c);
+        }
+        const bool want = whole_sum(m);
+        ASSERT_EQ(HasLocalNumbering(m), want) << "k " << k << " first " << scattered_first;
+        ++answers[want];
+      }
+    EXPECT_GT(answers[0], 10);
+    EXPECT_GT(answers[1], 10);
+  }
+}
+
 // Relabelling keeps every topology error: BuildTopology of the relabelled mesh fails
 // exactly when the source's does (the CLI then reports the source's message).
 TEST(LocalityRelabellingTest, FailsWhereTheSourceFails) {

@@ -185,6 +185,19 @@ inline const char* FastCoordinates(const char* p, const char* end, double xyz[3]
 /// Fewer than 8 digits cost one 8-byte load and no branch per digit (SWAR: the digits
 /// moved to the word's top bytes, the bytes below them read as leading zeros, then the
 /// usual eight-digit multiply-shift).
+/// The value of the n digits (1 <= n <= 8) at p, which has 8 readable bytes: one load
+/// and a multiply-shift (the digits moved to the word's top bytes, the bytes below them
+/// read as leading zeros).
+inline uint64_t EightDigitsValue(const char* p, int n) {
+  uint64_t w;
+  std::memcpy(&w, p, 8);  // little-endian: p[0] in the low byte
+  uint64_t d = (w ^ 0x3030303030303030ull) << (8 * (8 - n));
+  d = d * 10 + (d >> 8);
+  return (((d & 0x000000ff000000ffull) * (100 + (1000000ull << 32))) +
+          (((d >> 16) & 0x000000ff000000ffull) * (1 + (10000ull << 32)))) >>
+         32;
+}
+
 inline const char* FastDigits(const char* p, const char* end, uint64_t* value) {
   if (end - p >= 8) {
     uint64_t w;
@@ -194,11 +207,7 @@ inline const char* FastDigits(const char* p, const char* end, uint64_t* value) {
         (((t & 0x7f7f7f7f7f7f7f7full) + 0x7676767676767676ull) | t) & 0x8080808080808080ull;
     const int n = non_digit == 0 ? 8 : __builtin_ctzll(non_digit) / 8;
     if (n < 8) {
-      uint64_t d = t << (8 * (8 - n));
-      d = d * 10 + (d >> 8);
-      *value = (((d & 0x000000ff000000ffull) * (100 + (1000000ull << 32))) +
-                (((d >> 16) & 0x000000ff000000ffull) * (1 + (10000ull << 32)))) >>
-               32;
+      *value = EightDigitsValue(p, n);
       return p + n;
     }
   }

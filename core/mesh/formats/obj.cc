@@ -1,5 +1,9 @@
 // Wavefront OBJ: `v` and `f` lines; everything else is ignored.
 #include <cstring>
+#include <cstdint>
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 #include <vector>
 
 #include "absl/strings/str_cat.h"
@@ -42,6 +46,49 @@ const char* FastFace(const char* p, const char* end, int64_t num_vertices, int32
   return LineEnd(p, end);
 }
 
+#if defined(__SSE2__)
+/// The commonest face line after its "f" (at p): spaces and 3 or 4 indices of 1-8 digits
+/// each, then "\n", all within the 32 bytes at p (40 readable): the bytes classified at
+/// once (two 16-byte compares), each index then read from its own offset (no chain of
+/// one index's end to the next one's start). The same indices as FastFace; nullptr for
+/// anything else (FastFace then reads the line).
+const char* PlainFace(const char* p, const char* end, int64_t num_vertices, int32_t v[4], int* n) {
+  if (end - p < 40) return nullptr;
+  const __m128i lo = _mm_loadu_si128(reinterpret_cast<const __m128i*>(p));
+  const __m128i hi = _mm_loadu_si128(reinterpret_cast<const __m128i*>(p + 16));
+  const auto bits = [](__m128i a, __m128i b) {
+    return static_cast<uint32_t>(_mm_movemask_epi8(a)) | static_cast<uint32_t>(_mm_movemask_epi8(b)) << 16;
+  };
+  const __m128i nl = _mm_set1_epi8('\n'), sp = _mm_set1_epi8(' '), zero = _mm_set1_epi8('0'),
+                nine = _mm_set1_epi8(9);
+  const uint32_t newline = bits(_mm_cmpeq_epi8(lo, nl), _mm_cmpeq_epi8(hi, nl));
+  if (newline == 0) return nullptr;
+  const int len = __builtin_ctz(newline);          // the line's bytes before its "\n"
+  const uint32_t line = (uint32_t{1} << len) - 1;  // len <= 31
+  const uint32_t space = bits(_mm_cmpeq_epi8(lo, sp), _mm_cmpeq_epi8(hi, sp)) & line;
+  // '0'..'9': x - '0' <= 9 as unsigned bytes
+  const __m128i dlo = _mm_sub_epi8(lo, zero), dhi = _mm_sub_epi8(hi, zero);
+  const uint32_t digit =
+      bits(_mm_cmpeq_epi8(_mm_min_epu8(dlo, nine), dlo), _mm_cmpeq_epi8(_mm_min_epu8(dhi, nine), dhi)) & line;
+  if ((space | digit) != line || (space & 1) == 0) return nullptr;
+  // Each index's first and last digit, in order.
+  uint32_t first = digit & ~(digit << 1), last = digit & ~(digit >> 1);
+  int count = 0;
+  for (; first != 0; ++count) {
+    if (count == 4) return nullptr;
+    const int a = __builtin_ctz(first), b = __builtin_ctz(last);
+    first &= first - 1, last &= last - 1;
+    if (b - a >= 8) return nullptr;  // 9 or more digits
+    const uint64_t k = EightDigitsValue(p + a, b - a + 1);
+    if (k == 0 || k > static_cast<uint64_t>(num_vertices)) return nullptr;
+    v[count] = static_cast<int32_t>(k - 1);
+  }
+  if (count < 3) return nullptr;
+  *n = count;
+  return p + len + 1;
+}
+#endif
+
 /// A line the general path ignores without looking into it: a comment, an empty line,
 /// or one whose first token (at the line's start) is neither "v" nor "f". Returns
 /// where the next line starts, else nullptr.
@@ -83,7 +130,13 @@ absl::StatusOr<Mesh> ParseObj(absl::string_view bytes, absl::string_view source,
       } else if (*p == 'f') {
         int32_t v[4];
         int n;
-        if ((next = FastFace(p + 1, end, b.NumVertices(), v, &n)) != nullptr) b.AddFace(v, n);
+#if defined(__SSE2__)
+        next = PlainFace(p + 1, end, b.NumVertices(), v, &n);
+        if (next == nullptr) next = FastFace(p + 1, end, b.NumVertices(), v, &n);
+#else
+        next = FastFace(p + 1, end, b.NumVertices(), v, &n);
+#endif
+        if (next != nullptr) b.AddFace(v, n);
       }
       if (next == nullptr) next = SkippedLine(p, end);
       if (next != nullptr) {
