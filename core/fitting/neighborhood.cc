@@ -57,16 +57,27 @@ std::vector<int32_t> GrowthOrder(const Topology& t) {
   return order;
 }
 
-// Each vertex's adjacency gathered in one span, built once per call: its edge
+// Each vertex's adjacency gathered in one span, built once per call: a header (number
+// of neighbours, of faces, whether the faces form a cyclic fan, below), its edge
 // neighbours (topo.Neighbors order), then one 4-int record per incident face
 // (topo.VertexFaces order): the face's other corners in the face's row order (the
 // vertex itself left out), -1 padding a triangle's, then which of the three is opposite
 // the vertex in a quad (-1 for a triangle). A stencil point's ring step then reads one
 // span instead of a face row per incident face (on an external numbering a cache miss
 // each) and needs no search for the vertex in the row (a branch the predictor misses on
-// an irregular mesh, whose rows start at any corner).
+// an irregular mesh, whose rows start at any corner). A vertex's faces form a cyclic
+// fan when they are all triangles, as many as its neighbours, face j being
+// (v, n[j], n[j + 1 mod #n]) in its row's orientation (n: the neighbours): a
+// LocalityRelabelling's kRotational rows at an interior vertex; other rows rarely.
 class Spans {
  public:
+  static constexpr int kHeader = 3;
+  static int Neighbors(const int32_t* span) { return span[0]; }
+  static int Faces(const int32_t* span) { return span[1]; }
+  static bool CyclicFan(const int32_t* span) { return span[2] != 0; }
+  static const int32_t* NeighborRow(const int32_t* span) { return span + kHeader; }
+  static const int32_t* FaceRecords(const int32_t* span) { return span + kHeader + span[0]; }
+
   /// Spans laid out in `order` (a permutation of the vertices).
   Spans(const Topology& t, const Mesh& m, const std::vector<int32_t>& order, int threads)
       : offsets_(t.num_vertices) {
@@ -75,7 +86,7 @@ class Spans {
     for (int i = 0; i < nv; ++i) {
       const int v = order[i];
       offsets_[v] = at;
-      at += 2 + t.NumNeighbors(v) + 4 * t.NumVertexFaces(v);
+      at += kHeader + t.NumNeighbors(v) + 4 * t.NumVertexFaces(v);
     }
     data_.resize(at);
     ParallelForBlocks(nv, threads, [&](int64_t begin, int64_t end, int) {
@@ -83,9 +94,11 @@ class Spans {
         const int v = order[i];
         int32_t* out = data_.data() + offsets_[v];
         const int nn = t.NumNeighbors(v), nf = t.NumVertexFaces(v);
-        *out++ = nn;
-        *out++ = nf;
+        int32_t* header = out;
+        out += kHeader;
+        const int32_t* nbr = out;
         out = std::copy(t.Neighbors(v), t.Neighbors(v) + nn, out);
+        bool cyclic = nf == nn && nn >= 3;
         for (int j = 0; j < nf; ++j, out += 4) {
           const int32_t* row = m.faces.data() + 4 * static_cast<int64_t>(t.VertexFaces(v)[j]);
           const int n = row[3] < 0 ? 3 : 4;
@@ -93,7 +106,13 @@ class Spans {
           for (int q = 0, k = 0; q < 4; ++q)
             if (q != c) out[k++] = row[q];  // row[3] = -1 lands in out[2] for a triangle
           out[3] = n == 4 ? (c + 2) % 4 - ((c + 2) % 4 > c) : -1;
+          // A triangle's corners after and before v: out[0], out[1] unless v is row[1].
+          const int32_t next = c == 1 ? out[1] : out[0], prev = c == 1 ? out[0] : out[1];
+          cyclic &= n == 3 && next == nbr[j] && prev == nbr[j + 1 < nn ? j + 1 : 0];
         }
+        header[0] = nn;
+        header[1] = nf;
+        header[2] = cyclic;
       }
     });
   }
@@ -118,6 +137,9 @@ class MarkTable {
   explicit MarkTable(int num_vertices) : slots_(num_vertices) {}
   void Start(uint32_t stamp) { stamp_ = stamp; }
   int Level(int32_t x) const { return slots_[x].stamp == stamp_ ? slots_[x].level : -1; }
+  bool Has(int32_t x) const { return slots_[x].stamp == stamp_; }
+  void Set(int32_t x, int level) { slots_[x] = {stamp_, level}; }
+  void Erase(int32_t x) { slots_[x].stamp = 0; }  // no stencil's stamp
   bool Insert(int32_t x, int level) {
     if (slots_[x].stamp == stamp_) return false;
     slots_[x] = {stamp_, level};
@@ -144,12 +166,15 @@ class RingGrower {
     out_ = &out;
     out.clear();
     marks_.Start(static_cast<uint32_t>(v) + 1);
-    Add(v, 0);
-    layer_begin_ = 0;
-    layer_end_ = 1;
-    half_steps_ = 0;
     const int start = static_cast<int>(std::lround(2 * spec.rings));
     const int max_steps = std::max(start, static_cast<int>(std::lround(2 * spec.max_rings)));
+    if (start < 3 || !FanSteps(v, spec.max_points)) {
+      out.clear();
+      Add(v, 0);
+      layer_begin_ = 0;
+      layer_end_ = 1;
+      half_steps_ = 0;
+    }
     const size_t want = t_.is_boundary[v] ? spec.min_points_boundary : spec.min_points;
     while (half_steps_ < max_steps) {
       const bool required = half_steps_ < start;
@@ -177,6 +202,73 @@ class RingGrower {
     out_->push_back(x);
     spans_.PrefetchOffset(x);  // its span is read next step: start the cache misses early
   }
+
+  // Steps 0 -> 1.5 at once where the 1.5-ring is a plain polygon walk: v's and its
+  // neighbours' faces form cyclic fans (Spans), no neighbour u_i of v is adjacent to
+  // another than u_{i-1} and u_{i+1} (no chord), and the flaps f_i (the corner across
+  // the edge (u_i, u_{i+1}) from v's face i) are distinct and not in the 1-ring. Then
+  // u_i's faces with an edge to the 1-ring are exactly its four faces on the edges to
+  // v, u_{i-1} and u_{i+1}, so the general step adds the f_i alone, each first met
+  // at the first of its two ends in v's neighbour order: u_0 adds f_{n-1} and f_0 in
+  // the order of their faces at u_0, u_i adds f_i (0 < i < n - 1). The stencil, its
+  // order and the marks are the general steps'; with the neighbour rows as stored, no
+  // search and no mark test of a neighbour's whole fan. Returns false (marks cleared,
+  // `out` to be reset) where a condition fails: the general steps take over.
+  bool FanSteps(int v, int max_points) {
+    const int32_t* span = spans_.Of(v);
+    const int n = Spans::Neighbors(span);
+    if (!Spans::CyclicFan(span) || 2 * n + 1 > max_points) return false;
+    const int32_t* u = Spans::NeighborRow(span);
+    flaps_.resize(n);
+    at_.resize(n);
+    int first_order = 0;  // at u_0: whether f_0's face comes after f_{n-1}'s
+    for (int i = 0; i < n; ++i) {
+      const int32_t* su = spans_.Of(u[i]);
+      if (!Spans::CyclicFan(su)) return false;
+      const int d = Spans::Neighbors(su);
+      const int32_t* w = Spans::NeighborRow(su);
+      int q = 0;  // v's position among u_i's neighbours: u_i's face q - 1 is v's face i
+      for (int j = 0; j < d; ++j) q += w[j] == v ? j : 0;
+      const int before = q >= 2 ? q - 2 : q - 2 + d;  // f_i: across (u_i, u_{i+1})
+      flaps_[i] = w[before];
+      at_[i] = q;
+      if (i == 0) first_order = before > (q + 1 < d ? q + 1 : q + 1 - d);  // f_{n-1}'s face: q + 1
+    }
+    out_->push_back(v);
+    marks_.Set(v, 0);
+    for (int i = 0; i < n; ++i) {
+      out_->push_back(u[i]);
+      marks_.Set(u[i], 2);
+    }
+    bool plain = true;
+    for (int i = 0; i < n; ++i) {  // no chord: u_i's neighbours other than f_{i-1}, u_{i±1}, v, f_i
+      const int32_t* su = spans_.Of(u[i]);
+      const int d = Spans::Neighbors(su);
+      const int32_t* w = Spans::NeighborRow(su);
+      const int q = at_[i];
+      for (int t = 3; t <= d - 3; ++t) plain &= !marks_.Has(w[q + t < d ? q + t : q + t - d]);
+      plain &= !marks_.Has(flaps_[i]);
+    }
+    if (plain) {
+      const auto add = [&](int32_t f) {
+        plain &= !marks_.Has(f);
+        marks_.Set(f, 3);
+        out_->push_back(f);
+      };
+      add(flaps_[first_order ? n - 1 : 0]);
+      add(flaps_[first_order ? 0 : n - 1]);
+      for (int i = 1; i + 1 < n; ++i) add(flaps_[i]);
+    }
+    if (!plain) {
+      for (int32_t x : *out_) marks_.Erase(x);
+      return false;
+    }
+    layer_begin_ = 1;
+    layer_end_ = 1 + n;
+    half_steps_ = 3;
+    return true;
+  }
+
   bool In(int32_t x, int max_level) const {
     const int level = marks_.Level(x);
     return level >= 0 && level <= max_level;
@@ -193,8 +285,8 @@ class RingGrower {
       // Adding a face's corners in row order, a (already in) left out.
       for (size_t i = layer_begin_; i < layer_end_; ++i) {
         const int32_t* span = spans_.Of(out[i]);
-        const int32_t* face = span + 2 + span[0];
-        for (int j = 0; j < span[1]; ++j, face += 4) {
+        const int32_t* face = Spans::FaceRecords(span);
+        for (int j = 0; j < Spans::Faces(span); ++j, face += 4) {
           const int opposite = face[3];
           if (!(In(face[0], k2) && opposite != 0) && !(In(face[1], k2) && opposite != 1) &&
               !(opposite >= 0 && opposite != 2 && In(face[2], k2)))
@@ -209,7 +301,8 @@ class RingGrower {
       const size_t k_ring_end = layer_end_;
       for (size_t i = layer_begin_; i < layer_end_; ++i) {
         const int32_t* span = spans_.Of(out[i]);
-        for (int j = 0; j < span[0]; ++j) Add(span[2 + j], k2 + 2);
+        const int32_t* nbr = Spans::NeighborRow(span);
+        for (int j = 0; j < Spans::Neighbors(span); ++j) Add(nbr[j], k2 + 2);
       }
       layer_begin_ = k_ring_end;
       layer_end_ = out.size();
@@ -220,6 +313,7 @@ class RingGrower {
   const Topology& t_;
   const Spans& spans_;
   MarkTable marks_;
+  std::vector<int32_t> flaps_, at_;  // FanSteps: f_i, v's position at u_i
   std::vector<int32_t>* out_ = nullptr;
   size_t layer_begin_ = 0, layer_end_ = 0;
   int half_steps_ = 0;
