@@ -241,15 +241,14 @@ class RingGrower {
       marks_.Set(u[i], 2);
     }
     bool plain = true;
-    for (int i = 0; i < n; ++i) {  // no chord: u_i's neighbours other than f_{i-1}, u_{i±1}, v, f_i
+    for (int i = 0; i < n; ++i) {  // no chord: u_i's neighbours other than f_i, u_{i+1}, v, u_{i-1}, f_{i-1}
       const int32_t* su = spans_.Of(u[i]);
       const int d = Spans::Neighbors(su);
       const int32_t* w = Spans::NeighborRow(su);
       const int q = at_[i];
       for (int t = 3; t <= d - 3; ++t) plain &= !marks_.Has(w[q + t < d ? q + t : q + t - d]);
-      plain &= !marks_.Has(flaps_[i]);
     }
-    if (plain) {
+    if (plain) {  // the flaps, unless one is in the 1-ring or twice
       const auto add = [&](int32_t f) {
         plain &= !marks_.Has(f);
         marks_.Set(f, 3);

@@ -344,7 +344,8 @@ TEST(NeighborhoodTest, RelabelledTopologyStencilsEqualThePlainRingRuleInOrder) {
 // Meshes on which a 1.5-ring is and is not a plain polygon walk (BuildNeighborhoods'
 // fan steps, and where they must leave it to the general steps): irregular valences
 // 4-8, a tube so thin that 1-rings have chords, a Delaunay sphere, boundaries, holes
-// with isolated vertices, valence-3 vertices (triangles split at their centroid),
+// with isolated vertices, a triangle that bounds no face (a chord in three 1-rings),
+// valence-3 vertices (triangles split at their centroid),
 // valence 3 and 4 everywhere, quads and quads mixed with triangles.
 std::vector<Mesh> FanTestMeshes() {
   using testing_util::MakeMesh;
@@ -395,6 +396,22 @@ std::vector<Mesh> FanTestMeshes() {
       rows.push_back({a, b, x}), rows.push_back({b, c, x}), rows.push_back({c, a, x});
     }
     out.push_back(MakeMesh(verts, rows));
+  }
+  {  // two spheres, a face taken out of each, glued along its edges: a triangle (a, b, c)
+     // that bounds no face, so b and c are adjacent without being consecutive around a
+    const Mesh sphere = GenerateDelaunaySphereMesh(300, 0.3);
+    const int nv = sphere.NumVertices(), a = sphere.faces(0, 0), b = sphere.faces(0, 1), c = sphere.faces(0, 2);
+    std::vector<std::array<double, 3>> verts;
+    for (int copy = 0; copy < 2; ++copy)
+      for (int v = 0; v < nv; ++v)
+        verts.push_back({sphere.positions(v, 0) + 3 * copy, sphere.positions(v, 1), sphere.positions(v, 2)});
+    const auto second = [&](int v) { return v == a ? a : v == b ? c : v == c ? b : v + nv; };
+    std::vector<std::vector<int>> rows;
+    for (int f = 1; f < sphere.NumFaces(); ++f) {
+      rows.push_back({sphere.faces(f, 0), sphere.faces(f, 1), sphere.faces(f, 2)});
+      rows.push_back({second(sphere.faces(f, 0)), second(sphere.faces(f, 1)), second(sphere.faces(f, 2))});
+    }
+    out.push_back(MakeMesh(verts, rows));  // the second copy's a, b, c left isolated
   }
   out.push_back(MakeMesh({{1, 1, 1}, {1, -1, -1}, {-1, 1, -1}, {-1, -1, 1}},
                          {{0, 1, 2}, {0, 3, 1}, {0, 2, 3}, {1, 3, 2}}));  // tetrahedron
