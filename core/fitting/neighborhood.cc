@@ -57,27 +57,34 @@ std::vector<int32_t> GrowthOrder(const Topology& t) {
   return order;
 }
 
-// Each vertex's adjacency gathered in one span, built once per call: a header (number
-// of neighbours, of faces, whether the faces form a cyclic fan, below), its edge
-// neighbours (topo.Neighbors order), then one 4-int record per incident face
+// Each vertex's adjacency gathered in one span: its number of neighbours and of faces,
+// its edge neighbours (topo.Neighbors order), then one 4-int record per incident face
 // (topo.VertexFaces order): the face's other corners in the face's row order (the
 // vertex itself left out), -1 padding a triangle's, then which of the three is opposite
 // the vertex in a quad (-1 for a triangle). A stencil point's ring step then reads one
 // span instead of a face row per incident face (on an external numbering a cache miss
 // each) and needs no search for the vertex in the row (a branch the predictor misses on
-// an irregular mesh, whose rows start at any corner). A vertex's faces form a cyclic
-// fan when they are all triangles, as many as its neighbours, face j being
-// (v, n[j], n[j + 1 mod #n]) in its row's orientation (n: the neighbours): a
-// LocalityRelabelling's kRotational rows at an interior vertex; other rows rarely.
+// an irregular mesh, whose rows start at any corner).
+int SpanSize(const Topology& t, int v) { return 2 + t.NumNeighbors(v) + 4 * t.NumVertexFaces(v); }
+
+void FillSpan(const Topology& t, const Mesh& m, int v, int32_t* out) {
+  const int nn = t.NumNeighbors(v), nf = t.NumVertexFaces(v);
+  *out++ = nn;
+  *out++ = nf;
+  out = std::copy(t.Neighbors(v), t.Neighbors(v) + nn, out);
+  for (int j = 0; j < nf; ++j, out += 4) {
+    const int32_t* row = m.faces.data() + 4 * static_cast<int64_t>(t.VertexFaces(v)[j]);
+    const int n = row[3] < 0 ? 3 : 4;
+    const int c = (row[1] == v) + 2 * (row[2] == v) + 3 * (row[3] == v);  // branch-free
+    for (int q = 0, k = 0; q < 4; ++q)
+      if (q != c) out[k++] = row[q];  // row[3] = -1 lands in out[2] for a triangle
+    out[3] = n == 4 ? (c + 2) % 4 - ((c + 2) % 4 > c) : -1;
+  }
+}
+
+// Every vertex's span, built once per call.
 class Spans {
  public:
-  static constexpr int kHeader = 3;
-  static int Neighbors(const int32_t* span) { return span[0]; }
-  static int Faces(const int32_t* span) { return span[1]; }
-  static bool CyclicFan(const int32_t* span) { return span[2] != 0; }
-  static const int32_t* NeighborRow(const int32_t* span) { return span + kHeader; }
-  static const int32_t* FaceRecords(const int32_t* span) { return span + kHeader + span[0]; }
-
   /// Spans laid out in `order` (a permutation of the vertices).
   Spans(const Topology& t, const Mesh& m, const std::vector<int32_t>& order, int threads)
       : offsets_(t.num_vertices) {
@@ -86,34 +93,11 @@ class Spans {
     for (int i = 0; i < nv; ++i) {
       const int v = order[i];
       offsets_[v] = at;
-      at += kHeader + t.NumNeighbors(v) + 4 * t.NumVertexFaces(v);
+      at += SpanSize(t, v);
     }
     data_.resize(at);
     ParallelForBlocks(nv, threads, [&](int64_t begin, int64_t end, int) {
-      for (int64_t i = begin; i < end; ++i) {
-        const int v = order[i];
-        int32_t* out = data_.data() + offsets_[v];
-        const int nn = t.NumNeighbors(v), nf = t.NumVertexFaces(v);
-        int32_t* header = out;
-        out += kHeader;
-        const int32_t* nbr = out;
-        out = std::copy(t.Neighbors(v), t.Neighbors(v) + nn, out);
-        bool cyclic = nf == nn && nn >= 3;
-        for (int j = 0; j < nf; ++j, out += 4) {
-          const int32_t* row = m.faces.data() + 4 * static_cast<int64_t>(t.VertexFaces(v)[j]);
-          const int n = row[3] < 0 ? 3 : 4;
-          const int c = (row[1] == v) + 2 * (row[2] == v) + 3 * (row[3] == v);  // branch-free
-          for (int q = 0, k = 0; q < 4; ++q)
-            if (q != c) out[k++] = row[q];  // row[3] = -1 lands in out[2] for a triangle
-          out[3] = n == 4 ? (c + 2) % 4 - ((c + 2) % 4 > c) : -1;
-          // A triangle's corners after and before v: out[0], out[1] unless v is row[1].
-          const int32_t next = c == 1 ? out[1] : out[0], prev = c == 1 ? out[0] : out[1];
-          cyclic &= n == 3 && next == nbr[j] && prev == nbr[j + 1 < nn ? j + 1 : 0];
-        }
-        header[0] = nn;
-        header[1] = nf;
-        header[2] = cyclic;
-      }
+      for (int64_t i = begin; i < end; ++i) FillSpan(t, m, order[i], data_.data() + offsets_[order[i]]);
     });
   }
   const int32_t* Of(int v) const { return data_.data() + offsets_[v]; }
@@ -156,10 +140,12 @@ class MarkTable {
 };
 
 // Grows one vertex's stencil ring by ring (2.1). One per thread, reused for every
-// vertex of its block.
+// vertex of its block. Reads the spans of `spans`, or without it (`fans`: FanSteps take
+// most stencils whole) fills one at a time.
 class RingGrower {
  public:
-  RingGrower(const Topology& t, const Spans& spans) : t_(t), spans_(spans), marks_(t.num_vertices) {}
+  RingGrower(const Topology& t, const Mesh& m, const Spans* spans, bool fans)
+      : t_(t), m_(m), spans_(spans), fans_(fans), marks_(t.num_vertices) {}
 
   // Fills `out` with v's stencil; returns the ring reached.
   float Grow(int v, const RingSpec& spec, std::vector<int32_t>& out) {
@@ -168,7 +154,7 @@ class RingGrower {
     marks_.Start(static_cast<uint32_t>(v) + 1);
     const int start = static_cast<int>(std::lround(2 * spec.rings));
     const int max_steps = std::max(start, static_cast<int>(std::lround(2 * spec.max_rings)));
-    if (start < 3 || !FanSteps(v, spec.max_points)) {
+    if (!fans_ || start < 3 || !FanSteps(v, spec.max_points)) {
       out.clear();
       Add(v, 0);
       layer_begin_ = 0;
@@ -200,11 +186,21 @@ class RingGrower {
   void Add(int32_t x, int level) {
     if (!marks_.Insert(x, level)) return;
     out_->push_back(x);
-    spans_.PrefetchOffset(x);  // its span is read next step: start the cache misses early
+    if (spans_) spans_->PrefetchOffset(x);  // its span is read next step: start the cache misses early
+  }
+
+  // v's span: built, or filled in the scratch span (valid until the next call).
+  const int32_t* SpanOf(int v) {
+    if (spans_) return spans_->Of(v);
+    scratch_.resize(SpanSize(t_, v));
+    FillSpan(t_, m_, v, scratch_.data());
+    return scratch_.data();
   }
 
   // Steps 0 -> 1.5 at once where the 1.5-ring is a plain polygon walk: v's and its
-  // neighbours' faces form cyclic fans (Spans), no neighbour u_i of v is adjacent to
+  // neighbours' faces form cyclic fans (interior vertices of a topology with
+  // Topology::fan_rows: face j of v is (v, n[j], n[j + 1 mod #n]) in its row's
+  // orientation, n: v's neighbours), no neighbour u_i of v is adjacent to
   // another than u_{i-1} and u_{i+1} (no chord), and the flaps f_i (the corner across
   // the edge (u_i, u_{i+1}) from v's face i) are distinct and not in the 1-ring. Then
   // u_i's faces with an edge to the 1-ring are exactly its four faces on the edges to
@@ -215,20 +211,18 @@ class RingGrower {
   // search and no mark test of a neighbour's whole fan. Returns false (marks cleared,
   // `out` to be reset) where a condition fails: the general steps take over.
   bool FanSteps(int v, int max_points) {
-    const int32_t* span = spans_.Of(v);
-    const int n = Spans::Neighbors(span);
-    if (!Spans::CyclicFan(span) || 2 * n + 1 > max_points) return false;
-    const int32_t* u = Spans::NeighborRow(span);
+    const int n = t_.NumNeighbors(v);
+    if (t_.is_boundary[v] || n < 3 || 2 * n + 1 > max_points) return false;
+    const int32_t* u = t_.Neighbors(v);
     flaps_.resize(n);
     at_.resize(n);
     int first_order = 0;  // at u_0: whether f_0's face comes after f_{n-1}'s
     for (int i = 0; i < n; ++i) {
-      const int32_t* su = spans_.Of(u[i]);
-      if (!Spans::CyclicFan(su)) return false;
-      const int d = Spans::Neighbors(su);
-      const int32_t* w = Spans::NeighborRow(su);
+      if (t_.is_boundary[u[i]]) return false;
+      const int d = t_.NumNeighbors(u[i]);
+      const int32_t* w = t_.Neighbors(u[i]);
       int q = 0;  // v's position among u_i's neighbours: u_i's face q - 1 is v's face i
-      for (int j = 0; j < d; ++j) q += w[j] == v ? j : 0;
+      for (int j = 1; j < d; ++j) q = w[j] == v ? j : q;
       const int before = q >= 2 ? q - 2 : q - 2 + d;  // f_i: across (u_i, u_{i+1})
       flaps_[i] = w[before];
       at_[i] = q;
@@ -242,9 +236,8 @@ class RingGrower {
     }
     bool plain = true;
     for (int i = 0; i < n; ++i) {  // no chord: u_i's neighbours other than f_i, u_{i+1}, v, u_{i-1}, f_{i-1}
-      const int32_t* su = spans_.Of(u[i]);
-      const int d = Spans::Neighbors(su);
-      const int32_t* w = Spans::NeighborRow(su);
+      const int d = t_.NumNeighbors(u[i]);
+      const int32_t* w = t_.Neighbors(u[i]);
       const int q = at_[i];
       for (int t = 3; t <= d - 3; ++t) plain &= !marks_.Has(w[q + t < d ? q + t : q + t - d]);
     }
@@ -276,16 +269,17 @@ class RingGrower {
   void Step() {
     const int k2 = half_steps_ - half_steps_ % 2;  // 2k for the current integer ring k
     std::vector<int32_t>& out = *out_;
-    for (size_t i = layer_begin_; i < layer_end_; ++i) spans_.PrefetchSpan(out[i]);
+    if (spans_)
+      for (size_t i = layer_begin_; i < layer_end_; ++i) spans_->PrefetchSpan(out[i]);
     if (half_steps_ == 0) {
       // 0 -> 0.5: no edge has both ends in the 0-ring; nothing to add.
     } else if (half_steps_ % 2 == 0) {
       // k -> k + 0.5: faces on an edge (a, b) with a in layer k and b in the k-ring.
       // Adding a face's corners in row order, a (already in) left out.
       for (size_t i = layer_begin_; i < layer_end_; ++i) {
-        const int32_t* span = spans_.Of(out[i]);
-        const int32_t* face = Spans::FaceRecords(span);
-        for (int j = 0; j < Spans::Faces(span); ++j, face += 4) {
+        const int32_t* span = SpanOf(out[i]);
+        const int32_t* face = span + 2 + span[0];
+        for (int j = 0; j < span[1]; ++j, face += 4) {
           const int opposite = face[3];
           if (!(In(face[0], k2) && opposite != 0) && !(In(face[1], k2) && opposite != 1) &&
               !(opposite >= 0 && opposite != 2 && In(face[2], k2)))
@@ -299,9 +293,9 @@ class RingGrower {
       // k + 0.5 -> k + 1: every edge neighbour of layer k; layer k+1 starts after the k-ring.
       const size_t k_ring_end = layer_end_;
       for (size_t i = layer_begin_; i < layer_end_; ++i) {
-        const int32_t* span = spans_.Of(out[i]);
-        const int32_t* nbr = Spans::NeighborRow(span);
-        for (int j = 0; j < Spans::Neighbors(span); ++j) Add(nbr[j], k2 + 2);
+        const int32_t* span = SpanOf(out[i]);
+        const int32_t* nbr = span + 2;
+        for (int j = 0; j < span[0]; ++j) Add(nbr[j], k2 + 2);
       }
       layer_begin_ = k_ring_end;
       layer_end_ = out.size();
@@ -310,8 +304,11 @@ class RingGrower {
   }
 
   const Topology& t_;
-  const Spans& spans_;
+  const Mesh& m_;
+  const Spans* spans_;
+  const bool fans_;
   MarkTable marks_;
+  std::vector<int32_t> scratch_;
   std::vector<int32_t> flaps_, at_;  // FanSteps: f_i, v's position at u_i
   std::vector<int32_t>* out_ = nullptr;
   size_t layer_begin_ = 0, layer_end_ = 0;
@@ -327,14 +324,18 @@ Neighborhoods BuildNeighborhoods(const Topology& topo, const Mesh& mesh, const R
   // Stencils are grown in GrowthOrder (each is independent of the order) and then
   // copied to vertex order.
   const std::vector<int32_t> order = GrowthOrder(topo);
-  auto spans = std::make_unique<const Spans>(topo, mesh, order, threads);
+  // FanSteps on rows in fan order; stencils that most likely stop at 1.5 rings then need
+  // no spans (the rest fill theirs as they go).
+  const bool fans = topo.fan_rows && !topo.has_quads;
+  std::unique_ptr<const Spans> spans;
+  if (!fans || std::lround(2 * spec.rings) != 3) spans = std::make_unique<const Spans>(topo, mesh, order, threads);
   std::vector<std::vector<int32_t>> block_indices(threads);
   std::vector<int32_t> sizes(nv);
   std::vector<int64_t> start(nv);  // in the block's buffer, then final
   Neighborhoods nb;
   nb.rings.resize(nv);
   ParallelForBlocks(nv, threads, [&](int64_t begin, int64_t end, int b) {
-    RingGrower grower(topo, *spans);
+    RingGrower grower(topo, mesh, spans.get(), fans);
     std::vector<int32_t> stencil;
     auto& idx = block_indices[b];
     idx.reserve((end - begin) * std::max(24, 2 * spec.min_points));  // stencils rarely pass 1.5x min_points

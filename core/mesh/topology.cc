@@ -581,6 +581,7 @@ absl::StatusOr<Topology> FanTopology(const LocalityRelabelling& r) {
       SortRowByKey(t.vf_faces.data() + t.vf_offsets[v], t.vf_faces.data() + t.vf_offsets[v + 1], r.face_source);
     }
   t.vertex_faces_ascending = false;  // and no locality order: the numbering is one
+  t.fan_rows = rotational;
   return t;
 }
 

@@ -32,6 +32,10 @@ struct Topology {
   /// source's face order or the fan's (RowOrder). Face-by-face passes that accumulate per vertex match per-fan
   /// passes only in the first case.
   bool vertex_faces_ascending = true;
+  /// True when each interior vertex v's rows are its fan: face j is (v, n[j], n[j+1 mod
+  /// #n]) in the face row's orientation, n = Neighbors(v) (BuildTopology of a
+  /// RowOrder::kRotational LocalityRelabelling).
+  bool fan_rows = false;
 
   int NumVertexFaces(int v) const { return vf_offsets[v + 1] - vf_offsets[v]; }
   const int32_t* VertexFaces(int v) const { return vf_faces.data() + vf_offsets[v]; }
