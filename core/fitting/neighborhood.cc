@@ -293,9 +293,10 @@ class RingGrower {
       // k + 0.5 -> k + 1: every edge neighbour of layer k; layer k+1 starts after the k-ring.
       const size_t k_ring_end = layer_end_;
       for (size_t i = layer_begin_; i < layer_end_; ++i) {
-        const int32_t* span = SpanOf(out[i]);
-        const int32_t* nbr = span + 2;
-        for (int j = 0; j < span[0]; ++j) Add(nbr[j], k2 + 2);
+        const int32_t* span = spans_ ? spans_->Of(out[i]) : nullptr;  // no span to fill: the rows suffice
+        const int32_t* nbr = span ? span + 2 : t_.Neighbors(out[i]);
+        const int nn = span ? span[0] : t_.NumNeighbors(out[i]);
+        for (int j = 0; j < nn; ++j) Add(nbr[j], k2 + 2);
       }
       layer_begin_ = k_ring_end;
       layer_end_ = out.size();
