@@ -144,16 +144,24 @@ class MarkTable {
 // most stencils whole) fills one at a time.
 class RingGrower {
  public:
-  RingGrower(const Topology& t, const Mesh& m, const Spans* spans, bool fans)
-      : t_(t), m_(m), spans_(spans), fans_(fans), marks_(t.num_vertices) {}
+  RingGrower(const Topology& t, const Mesh& m, const Spans* spans, bool fans, const RingSpec& spec)
+      : t_(t), m_(m), spans_(spans), fans_(fans), spec_(spec), marks_(t.num_vertices),
+        start_(static_cast<int>(std::lround(2 * spec.rings))),
+        max_steps_(std::max(start_, static_cast<int>(std::lround(2 * spec.max_rings)))) {}
+
+  // Prefetch hint for a vertex grown soon: its neighbours' rows (FanSteps read them).
+  void Prefetch(int v) const {
+    if (!fans_) return;
+    for (int j = 0; j < t_.NumNeighbors(v); ++j) __builtin_prefetch(t_.Neighbors(t_.Neighbors(v)[j]));
+  }
 
   // Fills `out` with v's stencil; returns the ring reached.
-  float Grow(int v, const RingSpec& spec, std::vector<int32_t>& out) {
+  float Grow(int v, std::vector<int32_t>& out) {
+    const RingSpec& spec = spec_;
     out_ = &out;
     out.clear();
     marks_.Start(static_cast<uint32_t>(v) + 1);
-    const int start = static_cast<int>(std::lround(2 * spec.rings));
-    const int max_steps = std::max(start, static_cast<int>(std::lround(2 * spec.max_rings)));
+    const int start = start_, max_steps = max_steps_;
     if (!fans_ || start < 3 || !FanSteps(v, spec.max_points)) {
       out.clear();
       Add(v, 0);
@@ -308,7 +316,9 @@ class RingGrower {
   const Mesh& m_;
   const Spans* spans_;
   const bool fans_;
+  const RingSpec spec_;
   MarkTable marks_;
+  const int start_, max_steps_;  // half steps: required, at most
   std::vector<int32_t> scratch_;
   std::vector<int32_t> flaps_, at_;  // FanSteps: f_i, v's position at u_i
   std::vector<int32_t>* out_ = nullptr;
@@ -336,13 +346,14 @@ Neighborhoods BuildNeighborhoods(const Topology& topo, const Mesh& mesh, const R
   Neighborhoods nb;
   nb.rings.resize(nv);
   ParallelForBlocks(nv, threads, [&](int64_t begin, int64_t end, int b) {
-    RingGrower grower(topo, mesh, spans.get(), fans);
+    RingGrower grower(topo, mesh, spans.get(), fans, spec);
     std::vector<int32_t> stencil;
     auto& idx = block_indices[b];
     idx.reserve((end - begin) * std::max(24, 2 * spec.min_points));  // stencils rarely pass 1.5x min_points
     for (int64_t i = begin; i < end; ++i) {
       const int v = order[i];
-      nb.rings[v] = grower.Grow(v, spec, stencil);
+      if (i + 4 < end) grower.Prefetch(order[i + 4]);
+      nb.rings[v] = grower.Grow(v, stencil);
       sizes[v] = static_cast<int32_t>(stencil.size());
       start[v] = static_cast<int64_t>(idx.size());
       idx.insert(idx.end(), stencil.begin(), stencil.end());
