@@ -140,18 +140,19 @@ class MarkTable {
 };
 
 // Grows one vertex's stencil ring by ring (2.1). One per thread, reused for every
-// vertex of its block. Reads the spans of `spans`, or without it (`fans`: FanSteps take
-// most stencils whole) fills one at a time.
+// vertex of its block. Reads the spans of `spans`, or with kFans (FanSteps take most
+// stencils whole; `spans` null) fills one at a time where needed.
+template <bool kFans>
 class RingGrower {
  public:
-  RingGrower(const Topology& t, const Mesh& m, const Spans* spans, bool fans, const RingSpec& spec)
-      : t_(t), m_(m), spans_(spans), fans_(fans), spec_(spec), marks_(t.num_vertices),
+  RingGrower(const Topology& t, const Mesh& m, const Spans* spans, const RingSpec& spec)
+      : t_(t), m_(m), spans_(spans), spec_(spec), marks_(t.num_vertices),
         start_(static_cast<int>(std::lround(2 * spec.rings))),
         max_steps_(std::max(start_, static_cast<int>(std::lround(2 * spec.max_rings)))) {}
 
   // Prefetch hint for a vertex grown soon: its neighbours' rows (FanSteps read them).
   void Prefetch(int v) const {
-    if (!fans_) return;
+    if constexpr (!kFans) return;
     for (int j = 0; j < t_.NumNeighbors(v); ++j) __builtin_prefetch(t_.Neighbors(t_.Neighbors(v)[j]));
   }
 
@@ -162,7 +163,7 @@ class RingGrower {
     out.clear();
     marks_.Start(static_cast<uint32_t>(v) + 1);
     const int start = start_, max_steps = max_steps_;
-    if (!fans_ || start < 3 || !FanSteps(v, spec.max_points)) {
+    if (!kFans || start < 3 || !FanSteps(v, spec.max_points)) {
       out.clear();
       Add(v, 0);
       layer_begin_ = 0;
@@ -194,12 +195,12 @@ class RingGrower {
   void Add(int32_t x, int level) {
     if (!marks_.Insert(x, level)) return;
     out_->push_back(x);
-    if (spans_) spans_->PrefetchOffset(x);  // its span is read next step: start the cache misses early
+    if constexpr (!kFans) spans_->PrefetchOffset(x);  // its span is read next step: start the cache misses early
   }
 
   // v's span: built, or filled in the scratch span (valid until the next call).
   const int32_t* SpanOf(int v) {
-    if (spans_) return spans_->Of(v);
+    if constexpr (!kFans) return spans_->Of(v);
     scratch_.resize(SpanSize(t_, v));
     FillSpan(t_, m_, v, scratch_.data());
     return scratch_.data();
@@ -277,7 +278,7 @@ class RingGrower {
   void Step() {
     const int k2 = half_steps_ - half_steps_ % 2;  // 2k for the current integer ring k
     std::vector<int32_t>& out = *out_;
-    if (spans_)
+    if constexpr (!kFans)
       for (size_t i = layer_begin_; i < layer_end_; ++i) spans_->PrefetchSpan(out[i]);
     if (half_steps_ == 0) {
       // 0 -> 0.5: no edge has both ends in the 0-ring; nothing to add.
@@ -301,10 +302,12 @@ class RingGrower {
       // k + 0.5 -> k + 1: every edge neighbour of layer k; layer k+1 starts after the k-ring.
       const size_t k_ring_end = layer_end_;
       for (size_t i = layer_begin_; i < layer_end_; ++i) {
-        const int32_t* span = spans_ ? spans_->Of(out[i]) : nullptr;  // no span to fill: the rows suffice
-        const int32_t* nbr = span ? span + 2 : t_.Neighbors(out[i]);
-        const int nn = span ? span[0] : t_.NumNeighbors(out[i]);
-        for (int j = 0; j < nn; ++j) Add(nbr[j], k2 + 2);
+        if constexpr (kFans) {  // no span to fill: the rows suffice
+          for (int j = 0; j < t_.NumNeighbors(out[i]); ++j) Add(t_.Neighbors(out[i])[j], k2 + 2);
+        } else {
+          const int32_t* span = spans_->Of(out[i]);
+          for (int j = 0; j < span[0]; ++j) Add(span[2 + j], k2 + 2);
+        }
       }
       layer_begin_ = k_ring_end;
       layer_end_ = out.size();
@@ -315,7 +318,6 @@ class RingGrower {
   const Topology& t_;
   const Mesh& m_;
   const Spans* spans_;
-  const bool fans_;
   const RingSpec spec_;
   MarkTable marks_;
   const int start_, max_steps_;  // half steps: required, at most
@@ -335,18 +337,19 @@ Neighborhoods BuildNeighborhoods(const Topology& topo, const Mesh& mesh, const R
   // Stencils are grown in GrowthOrder (each is independent of the order) and then
   // copied to vertex order.
   const std::vector<int32_t> order = GrowthOrder(topo);
-  // FanSteps on rows in fan order; stencils that most likely stop at 1.5 rings then need
-  // no spans (the rest fill theirs as they go).
-  const bool fans = topo.fan_rows && !topo.has_quads;
+  // FanSteps on rows in fan order where stencils start at 1.5 rings (most stop there,
+  // with no spans: the rest fill theirs as they go). Stencils starting further out use
+  // the spans throughout (FanSteps there as fast as the general steps: their spans are
+  // needed anyway).
+  const bool fans = topo.fan_rows && !topo.has_quads && std::lround(2 * spec.rings) == 3;
   std::unique_ptr<const Spans> spans;
-  if (!fans || std::lround(2 * spec.rings) != 3) spans = std::make_unique<const Spans>(topo, mesh, order, threads);
+  if (!fans) spans = std::make_unique<const Spans>(topo, mesh, order, threads);
   std::vector<std::vector<int32_t>> block_indices(threads);
   std::vector<int32_t> sizes(nv);
   std::vector<int64_t> start(nv);  // in the block's buffer, then final
   Neighborhoods nb;
   nb.rings.resize(nv);
-  ParallelForBlocks(nv, threads, [&](int64_t begin, int64_t end, int b) {
-    RingGrower grower(topo, mesh, spans.get(), fans, spec);
+  const auto grow = [&](auto&& grower, int64_t begin, int64_t end, int b) {
     std::vector<int32_t> stencil;
     auto& idx = block_indices[b];
     idx.reserve((end - begin) * std::max(24, 2 * spec.min_points));  // stencils rarely pass 1.5x min_points
@@ -358,6 +361,12 @@ Neighborhoods BuildNeighborhoods(const Topology& topo, const Mesh& mesh, const R
       start[v] = static_cast<int64_t>(idx.size());
       idx.insert(idx.end(), stencil.begin(), stencil.end());
     }
+  };
+  ParallelForBlocks(nv, threads, [&](int64_t begin, int64_t end, int b) {
+    if (fans)
+      grow(RingGrower<true>(topo, mesh, nullptr, spec), begin, end, b);
+    else
+      grow(RingGrower<false>(topo, mesh, spans.get(), spec), begin, end, b);
   });
   spans.reset();  // its memory (~128 bytes a vertex) takes the stencils below
   nb.offsets.resize(nv + 1);
