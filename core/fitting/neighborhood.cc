@@ -362,12 +362,16 @@ Neighborhoods BuildNeighborhoods(const Topology& topo, const Mesh& mesh, const R
       idx.insert(idx.end(), stencil.begin(), stencil.end());
     }
   };
-  ParallelForBlocks(nv, threads, [&](int64_t begin, int64_t end, int b) {
-    if (fans)
+  // Two loops, not one with a branch: one function for both growers grew the span
+  // path's stencils 2-3% slower (degree 6).
+  if (fans)
+    ParallelForBlocks(nv, threads, [&](int64_t begin, int64_t end, int b) {
       grow(RingGrower<true>(topo, mesh, nullptr, spec), begin, end, b);
-    else
+    });
+  else
+    ParallelForBlocks(nv, threads, [&](int64_t begin, int64_t end, int b) {
       grow(RingGrower<false>(topo, mesh, spans.get(), spec), begin, end, b);
-  });
+    });
   spans.reset();  // its memory (~128 bytes a vertex) takes the stencils below
   nb.offsets.resize(nv + 1);
   nb.offsets[0] = 0;
