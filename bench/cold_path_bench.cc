@@ -418,7 +418,7 @@ int main(int argc, char** argv) {
         ->UseRealTime();
     benchmark::RegisterBenchmark("BM_Neighborhoods", BM_Neighborhoods)
         ->ArgNames({"shuffled", "deg", "threads"})
-        ->ArgsProduct({{2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12}, {2, 4}, {1, 2}})
+        ->ArgsProduct({{2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12}, {2, 4, 6}, {1, 2}})
         ->Unit(benchmark::kMillisecond)
         ->UseRealTime();
   }

@@ -57,14 +57,32 @@ std::vector<int32_t> GrowthOrder(const Topology& t) {
   return order;
 }
 
-// Each vertex's adjacency gathered in one span, built once per call: its edge
-// neighbours (topo.Neighbors order), then one 4-int record per incident face
+// Each vertex's adjacency gathered in one span: its number of neighbours and of faces,
+// its edge neighbours (topo.Neighbors order), then one 4-int record per incident face
 // (topo.VertexFaces order): the face's other corners in the face's row order (the
 // vertex itself left out), -1 padding a triangle's, then which of the three is opposite
 // the vertex in a quad (-1 for a triangle). A stencil point's ring step then reads one
 // span instead of a face row per incident face (on an external numbering a cache miss
 // each) and needs no search for the vertex in the row (a branch the predictor misses on
 // an irregular mesh, whose rows start at any corner).
+int SpanSize(const Topology& t, int v) { return 2 + t.NumNeighbors(v) + 4 * t.NumVertexFaces(v); }
+
+void FillSpan(const Topology& t, const Mesh& m, int v, int32_t* out) {
+  const int nn = t.NumNeighbors(v), nf = t.NumVertexFaces(v);
+  *out++ = nn;
+  *out++ = nf;
+  out = std::copy(t.Neighbors(v), t.Neighbors(v) + nn, out);
+  for (int j = 0; j < nf; ++j, out += 4) {
+    const int32_t* row = m.faces.data() + 4 * static_cast<int64_t>(t.VertexFaces(v)[j]);
+    const int n = row[3] < 0 ? 3 : 4;
+    const int c = (row[1] == v) + 2 * (row[2] == v) + 3 * (row[3] == v);  // branch-free
+    for (int q = 0, k = 0; q < 4; ++q)
+      if (q != c) out[k++] = row[q];  // row[3] = -1 lands in out[2] for a triangle
+    out[3] = n == 4 ? (c + 2) % 4 - ((c + 2) % 4 > c) : -1;
+  }
+}
+
+// Every vertex's span, built once per call.
 class Spans {
  public:
   /// Spans laid out in `order` (a permutation of the vertices).
@@ -75,26 +93,11 @@ class Spans {
     for (int i = 0; i < nv; ++i) {
       const int v = order[i];
       offsets_[v] = at;
-      at += 2 + t.NumNeighbors(v) + 4 * t.NumVertexFaces(v);
+      at += SpanSize(t, v);
     }
     data_.resize(at);
     ParallelForBlocks(nv, threads, [&](int64_t begin, int64_t end, int) {
-      for (int64_t i = begin; i < end; ++i) {
-        const int v = order[i];
-        int32_t* out = data_.data() + offsets_[v];
-        const int nn = t.NumNeighbors(v), nf = t.NumVertexFaces(v);
-        *out++ = nn;
-        *out++ = nf;
-        out = std::copy(t.Neighbors(v), t.Neighbors(v) + nn, out);
-        for (int j = 0; j < nf; ++j, out += 4) {
-          const int32_t* row = m.faces.data() + 4 * static_cast<int64_t>(t.VertexFaces(v)[j]);
-          const int n = row[3] < 0 ? 3 : 4;
-          const int c = (row[1] == v) + 2 * (row[2] == v) + 3 * (row[3] == v);  // branch-free
-          for (int q = 0, k = 0; q < 4; ++q)
-            if (q != c) out[k++] = row[q];  // row[3] = -1 lands in out[2] for a triangle
-          out[3] = n == 4 ? (c + 2) % 4 - ((c + 2) % 4 > c) : -1;
-        }
-      }
+      for (int64_t i = begin; i < end; ++i) FillSpan(t, m, order[i], data_.data() + offsets_[order[i]]);
     });
   }
   const int32_t* Of(int v) const { return data_.data() + offsets_[v]; }
@@ -118,6 +121,9 @@ class MarkTable {
   explicit MarkTable(int num_vertices) : slots_(num_vertices) {}
   void Start(uint32_t stamp) { stamp_ = stamp; }
   int Level(int32_t x) const { return slots_[x].stamp == stamp_ ? slots_[x].level : -1; }
+  bool Has(int32_t x) const { return slots_[x].stamp == stamp_; }
+  void Set(int32_t x, int level) { slots_[x] = {stamp_, level}; }
+  void Erase(int32_t x) { slots_[x].stamp = 0; }  // no stencil's stamp
   bool Insert(int32_t x, int level) {
     if (slots_[x].stamp == stamp_) return false;
     slots_[x] = {stamp_, level};
@@ -134,22 +140,36 @@ class MarkTable {
 };
 
 // Grows one vertex's stencil ring by ring (2.1). One per thread, reused for every
-// vertex of its block.
+// vertex of its block. Reads the spans of `spans`, or with kFans (FanSteps take most
+// stencils whole; `spans` null) fills one at a time where needed.
+template <bool kFans>
 class RingGrower {
  public:
-  RingGrower(const Topology& t, const Spans& spans) : t_(t), spans_(spans), marks_(t.num_vertices) {}
+  RingGrower(const Topology& t, const Mesh& m, const Spans* spans, const RingSpec& spec)
+      : t_(t), m_(m), spans_(spans), spec_(spec), marks_(t.num_vertices),
+        start_(static_cast<int>(std::lround(2 * spec.rings))),
+        max_steps_(std::max(start_, static_cast<int>(std::lround(2 * spec.max_rings)))) {}
+
+  // Prefetch hint for a vertex grown soon: its neighbours' rows (FanSteps read them).
+  void Prefetch(int v) const {
+    if constexpr (!kFans) return;
+    for (int j = 0; j < t_.NumNeighbors(v); ++j) __builtin_prefetch(t_.Neighbors(t_.Neighbors(v)[j]));
+  }
 
   // Fills `out` with v's stencil; returns the ring reached.
-  float Grow(int v, const RingSpec& spec, std::vector<int32_t>& out) {
+  float Grow(int v, std::vector<int32_t>& out) {
+    const RingSpec& spec = spec_;
     out_ = &out;
     out.clear();
     marks_.Start(static_cast<uint32_t>(v) + 1);
-    Add(v, 0);
-    layer_begin_ = 0;
-    layer_end_ = 1;
-    half_steps_ = 0;
-    const int start = static_cast<int>(std::lround(2 * spec.rings));
-    const int max_steps = std::max(start, static_cast<int>(std::lround(2 * spec.max_rings)));
+    const int start = start_, max_steps = max_steps_;
+    if (!kFans || start < 3 || !FanSteps(v, spec.max_points)) {
+      out.clear();
+      Add(v, 0);
+      layer_begin_ = 0;
+      layer_end_ = 1;
+      half_steps_ = 0;
+    }
     const size_t want = t_.is_boundary[v] ? spec.min_points_boundary : spec.min_points;
     while (half_steps_ < max_steps) {
       const bool required = half_steps_ < start;
@@ -175,8 +195,81 @@ class RingGrower {
   void Add(int32_t x, int level) {
     if (!marks_.Insert(x, level)) return;
     out_->push_back(x);
-    spans_.PrefetchOffset(x);  // its span is read next step: start the cache misses early
+    if constexpr (!kFans) spans_->PrefetchOffset(x);  // its span is read next step: start the cache misses early
   }
+
+  // v's span: built, or filled in the scratch span (valid until the next call).
+  const int32_t* SpanOf(int v) {
+    if constexpr (!kFans) return spans_->Of(v);
+    scratch_.resize(SpanSize(t_, v));
+    FillSpan(t_, m_, v, scratch_.data());
+    return scratch_.data();
+  }
+
+  // Steps 0 -> 1.5 at once where the 1.5-ring is a plain polygon walk: v's and its
+  // neighbours' faces form cyclic fans (interior vertices of a topology with
+  // Topology::fan_rows: face j of v is (v, n[j], n[j + 1 mod #n]) in its row's
+  // orientation, n: v's neighbours), no neighbour u_i of v is adjacent to
+  // another than u_{i-1} and u_{i+1} (no chord), and the flaps f_i (the corner across
+  // the edge (u_i, u_{i+1}) from v's face i) are distinct and not in the 1-ring. Then
+  // u_i's faces with an edge to the 1-ring are exactly its four faces on the edges to
+  // v, u_{i-1} and u_{i+1}, so the general step adds the f_i alone, each first met
+  // at the first of its two ends in v's neighbour order: u_0 adds f_{n-1} and f_0 in
+  // the order of their faces at u_0, u_i adds f_i (0 < i < n - 1). The stencil, its
+  // order and the marks are the general steps'; with the neighbour rows as stored, no
+  // search and no mark test of a neighbour's whole fan. Returns false (marks cleared,
+  // `out` to be reset) where a condition fails: the general steps take over.
+  bool FanSteps(int v, int max_points) {
+    const int n = t_.NumNeighbors(v);
+    if (t_.is_boundary[v] || n < 3 || 2 * n + 1 > max_points) return false;
+    const int32_t* u = t_.Neighbors(v);
+    flaps_.resize(n);
+    at_.resize(n);
+    int first_order = 0;  // at u_0: whether f_0's face comes after f_{n-1}'s
+    for (int i = 0; i < n; ++i) {
+      if (t_.is_boundary[u[i]]) return false;
+      const int d = t_.NumNeighbors(u[i]);
+      const int32_t* w = t_.Neighbors(u[i]);
+      int q = 0;  // v's position among u_i's neighbours: u_i's face q - 1 is v's face i
+      for (int j = 1; j < d; ++j) q = w[j] == v ? j : q;
+      const int before = q >= 2 ? q - 2 : q - 2 + d;  // f_i: across (u_i, u_{i+1})
+      flaps_[i] = w[before];
+      at_[i] = q;
+      if (i == 0) first_order = before > (q + 1 < d ? q + 1 : q + 1 - d);  // f_{n-1}'s face: q + 1
+    }
+    out_->push_back(v);
+    marks_.Set(v, 0);
+    for (int i = 0; i < n; ++i) {
+      out_->push_back(u[i]);
+      marks_.Set(u[i], 2);
+    }
+    bool plain = true;
+    for (int i = 0; i < n; ++i) {  // no chord: u_i's neighbours other than f_i, u_{i+1}, v, u_{i-1}, f_{i-1}
+      const int d = t_.NumNeighbors(u[i]);
+      const int32_t* w = t_.Neighbors(u[i]);
+      const int q = at_[i];
+      for (int t = 3; t <= d - 3; ++t) plain &= !marks_.Has(w[q + t < d ? q + t : q + t - d]);
+    }
+    if (plain) {  // the flaps, unless one is in the 1-ring or twice
+      const auto add = [&](int32_t f) {
+        plain &= !marks_.Has(f);
+        marks_.Set(f, 3);
+        out_->push_back(f);
+      };
+      add(flaps_[first_order ? n - 1 : 0]);
+      add(flaps_[first_order ? 0 : n - 1]);
+      for (int i = 1; i + 1 < n; ++i) add(flaps_[i]);
+    }
+    if (!plain) {
+      for (int32_t x : *out_) marks_.Erase(x);
+      return false;
+    }
+    layer_begin_ = 1;
+    layer_end_ = 1 + n;
+    half_steps_ = 3;
+    return true;
+  }
+
   bool In(int32_t x, int max_level) const {
     const int level = marks_.Level(x);
     return level >= 0 && level <= max_level;
@@ -185,14 +278,15 @@ class RingGrower {
   void Step() {
     const int k2 = half_steps_ - half_steps_ % 2;  // 2k for the current integer ring k
     std::vector<int32_t>& out = *out_;
-    for (size_t i = layer_begin_; i < layer_end_; ++i) spans_.PrefetchSpan(out[i]);
+    if constexpr (!kFans)
+      for (size_t i = layer_begin_; i < layer_end_; ++i) spans_->PrefetchSpan(out[i]);
     if (half_steps_ == 0) {
       // 0 -> 0.5: no edge has both ends in the 0-ring; nothing to add.
     } else if (half_steps_ % 2 == 0) {
       // k -> k + 0.5: faces on an edge (a, b) with a in layer k and b in the k-ring.
       // Adding a face's corners in row order, a (already in) left out.
       for (size_t i = layer_begin_; i < layer_end_; ++i) {
-        const int32_t* span = spans_.Of(out[i]);
+        const int32_t* span = SpanOf(out[i]);
         const int32_t* face = span + 2 + span[0];
         for (int j = 0; j < span[1]; ++j, face += 4) {
           const int opposite = face[3];
@@ -208,8 +302,12 @@ class RingGrower {
       // k + 0.5 -> k + 1: every edge neighbour of layer k; layer k+1 starts after the k-ring.
       const size_t k_ring_end = layer_end_;
       for (size_t i = layer_begin_; i < layer_end_; ++i) {
-        const int32_t* span = spans_.Of(out[i]);
-        for (int j = 0; j < span[0]; ++j) Add(span[2 + j], k2 + 2);
+        if constexpr (kFans) {  // no span to fill: the rows suffice
+          for (int j = 0; j < t_.NumNeighbors(out[i]); ++j) Add(t_.Neighbors(out[i])[j], k2 + 2);
+        } else {
+          const int32_t* span = spans_->Of(out[i]);
+          for (int j = 0; j < span[0]; ++j) Add(span[2 + j], k2 + 2);
+        }
       }
       layer_begin_ = k_ring_end;
       layer_end_ = out.size();
@@ -218,12 +316,41 @@ class RingGrower {
   }
 
   const Topology& t_;
-  const Spans& spans_;
+  const Mesh& m_;
+  const Spans* spans_;
+  const RingSpec spec_;
   MarkTable marks_;
+  const int start_, max_steps_;  // half steps: required, at most
+  std::vector<int32_t> scratch_;
+  std::vector<int32_t> flaps_, at_;  // FanSteps: f_i, v's position at u_i
   std::vector<int32_t>* out_ = nullptr;
   size_t layer_begin_ = 0, layer_end_ = 0;
   int half_steps_ = 0;
 };
+
+// BuildNeighborhoods' growth: each stencil of `order` into its block's buffer, its size
+// and start there (a function per grower kind: one loop calling both slowed the span
+// path by 2-3% at degree 6).
+template <bool kFans>
+void GrowStencils(const Topology& topo, const Mesh& mesh, const Spans* spans, const RingSpec& spec,
+                  const std::vector<int32_t>& order, int threads, std::vector<float>& rings,
+                  std::vector<std::vector<int32_t>>& block_indices, std::vector<int32_t>& sizes,
+                  std::vector<int64_t>& start) {
+  ParallelForBlocks(topo.num_vertices, threads, [&](int64_t begin, int64_t end, int b) {
+    RingGrower<kFans> grower(topo, mesh, spans, spec);
+    std::vector<int32_t> stencil;
+    auto& idx = block_indices[b];
+    idx.reserve((end - begin) * std::max(24, 2 * spec.min_points));  // stencils rarely pass 1.5x min_points
+    for (int64_t i = begin; i < end; ++i) {
+      const int v = order[i];
+      if (kFans && i + 4 < end) grower.Prefetch(order[i + 4]);
+      rings[v] = grower.Grow(v, stencil);
+      sizes[v] = static_cast<int32_t>(stencil.size());
+      start[v] = static_cast<int64_t>(idx.size());
+      idx.insert(idx.end(), stencil.begin(), stencil.end());
+    }
+  });
+}
 
 }  // namespace
 
@@ -234,25 +361,22 @@ Neighborhoods BuildNeighborhoods(const Topology& topo, const Mesh& mesh, const R
   // Stencils are grown in GrowthOrder (each is independent of the order) and then
   // copied to vertex order.
   const std::vector<int32_t> order = GrowthOrder(topo);
-  auto spans = std::make_unique<const Spans>(topo, mesh, order, threads);
+  // FanSteps on rows in fan order where stencils start at 1.5 rings (most stop there,
+  // with no spans: the rest fill theirs as they go). Stencils starting further out use
+  // the spans throughout (FanSteps there as fast as the general steps: their spans are
+  // needed anyway).
+  const bool fans = topo.fan_rows && !topo.has_quads && std::lround(2 * spec.rings) == 3;
+  std::unique_ptr<const Spans> spans;
+  if (!fans) spans = std::make_unique<const Spans>(topo, mesh, order, threads);
   std::vector<std::vector<int32_t>> block_indices(threads);
   std::vector<int32_t> sizes(nv);
   std::vector<int64_t> start(nv);  // in the block's buffer, then final
   Neighborhoods nb;
   nb.rings.resize(nv);
-  ParallelForBlocks(nv, threads, [&](int64_t begin, int64_t end, int b) {
-    RingGrower grower(topo, *spans);
-    std::vector<int32_t> stencil;
-    auto& idx = block_indices[b];
-    idx.reserve((end - begin) * std::max(24, 2 * spec.min_points));  // stencils rarely pass 1.5x min_points
-    for (int64_t i = begin; i < end; ++i) {
-      const int v = order[i];
-      nb.rings[v] = grower.Grow(v, spec, stencil);
-      sizes[v] = static_cast<int32_t>(stencil.size());
-      start[v] = static_cast<int64_t>(idx.size());
-      idx.insert(idx.end(), stencil.begin(), stencil.end());
-    }
-  });
+  if (fans)
+    GrowStencils<true>(topo, mesh, nullptr, spec, order, threads, nb.rings, block_indices, sizes, start);
+  else
+    GrowStencils<false>(topo, mesh, spans.get(), spec, order, threads, nb.rings, block_indices, sizes, start);
   spans.reset();  // its memory (~128 bytes a vertex) takes the stencils below
   nb.offsets.resize(nv + 1);
   nb.offsets[0] = 0;

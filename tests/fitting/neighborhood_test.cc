@@ -341,5 +341,145 @@ TEST(NeighborhoodTest, RelabelledTopologyStencilsEqualThePlainRingRuleInOrder) {
   EXPECT_GT(checked, 10000);
 }
 
+// Meshes on which a 1.5-ring is and is not a plain polygon walk (BuildNeighborhoods'
+// fan steps, and where they must leave it to the general steps): irregular valences
+// 4-8, a tube so thin that 1-rings have chords, a Delaunay sphere, boundaries, holes
+// with isolated vertices, a triangle that bounds no face (a chord in three 1-rings),
+// valence-3 vertices (triangles split at their centroid),
+// valence 3 and 4 everywhere, quads and quads mixed with triangles.
+std::vector<Mesh> FanTestMeshes() {
+  using testing_util::MakeMesh;
+  std::vector<Mesh> out;
+  GeneratorOptions g;
+  g.n = 10;
+  out.push_back(GenerateTorusMesh(g));
+  for (int n : {3, 4}) {
+    GeneratorOptions thin = g;
+    thin.n = n;
+    out.push_back(GenerateTorusMesh(thin));
+  }
+  out.push_back(GenerateDelaunaySphereMesh(400, 0.3));
+  out.push_back(GenerateOpenCylinderMesh(g));
+  out.push_back(GenerateHemisphereMesh(g));
+  {  // holes: the faces around every 41st vertex removed (the vertex left isolated)
+    const Mesh torus = GenerateTorusMesh(g);
+    std::vector<std::vector<int>> rows;
+    for (int f = 0; f < torus.NumFaces(); ++f) {
+      std::vector<int> row;
+      bool keep = true;
+      for (int c = 0; c < torus.FaceSize(f); ++c) row.push_back(torus.faces(f, c)), keep &= torus.faces(f, c) % 41 != 0;
+      if (keep) rows.push_back(row);
+    }
+    std::vector<std::array<double, 3>> verts;
+    for (int v = 0; v < torus.NumVertices(); ++v)
+      verts.push_back({torus.positions(v, 0), torus.positions(v, 1), torus.positions(v, 2)});
+    out.push_back(MakeMesh(verts, rows));
+  }
+  {  // every fifth triangle split at its centroid: valence-3 vertices
+    GeneratorOptions coarse = g;
+    coarse.n = 8;
+    const Mesh torus = GenerateTorusMesh(coarse);
+    std::vector<std::array<double, 3>> verts;
+    for (int v = 0; v < torus.NumVertices(); ++v)
+      verts.push_back({torus.positions(v, 0), torus.positions(v, 1), torus.positions(v, 2)});
+    std::vector<std::vector<int>> rows;
+    for (int f = 0; f < torus.NumFaces(); ++f) {
+      const int a = torus.faces(f, 0), b = torus.faces(f, 1), c = torus.faces(f, 2);
+      if (f % 5) {
+        rows.push_back({a, b, c});
+        continue;
+      }
+      const int x = static_cast<int>(verts.size());
+      std::array<double, 3> centre{};
+      for (int k = 0; k < 3; ++k) centre[k] = (verts[a][k] + verts[b][k] + verts[c][k]) / 3;
+      verts.push_back(centre);
+      rows.push_back({a, b, x}), rows.push_back({b, c, x}), rows.push_back({c, a, x});
+    }
+    out.push_back(MakeMesh(verts, rows));
+  }
+  {  // two spheres, a face taken out of each, glued along its edges: a triangle (a, b, c)
+     // that bounds no face, so b and c are adjacent without being consecutive around a
+    const Mesh sphere = GenerateDelaunaySphereMesh(300, 0.3);
+    const int nv = sphere.NumVertices(), a = sphere.faces(0, 0), b = sphere.faces(0, 1), c = sphere.faces(0, 2);
+    std::vector<std::array<double, 3>> verts;
+    for (int copy = 0; copy < 2; ++copy)
+      for (int v = 0; v < nv; ++v)
+        verts.push_back({sphere.positions(v, 0) + 3 * copy, sphere.positions(v, 1), sphere.positions(v, 2)});
+    const auto second = [&](int v) { return v == a ? a : v == b ? c : v == c ? b : v + nv; };
+    std::vector<std::vector<int>> rows;
+    for (int f = 1; f < sphere.NumFaces(); ++f) {
+      rows.push_back({sphere.faces(f, 0), sphere.faces(f, 1), sphere.faces(f, 2)});
+      rows.push_back({second(sphere.faces(f, 0)), second(sphere.faces(f, 1)), second(sphere.faces(f, 2))});
+    }
+    out.push_back(MakeMesh(verts, rows));  // the second copy's a, b, c left isolated
+  }
+  out.push_back(MakeMesh({{1, 1, 1}, {1, -1, -1}, {-1, 1, -1}, {-1, -1, 1}},
+                         {{0, 1, 2}, {0, 3, 1}, {0, 2, 3}, {1, 3, 2}}));  // tetrahedron
+  out.push_back(MakeMesh({{1, 0, 0}, {-1, 0, 0}, {0, 1, 0}, {0, -1, 0}, {0, 0, 1}, {0, 0, -1}},
+                         {{0, 2, 4}, {2, 1, 4}, {1, 3, 4}, {3, 0, 4}, {2, 0, 5}, {1, 2, 5}, {3, 1, 5}, {0, 3, 5}}));
+  GeneratorOptions q = g;
+  q.quads = true;
+  const Mesh quads = GenerateTorusMesh(q);
+  out.push_back(quads);
+  Mesh mixed = quads;  // every third quad split in two triangles
+  std::vector<std::vector<int>> rows;
+  for (int f = 0; f < quads.NumFaces(); ++f) {
+    const int a = quads.faces(f, 0), b = quads.faces(f, 1), c = quads.faces(f, 2), d = quads.faces(f, 3);
+    if (f % 3 == 0)
+      rows.push_back({a, b, c}), rows.push_back({a, c, d});
+    else
+      rows.push_back({a, b, c, d});
+  }
+  std::vector<std::array<double, 3>> verts;
+  for (int v = 0; v < quads.NumVertices(); ++v)
+    verts.push_back({quads.positions(v, 0), quads.positions(v, 1), quads.positions(v, 2)});
+  out.push_back(testing_util::MakeMesh(verts, rows));
+  return out;
+}
+
+// Stencils (points, order and ring) equal the plain ring rule on FanTestMeshes shuffled,
+// relabelled with rotational rows (the fan steps' case) and source rows, and as they
+// are (plain BuildTopology), for degrees 1-6 and specs that stop at or around 1.5 rings
+// (max_points below and at a valence-6 1.5-ring's 13, starting at 1 or 2 rings), with 1
+// and 2 threads.
+TEST(NeighborhoodTest, FanStepsEqualThePlainRingRuleWhereverTheyApplyOrNot) {
+  std::vector<RingSpec> specs;
+  for (int degree = 1; degree <= 6; ++degree) {
+    FitOptions o;
+    o.degree = degree;
+    specs.push_back(RingSpecFor(o));
+  }
+  RingSpec s = specs[1];
+  for (int max_points : {7, 11, 12, 13, 14}) s.max_points = max_points, specs.push_back(s);
+  s = specs[1];
+  s.adaptive = false;
+  for (double rings : {1.0, 1.5, 2.0}) s.rings = s.max_rings = rings, specs.push_back(s);
+  int checked = 0, mesh_index = 0;
+  for (const Mesh& plain : FanTestMeshes()) {
+    const Mesh source = testing_util::ShuffleVertices(plain, 11 + mesh_index++);
+    for (int variant = 0; variant < 3; ++variant) {
+      LocalityRelabelling r;
+      if (variant < 2) r = RelabelForLocality(source, variant ? RowOrder::kSource : RowOrder::kRotational).value();
+      const Mesh& m = variant < 2 ? r.mesh : source;
+      absl::StatusOr<Topology> t = variant < 2 ? BuildTopology(r) : BuildTopology(source);
+      ASSERT_TRUE(t.ok()) << "mesh " << mesh_index - 1 << ": " << t.status();
+      for (size_t k = 0; k < specs.size(); ++k) {
+        // Two threads (slow to start on a busy machine) for degrees 2, 4 and 6 with rotational rows.
+        const int threads = variant == 0 && k % 2 == 1 && k < 6 ? 2 : 1;
+        const Neighborhoods one = BuildNeighborhoods(*t, m, specs[k], 1), two = BuildNeighborhoods(*t, m, specs[k], threads);
+        int mismatches = 0;
+        for (int v = 0; v < m.NumVertices(); ++v, ++checked) {
+          float ring = 0;
+          const std::vector<int32_t> want = PlainStencil(*t, m, v, specs[k], &ring);
+          for (const Neighborhoods* nb : {&one, &two})
+            mismatches += std::vector<int32_t>(nb->Points(v), nb->Points(v) + nb->Size(v)) != want || nb->rings[v] != ring;
+        }
+        EXPECT_EQ(mismatches, 0) << "mesh " << mesh_index - 1 << ", variant " << variant << ", spec " << k;
+      }
+    }
+  }
+  EXPECT_GT(checked, 100000);
+}
+
 }  // namespace
 }  // namespace geomfit

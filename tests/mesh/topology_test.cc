@@ -477,6 +477,9 @@ TEST(LocalityRelabellingTest, RotationalRowsAreFans) {
     const Topology u = BuildTopology(r).value();
     const Topology s = BuildTopology(rs).value();
     EXPECT_FALSE(u.vertex_faces_ascending);
+    EXPECT_TRUE(u.fan_rows);  // the property checked below, which BuildNeighborhoods relies on
+    EXPECT_FALSE(s.fan_rows);
+    EXPECT_FALSE(t.fan_rows);
     EXPECT_EQ(u.num_boundary_edges, t.num_boundary_edges);
     EXPECT_EQ(u.vv_offsets, s.vv_offsets);
     EXPECT_EQ(u.vf_offsets, s.vf_offsets);
