@@ -109,6 +109,9 @@ struct FitRequest {
   /// (FitHeightsBatch, wls_batch.h); false sets every vertex up as a WlsProblem first
   /// (tests: the same bits).
   bool lane_setup = true;
+  /// Keep the stencils in the fits (SurfaceFits::neighborhoods()); false drops them once
+  /// fitted (a caller that only evaluates quantities: their memory is reused).
+  bool keep_neighborhoods = true;
 };
 
 /// Without this callback vertices are fitted in Topology::locality_order; with it, in
@@ -129,5 +132,16 @@ absl::StatusOr<std::shared_ptr<const SurfaceFits>> FitSurface(
     const Mesh& mesh, const Topology& topo, const FitOptions& options,
     std::shared_ptr<const Neighborhoods> neighborhoods = nullptr, const FitRequest& request = {},
     const RunContext& ctx = {}, const FittedBlockFn& on_fitted = nullptr);
+
+/// FitSurface of a mesh and its topology that nobody else needs (a one-off fit:
+/// `geomfit curvature --local`), with the same results. On the plain path (one pass, no
+/// noise mode, normal pre-fit or slope refinement, LHF or LOP, a topology without a
+/// locality order) the fit frees what it no longer reads as soon as it can: the faces
+/// and the topology's rows once the stencils' spans are built (the approximate normals
+/// are computed before), the positions and normals once copied into the point records,
+/// before the fit's own arrays are allocated, which then reuse that memory.
+absl::StatusOr<std::shared_ptr<const SurfaceFits>> FitSurfaceOnce(Mesh mesh, Topology topo, const FitOptions& options,
+                                                                   const FitRequest& request = {},
+                                                                   const RunContext& ctx = {});
 
 }  // namespace geomfit

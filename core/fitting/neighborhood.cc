@@ -228,13 +228,14 @@ class RingGrower {
 }  // namespace
 
 Neighborhoods BuildNeighborhoods(const Topology& topo, const Mesh& mesh, const RingSpec& spec,
-                                 int num_threads) {
+                                 int num_threads, const std::function<void()>& faces_read) {
   const int nv = topo.num_vertices;
   const int threads = ResolveThreads(num_threads);
   // Stencils are grown in GrowthOrder (each is independent of the order) and then
   // copied to vertex order.
   const std::vector<int32_t> order = GrowthOrder(topo);
   auto spans = std::make_unique<const Spans>(topo, mesh, order, threads);
+  if (faces_read) faces_read();  // the growth reads the spans and topo.is_boundary alone
   std::vector<std::vector<int32_t>> block_indices(threads);
   std::vector<int32_t> sizes(nv);
   std::vector<int64_t> start(nv);  // in the block's buffer, then final

@@ -84,10 +84,11 @@ absl::StatusOr<LocalFit> FitLocal(Mesh* source_mesh, bool keep_mesh, const std::
       validated();
       if (!keep_mesh) *source_mesh = Mesh();
       std::vector<int32_t>().swap(r->face_source);  // BuildTopology's alone
-      GF_ASSIGN_OR_RETURN(const auto fits, FitSurface(r->mesh, *topo, o, nullptr, {}, ctx));
-      // The fits hold all the quantities need: the outputs reuse this memory.
-      *topo = Topology();
-      r->mesh = Mesh();
+      // The fit frees the mesh and topology as it goes; the quantities need no stencils.
+      FitRequest request;
+      request.keep_neighborhoods = false;
+      GF_ASSIGN_OR_RETURN(const auto fits,
+                          FitSurfaceOnce(std::move(r->mesh), std::move(*topo), o, request, ctx));
       GF_ASSIGN_OR_RETURN(Differentials d, ComputeDifferentials(*fits, quantities, ctx));
       return LocalFit{std::move(d), std::move(r->vertex_source)};
     }
