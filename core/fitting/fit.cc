@@ -313,8 +313,7 @@ class SurfaceFitter {
     const bool own_nb = !nb;  // stencils of this fit alone: nothing to cache with them
     // FitSurfaceOnce's plain path: the mesh and topology are freed as soon as they are
     // read (fit.h), the normals computed before the faces go.
-    const bool consume = consumable_mesh != nullptr && own_nb && PlainFit(o) && topo.locality_order.empty() &&
-                         !on_fitted;
+    const bool consume = consumable_mesh != nullptr && own_nb && PlainFit(o) && !on_fitted;
     std::shared_ptr<FitInputs> consumed_inputs;
     if (consume) consumed_inputs = MakeFitInputs(mesh, topo, o.frame_normals, nullptr, ctx.threads());
     const std::function<void()> faces_read = [&] {
