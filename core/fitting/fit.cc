@@ -304,23 +304,43 @@ class SurfaceFitter {
   static absl::StatusOr<std::shared_ptr<const SurfaceFits>> Fit(
       const Mesh& mesh, const Topology& topo, const FitOptions& o,
       std::shared_ptr<const Neighborhoods> nb, const FitRequest& req, const RunContext& ctx,
-      const FittedBlockFn& on_fitted) {
+      const FittedBlockFn& on_fitted, Mesh* consumable_mesh = nullptr, Topology* consumable_topo = nullptr) {
     if (absl::Status s = ValidateFitOptions(o); !s.ok()) return s;
     if (topo.num_vertices != mesh.NumVertices() || topo.num_faces != mesh.NumFaces())
       return absl::InvalidArgumentError(absl::StrFormat(
           "topology (%d vertices, %d faces) does not match the mesh (%d vertices, %d faces)",
           topo.num_vertices, topo.num_faces, mesh.NumVertices(), mesh.NumFaces()));
     const bool own_nb = !nb;  // stencils of this fit alone: nothing to cache with them
-    if (own_nb) nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, mesh, RingSpecFor(o), ctx.threads()));
+    // FitSurfaceOnce's plain path: the mesh and topology are freed as soon as they are
+    // read (fit.h), the normals computed before the faces go.
+    const bool consume = consumable_mesh != nullptr && own_nb && PlainFit(o) && !on_fitted;
+    std::shared_ptr<FitInputs> consumed_inputs;
+    if (consume) consumed_inputs = MakeFitInputs(mesh, topo, o.frame_normals, nullptr, ctx.threads());
+    const std::function<void()> faces_read = [&] {
+      consumable_mesh->faces = SharedFaces();
+      for (std::vector<int32_t>* row : {&consumable_topo->vf_offsets, &consumable_topo->vf_faces,
+                                        &consumable_topo->vv_offsets, &consumable_topo->vv})
+        std::vector<int32_t>().swap(*row);
+      std::vector<uint8_t>().swap(consumable_topo->is_isolated);
+    };
+    if (own_nb)
+      nb = std::make_shared<Neighborhoods>(
+          BuildNeighborhoods(topo, mesh, RingSpecFor(o), ctx.threads(), consume ? faces_read : nullptr));
     if (static_cast<int>(nb->offsets.size()) != mesh.NumVertices() + 1)
       return absl::InvalidArgumentError("neighborhoods do not match the mesh");
+    // Once the point records hold them (FitAll).
+    const std::function<void()> positions_read = [&] {
+      consumable_mesh->positions.resize(0, 3);
+      consumed_inputs->normals.resize(0, 3);
+    };
 
     // The approximate normals, computed once per stencils and geometry (FitInputCache),
     // with their point records in the stencils' order; copied once a pass changes them.
     const Neighborhoods* const cached_nb = nb.get();
     const std::shared_ptr<const FitInputs> inputs =
-        own_nb ? MakeFitInputs(mesh, topo, o.frame_normals, &nb->ordered.order, ctx.threads())
-               : nb->fit_inputs.Get(mesh, topo, o.frame_normals, &nb->ordered.order, ctx.threads());
+        consume  ? consumed_inputs
+        : own_nb ? MakeFitInputs(mesh, topo, o.frame_normals, &nb->ordered.order, ctx.threads())
+                 : nb->fit_inputs.Get(mesh, topo, o.frame_normals, &nb->ordered.order, ctx.threads());
     Positions own_normals;
     const Positions* frame_normals = &inputs->normals;
     auto writable_normals = [&]() -> Positions& {
@@ -484,7 +504,7 @@ class SurfaceFitter {
       if (absl::Status s = FitAll(*input, topo, pass_options, pass_nb, *frame_normals, req, ctx,
                                   last && !slopes && !blend ? &on_fitted : nullptr,
                                   fixed_tangent.empty() ? nullptr : fixed_tangent.data(), phase, *fits,
-                                  cached ? &inputs->records : nullptr);
+                                  cached ? &inputs->records : nullptr, consume ? &positions_read : nullptr);
           !s.ok())
         return s;
       if (slopes) {
@@ -526,7 +546,17 @@ class SurfaceFitter {
           return s;
       }
     }
+    if (!req.keep_neighborhoods) fits->neighborhoods_.reset();
     return std::shared_ptr<const SurfaceFits>(std::move(fits));
+  }
+
+  // Whether a fit of `o` is one pass over the mesh's own stencils and normals (no noise
+  // mode, smoothing, pre-fit or refinement; no comparison parametrization, which reads
+  // faces): after its point records are made it reads neither the mesh nor the topology
+  // (is_boundary aside).
+  static bool PlainFit(const FitOptions& o) {
+    return o.noise == NoiseMode::kOff && o.SmoothingPasses() == 0 && !o.two_pass && o.NormalDegree() <= o.degree &&
+           o.SlopePasses() == 0 && (o.method == FitMethod::kLHF || o.method == FitMethod::kLOP);
   }
 
  private:
@@ -534,16 +564,12 @@ class SurfaceFitter {
                              const std::shared_ptr<const Neighborhoods>& nb, const Positions& normals,
                              const FitRequest& req, const RunContext& ctx, const FittedBlockFn* on_fitted,
                              const uint8_t* fixed_tangent, std::string_view phase, SurfaceFits& f,
-                             const PointRecords* cached_records = nullptr) {
+                             const PointRecords* cached_records = nullptr,
+                             const std::function<void()>* positions_read = nullptr) {
     const int nv = mesh.NumVertices();
     f.options_ = o;
     f.neighborhoods_ = nb;
-    // Frames, coefficients and diagnostics unwritten here (a serial pass over ~14 MB at
-    // 87k vertices, degree 2, ~10% of a 1-thread run): the fit loop resets each vertex's.
     const int64_t stride = f.dims() * f.num_coefficients();
-    f.frames_.resize(nv);
-    f.coefficients_.resize(static_cast<size_t>(nv) * stride);
-    f.diagnostics_.resize(nv);
     if (req.stencils) {
       const int order = req.stencil_order < 0 ? o.degree : std::min(req.stencil_order, o.degree);
       f.stencil_rows_ = NumCoefficients(order);
@@ -567,6 +593,15 @@ class SurfaceFitter {
     const bool use_cached = cached_records && os == &nb->ordered && !cached_records->empty();
     if (!use_cached) own_records = MakePointRecords(mesh.positions, normals, os ? os->order.data() : nullptr, ctx.threads());
     const PointRecords& points = use_cached ? *cached_records : own_records;
+    // Called once the records hold the positions and normals (`mesh.positions` and
+    // `normals` are not read below; FitSurfaceOnce frees them here), before the arrays
+    // below are allocated: they then take that memory.
+    if (positions_read) (*positions_read)();
+    // Frames, coefficients and diagnostics unwritten here (a serial pass over ~14 MB at
+    // 87k vertices, degree 2, ~10% of a 1-thread run): the fit loop resets each vertex's.
+    f.frames_.resize(nv);
+    f.coefficients_.resize(static_cast<size_t>(nv) * stride);
+    f.diagnostics_.resize(nv);
     const FitInput in{mesh, *nb, normals, o, std::cos(o.safeguard_angle_deg * M_PI / 180.0), topo,
                       points.data(), os ? os->rank.data() : nullptr, fixed_tangent,
                       fixed_tangent != nullptr && o.HermiteHessian()};
@@ -670,6 +705,11 @@ absl::StatusOr<std::shared_ptr<const SurfaceFits>> FitSurface(
     std::shared_ptr<const Neighborhoods> neighborhoods, const FitRequest& request, const RunContext& ctx,
     const FittedBlockFn& on_fitted) {
   return SurfaceFitter::Fit(mesh, topo, options, std::move(neighborhoods), request, ctx, on_fitted);
+}
+
+absl::StatusOr<std::shared_ptr<const SurfaceFits>> FitSurfaceOnce(Mesh mesh, Topology topo, const FitOptions& options,
+                                                                   const FitRequest& request, const RunContext& ctx) {
+  return SurfaceFitter::Fit(mesh, topo, options, nullptr, request, ctx, nullptr, &mesh, &topo);
 }
 
 }  // namespace geomfit

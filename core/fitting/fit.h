@@ -63,7 +63,9 @@ class SurfaceFits {
   }
   const VertexDiagnostics& diagnostics(int v) const { return diagnostics_[v]; }
   const UninitializedVector<VertexDiagnostics>& diagnostics() const { return diagnostics_; }
+  /// The stencils fitted over (unless FitRequest::keep_neighborhoods was false).
   const Neighborhoods& neighborhoods() const { return *neighborhoods_; }
+  bool has_neighborhoods() const { return neighborhoods_ != nullptr; }
   /// Position and derivatives of vertex v's fit at its origin.
   SurfaceJet Jet(int v) const;
   /// Vertex v's fit evaluated at the orthogonal projection of `x` onto its frame's
@@ -109,6 +111,9 @@ struct FitRequest {
   /// (FitHeightsBatch, wls_batch.h); false sets every vertex up as a WlsProblem first
   /// (tests: the same bits).
   bool lane_setup = true;
+  /// Keep the stencils in the fits (SurfaceFits::neighborhoods()); false drops them once
+  /// fitted (a caller that only evaluates quantities: their memory is reused).
+  bool keep_neighborhoods = true;
 };
 
 /// Without this callback vertices are fitted in Topology::locality_order; with it, in
@@ -129,5 +134,15 @@ absl::StatusOr<std::shared_ptr<const SurfaceFits>> FitSurface(
     const Mesh& mesh, const Topology& topo, const FitOptions& options,
     std::shared_ptr<const Neighborhoods> neighborhoods = nullptr, const FitRequest& request = {},
     const RunContext& ctx = {}, const FittedBlockFn& on_fitted = nullptr);
+
+/// FitSurface of a mesh and its topology that nobody else needs (a one-off fit:
+/// `geomfit curvature --local`), with the same results. On the plain path (one pass, no
+/// noise mode, normal pre-fit or slope refinement, LHF or LOP) the fit frees what it no longer reads as soon as it can: the faces
+/// and the topology's rows once the stencils' spans are built (the approximate normals
+/// are computed before), the positions and normals once copied into the point records,
+/// before the fit's own arrays are allocated, which then reuse that memory.
+absl::StatusOr<std::shared_ptr<const SurfaceFits>> FitSurfaceOnce(Mesh mesh, Topology topo, const FitOptions& options,
+                                                                   const FitRequest& request = {},
+                                                                   const RunContext& ctx = {});
 
 }  // namespace geomfit

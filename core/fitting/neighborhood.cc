@@ -355,7 +355,7 @@ void GrowStencils(const Topology& topo, const Mesh& mesh, const Spans* spans, co
 }  // namespace
 
 Neighborhoods BuildNeighborhoods(const Topology& topo, const Mesh& mesh, const RingSpec& spec,
-                                 int num_threads) {
+                                 int num_threads, const std::function<void()>& faces_read) {
   const int nv = topo.num_vertices;
   const int threads = ResolveThreads(num_threads);
   // Stencils are grown in GrowthOrder (each is independent of the order) and then
@@ -368,6 +368,8 @@ Neighborhoods BuildNeighborhoods(const Topology& topo, const Mesh& mesh, const R
   const bool fans = topo.fan_rows && !topo.has_quads && std::lround(2 * spec.rings) == 3;
   std::unique_ptr<const Spans> spans;
   if (!fans) spans = std::make_unique<const Spans>(topo, mesh, order, threads);
+  // The span growth reads the spans and topo.is_boundary alone; FanSteps read the rows.
+  if (faces_read && !fans) faces_read();
   std::vector<std::vector<int32_t>> block_indices(threads);
   std::vector<int32_t> sizes(nv);
   std::vector<int64_t> start(nv);  // in the block's buffer, then final
@@ -377,6 +379,7 @@ Neighborhoods BuildNeighborhoods(const Topology& topo, const Mesh& mesh, const R
     GrowStencils<true>(topo, mesh, nullptr, spec, order, threads, nb.rings, block_indices, sizes, start);
   else
     GrowStencils<false>(topo, mesh, spans.get(), spec, order, threads, nb.rings, block_indices, sizes, start);
+  if (faces_read && fans) faces_read();
   spans.reset();  // its memory (~128 bytes a vertex) takes the stencils below
   nb.offsets.resize(nv + 1);
   nb.offsets[0] = 0;

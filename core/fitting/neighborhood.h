@@ -1,5 +1,6 @@
 #pragma once
 #include <cstdint>
+#include <functional>
 #include <vector>
 
 #include "core/fitting/fit_inputs.h"
@@ -62,7 +63,12 @@ struct RingSpec {
 RingSpec RingSpecFor(const FitOptions& options);
 
 /// Computes every vertex's stencil (parallel; identical for any thread count).
+/// `faces_read`, if given, is called (from the calling thread) once the faces and the
+/// topology's rows have been read (after the spans, or after the growth where it steps on
+/// fan rows): from then on only topo.num_vertices, is_boundary and
+/// locality_order are, so the caller may free mesh.faces and the other rows (a one-off
+/// fit's memory: FitSurfaceOnce).
 Neighborhoods BuildNeighborhoods(const Topology& topo, const Mesh& mesh, const RingSpec& spec,
-                                 int num_threads = 0);
+                                 int num_threads = 0, const std::function<void()>& faces_read = nullptr);
 
 }  // namespace geomfit

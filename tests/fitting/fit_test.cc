@@ -394,6 +394,58 @@ TEST(FitTest, FitsAreBitIdenticalForAnyThreadCount) {
   }
 }
 
+// FitSurfaceOnce frees the mesh's faces, the topology's rows, the positions and the
+// normals as soon as its plain path has read them (fit.h): its fits must be FitSurface's
+// bit for bit (a read of anything freed would crash or change them), on the plain path
+// (LHF d2 / d4, LOP; a topology with or without a locality order) and on paths that keep
+// their inputs to the end (two passes, a normal pre-fit, the noise mode), on a relabelled bump (boundary flags from is_boundary, which
+// is kept), 1 and 2 threads; keep_neighborhoods = false leaves no stencils in the fits.
+TEST(FitTest, FitSurfaceOnceGivesFitSurfacesBits) {
+  GeneratorOptions g;
+  g.n = 40;
+  const Mesh shuffled = testing_util::ShuffleVertices(GenerateBumpMesh(g), 7, nullptr);
+  const LocalityRelabelling r = RelabelForLocality(shuffled).value();
+  for (int variant = 0; variant < 7; ++variant) {
+    // Variant 6: the plain path on a mesh's own topology (with a locality order).
+    const Topology topo = variant == 6 ? BuildTopology(r.mesh).value() : BuildTopology(r).value();
+    ASSERT_EQ(topo.locality_order.empty(), variant != 6);
+    ASSERT_GT(topo.num_boundary_edges, 0);
+    const int nv = r.mesh.NumVertices();
+    FitOptions o;
+    o.degree = variant == 1 ? 4 : 2;
+    if (variant == 2) o.method = FitMethod::kLOP;
+    if (variant == 3) o.two_pass = true;
+    if (variant == 4) o.normal_degree = 3;
+    if (variant == 5) o.noise = NoiseMode::kOn;
+    for (int threads : {1, 2}) {
+      SCOPED_TRACE(::testing::Message() << "variant " << variant << " threads " << threads);
+      const RunContext ctx(nullptr, threads);
+      const auto want = FitSurface(r.mesh, topo, o, nullptr, {}, ctx).value();
+      FitRequest req;
+      req.keep_neighborhoods = threads == 2;
+      const auto got = FitSurfaceOnce(r.mesh, topo, o, req, ctx).value();
+      EXPECT_EQ(got->has_neighborhoods(), threads == 2);
+      EXPECT_TRUE(want->has_neighborhoods());
+      ASSERT_EQ(got->num_vertices(), nv);
+      const size_t ncoef = static_cast<size_t>(got->dims()) * got->num_coefficients();
+      int boundary = 0;
+      for (int v = 0; v < nv; ++v) {
+        ASSERT_EQ(0, std::memcmp(&got->frame(v), &want->frame(v), sizeof(LocalFrame))) << "vertex " << v;
+        ASSERT_EQ(0, std::memcmp(got->coefficients(v), want->coefficients(v), ncoef * 8)) << "vertex " << v;
+        const VertexDiagnostics &a = got->diagnostics(v), &b = want->diagnostics(v);
+        ASSERT_EQ(a.points, b.points) << "vertex " << v;
+        ASSERT_EQ(a.degree_requested, b.degree_requested);
+        ASSERT_EQ(a.degree_used, b.degree_used);
+        ASSERT_EQ(a.rank, b.rank);
+        ASSERT_EQ(a.flags, b.flags);
+        ASSERT_EQ(0, std::memcmp(&a.condition, &b.condition, sizeof(float)));
+        boundary += (a.flags & kFlagBoundary) != 0;
+      }
+      EXPECT_GT(boundary, 0);
+    }
+  }
+}
+
 TEST(FitTest, RejectsBadOptionsNamingTheField) {
   FitOptions o;
   o.degree = 7;

@@ -131,6 +131,39 @@ TEST(NeighborhoodTest, IdenticalForAnyThreadCount) {
   }
 }
 
+// BuildNeighborhoods' `faces_read` hook: called once, after which the growth reads
+// neither the faces nor the topology's rows (FitSurfaceOnce frees them there): emptied
+// in the hook, the stencils are the same (a read of an emptied row would crash or
+// change them), for a relabelled torus (the CLI's) and 1 or 2 threads.
+TEST(NeighborhoodTest, FacesAndRowsAreNotReadAfterTheHook) {
+  GeneratorOptions g;
+  g.n = 40;
+  const Mesh generated = GenerateTorusMesh(g);
+  const Mesh shuffled = testing_util::ShuffleVertices(generated, 5, nullptr);
+  LocalityRelabelling r = RelabelForLocality(shuffled).value();
+  const Topology topo = BuildTopology(r).value();
+  for (int degree : {2, 4})
+    for (int threads : {1, 2}) {
+      FitOptions o;
+      o.degree = degree;
+      const Neighborhoods want = BuildNeighborhoods(topo, r.mesh, RingSpecFor(o), threads);
+      Mesh mesh = r.mesh;
+      Topology t = topo;
+      int calls = 0;
+      const Neighborhoods got = BuildNeighborhoods(t, mesh, RingSpecFor(o), threads, [&] {
+        ++calls;
+        mesh.faces = SharedFaces();
+        t.vf_offsets.clear(), t.vf_faces.clear(), t.vv_offsets.clear(), t.vv.clear();
+        t.vf_offsets.shrink_to_fit(), t.vf_faces.shrink_to_fit(), t.vv_offsets.shrink_to_fit(), t.vv.shrink_to_fit();
+      });
+      EXPECT_EQ(calls, 1);
+      EXPECT_EQ(mesh.NumFaces(), 0);
+      EXPECT_EQ(got.offsets, want.offsets) << "degree " << degree << ", threads " << threads;
+      EXPECT_EQ(got.indices, want.indices) << "degree " << degree << ", threads " << threads;
+      EXPECT_EQ(got.rings, want.rings);
+    }
+}
+
 // A mesh numbered at random (here 27,648 vertices, far from local) is grown in
 // breadth-first order: the stencils must be those of the same mesh in its generated
 // (local) order, relabelled, for any thread count.

@@ -37,12 +37,12 @@ void Verbose(bool on, const std::string& line) {
 size_t ReadHeapBytes(int64_t file_bytes) { return static_cast<size_t>(2.3 * static_cast<double>(file_bytes)); }
 
 /// Heap bytes the rest of a `curvature --local` run spans for `vertices` at `degree`
-/// (the fit's: stencils, frames, coefficients, positions and normals in locality order,
-/// mesh and topology), as measured on the gmsh torus (87k vertices, one thread: the
-/// resident heap, reading included, of runs that back nothing ahead). An estimate: what
-/// it leaves out faults in on use.
+/// (the fit's: stencils and their spans, frames, coefficients, point records, mesh and
+/// topology, freed as the fit goes: FitSurfaceOnce), as measured on the gmsh torus (87k
+/// vertices, one thread: the resident heap, reading included, of runs that back nothing
+/// ahead, 4 KB pages). An estimate: what it leaves out faults in on use.
 size_t FitHeapBytes(int vertices, int degree) {
-  constexpr int kBytesPerVertex[] = {415, 415, 455, 530, 590, 675, 820};  // degrees 0-6
+  constexpr int kBytesPerVertex[] = {370, 370, 395, 420, 520, 595, 780};  // degrees 0-6
   const int d = std::max(degree, 0);
   return static_cast<size_t>(vertices) * (d <= 6 ? kBytesPerVertex[d] : kBytesPerVertex[6] + 150 * (d - 6));
 }
@@ -70,8 +70,9 @@ struct LocalFit {
 /// scattered numbering then costs no cache misses. The rows stay in the relabelled
 /// order (LocalFit::source maps them back: WriteRelabelledDifferentials).
 /// `validated` is set once the mesh has passed validation (the "read" phase's end).
-/// Unless `keep_mesh`, a relabelled fit empties *mesh once it is validated (its memory
-/// is then reused by the fit's arrays instead of new pages).
+/// Unless `keep_mesh`, *mesh is emptied once it is validated (relabelled: at once; else
+/// the fit takes it): its memory is then reused by the fit's arrays instead of new pages.
+/// The fit (FitSurfaceOnce) frees the fitted mesh and topology as it goes.
 absl::StatusOr<LocalFit> FitLocal(Mesh* source_mesh, bool keep_mesh, const std::string& path,
                                   const FitOptions& o, uint32_t quantities, const RunContext& ctx,
                                   const std::function<void()>& validated) {
@@ -84,10 +85,11 @@ absl::StatusOr<LocalFit> FitLocal(Mesh* source_mesh, bool keep_mesh, const std::
       validated();
       if (!keep_mesh) *source_mesh = Mesh();
       std::vector<int32_t>().swap(r->face_source);  // BuildTopology's alone
-      GF_ASSIGN_OR_RETURN(const auto fits, FitSurface(r->mesh, *topo, o, nullptr, {}, ctx));
-      // The fits hold all the quantities need: the outputs reuse this memory.
-      *topo = Topology();
-      r->mesh = Mesh();
+      // The fit frees the mesh and topology as it goes; the quantities need no stencils.
+      FitRequest request;
+      request.keep_neighborhoods = false;
+      GF_ASSIGN_OR_RETURN(const auto fits,
+                          FitSurfaceOnce(std::move(r->mesh), std::move(*topo), o, request, ctx));
       GF_ASSIGN_OR_RETURN(Differentials d, ComputeDifferentials(*fits, quantities, ctx));
       return LocalFit{std::move(d), std::move(r->vertex_source)};
     }
@@ -95,9 +97,13 @@ absl::StatusOr<LocalFit> FitLocal(Mesh* source_mesh, bool keep_mesh, const std::
   absl::StatusOr<Topology> topo = ValidateMesh(mesh, ctx.threads());
   GF_RETURN_IF_ERROR(WithPrefix(topo.status(), path));
   validated();
-  GF_ASSIGN_OR_RETURN(const auto fits, FitSurface(mesh, *topo, o, nullptr, {}, ctx));
+  FitRequest request;
+  request.keep_neighborhoods = false;  // the quantities need no stencils
+  // Unless the output needs the mesh, the fit frees it and the topology as it goes.
+  GF_ASSIGN_OR_RETURN(const auto fits, keep_mesh ? FitSurface(mesh, *topo, o, nullptr, request, ctx)
+                                                 : FitSurfaceOnce(std::move(*source_mesh), std::move(*topo), o,
+                                                                  request, ctx));
   *topo = Topology();
-  if (!keep_mesh) *source_mesh = Mesh();
   GF_ASSIGN_OR_RETURN(Differentials d, ComputeDifferentials(*fits, quantities, ctx));
   return LocalFit{std::move(d), {}};
 }
