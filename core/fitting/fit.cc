@@ -612,8 +612,6 @@ class SurfaceFitter {
           for (int i = 0, n = nb->Size(w); i < n; ++i) __builtin_prefetch(os->rank.data() + p[i]);
         }
         const int64_t v = vertex_at(k);
-        f.frames_[v] = LocalFrame{};
-        std::fill_n(f.coefficients_.data() + v * stride, stride, 0.0);
         f.diagnostics_[v] = VertexDiagnostics{};
         if (topo.is_boundary[v]) f.diagnostics_[v].flags = kFlagBoundary;
         const FitOutput out{&f.frames_[v], f.coefficients_.data() + v * stride,
@@ -632,6 +630,11 @@ class SurfaceFitter {
             continue;
           }
         }
+        // A lane's frame and coefficients are written whole by FitHeightsBatch or, for the
+        // lanes it leaves, by SetUpVertex and the solvers (SolveWls zeroes its output
+        // first); the other paths start from reset outputs.
+        f.frames_[v] = LocalFrame{};
+        std::fill_n(f.coefficients_.data() + v * stride, stride, 0.0);
         const int slot = batch->count;
         if (!SetUpVertex(static_cast<int>(v), in, out, batch->problems[slot])) continue;
         batch->outs[slot] = out;
