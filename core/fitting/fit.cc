@@ -605,7 +605,11 @@ class SurfaceFitter {
           const double* c = f.coefficients_.data() + w * stride;
           __builtin_prefetch(c, 1);
           __builtin_prefetch(c + stride - 1, 1);
+          __builtin_prefetch(&topo.is_boundary[w]);
         }
+        // The next block's point records, one a vertex: the lanes read this block's in
+        // stencil-size order, which no hardware prefetcher follows.
+        if (lane_setup && end + j < nv) __builtin_prefetch(in.points + end + j);
         if (!ordered_lanes && os && j + 4 < n) {
           const int w = static_cast<int>(vertex_at(walk[j + 4]));
           const int32_t* p = nb->Points(w);
