@@ -660,15 +660,17 @@ class SurfaceFitter {
           const double* c = f.coefficients_.data() + w * stride;
           __builtin_prefetch(c, 1);
           __builtin_prefetch(c + stride - 1, 1);
+          __builtin_prefetch(&topo.is_boundary[w]);
         }
+        // The next block's point records, one a vertex: the lanes read this block's in
+        // stencil-size order, which no hardware prefetcher follows.
+        if (lane_setup && end + j < nv) __builtin_prefetch(in.points + end + j);
         if (!ordered_lanes && os && j + 4 < n) {
           const int w = static_cast<int>(vertex_at(walk[j + 4]));
           const int32_t* p = nb->Points(w);
           for (int i = 0, n = nb->Size(w); i < n; ++i) __builtin_prefetch(os->rank.data() + p[i]);
         }
         const int64_t v = vertex_at(k);
-        f.frames_[v] = LocalFrame{};
-        std::fill_n(f.coefficients_.data() + v * stride, stride, 0.0);
         f.diagnostics_[v] = VertexDiagnostics{};
         if (topo.is_boundary[v]) f.diagnostics_[v].flags = kFlagBoundary;
         const FitOutput out{&f.frames_[v], f.coefficients_.data() + v * stride,
@@ -687,6 +689,11 @@ class SurfaceFitter {
             continue;
           }
         }
+        // A lane's frame and coefficients are written whole by FitHeightsBatch or, for the
+        // lanes it leaves, by SetUpVertex and the solvers (SolveWls zeroes its output
+        // first); the other paths start from reset outputs.
+        f.frames_[v] = LocalFrame{};
+        std::fill_n(f.coefficients_.data() + v * stride, stride, 0.0);
         const int slot = batch->count;
         if (!SetUpVertex(static_cast<int>(v), in, out, batch->problems[slot])) continue;
         batch->outs[slot] = out;

@@ -77,85 +77,86 @@ void EvaluateVertex(const SurfaceFits& fits, uint32_t q, int64_t v, Differential
 
 // Differentials of height-function fits (LHF, dims 1) kLanes vertices at a time: Jet's
 // and DifferentialsFromJet's operations in their order on every lane, so each lane has
-// EvaluateVertex's bits, but stage by stage across the lanes, so the divisions and
-// square roots of different vertices overlap instead of forming one long chain per
-// vertex (and the compiler may use vector instructions). Both principal-direction
-// branches are computed and selected per lane.
+// EvaluateVertex's bits, as vectors of kLanes doubles (the divisions and square roots
+// of different vertices overlap instead of forming one long chain per vertex). Both
+// principal-direction branches are computed and selected per lane by masks (GCC 12
+// compiles some vector ?: to scalar code per lane).
 constexpr int kLanes = 8;
-using Lanes = double[kLanes];
+typedef double V __attribute__((vector_size(kLanes * sizeof(double))));
+typedef long long M __attribute__((vector_size(kLanes * sizeof(double))));  // comparison masks
 
-__attribute__((target_clones("arch=x86-64-v4", "avx2", "default"))) void HeightLanes(const SurfaceFits& fits, uint32_t q, const int64_t* vs, int count, Differentials& d) {
+#define GEOMFIT_LANES_INLINE inline __attribute__((always_inline))
+GEOMFIT_LANES_INLINE V Pick(M mask, V a, V b) {
+  return reinterpret_cast<V>((reinterpret_cast<M>(a) & mask) | (reinterpret_cast<M>(b) & ~mask));
+}
+GEOMFIT_LANES_INLINE V Magnitude(V x) {  // |x| bit for bit (sign cleared)
+  return reinterpret_cast<V>(reinterpret_cast<M>(x) & (M{} + 0x7fffffffffffffffLL));
+}
+GEOMFIT_LANES_INLINE V SqrtLanes(V x) {
+  V r;
+  for (int l = 0; l < kLanes; ++l) r[l] = __builtin_sqrt(x[l]);
+  return r;
+}
+GEOMFIT_LANES_INLINE void HeightLanes(const SurfaceFits& fits, uint32_t q, const int64_t* vs, int count, Differentials& d) {
   const int nc = fits.num_coefficients();
   auto coef = [&](const double* c, int j, int k) { return TaylorIndex(j, k) < nc ? c[TaylorIndex(j, k)] : 0.0; };
-  Lanes a[3], b[3], xuu[3], xuv[3], xvv[3];
-  for (int l = 0; l < kLanes; ++l) {  // Jet (dims 1); the padding lanes repeat lane 0
+  // Jet (dims 1); the padding lanes repeat lane 0. Staged lane by lane in memory (built
+  // in registers, each vector is a chain of 8 dependent inserts).
+  alignas(64) double at[14][kLanes];  // t1, t2, normal (3 each), c10, c01, c20, c11, c02
+  for (int l = 0; l < kLanes; ++l) {
     const int v = static_cast<int>(vs[l < count ? l : 0]);
     const LocalFrame& fr = fits.frame(v);
     const double* c = fits.coefficients(v);
-    const double c10 = coef(c, 1, 0), c01 = coef(c, 0, 1), c20 = coef(c, 2, 0), c11 = coef(c, 1, 1),
-                 c02 = coef(c, 0, 2);
-    for (int k = 0; k < 3; ++k) {
-      a[k][l] = fr.t1[k] + c10 * fr.normal[k];
-      b[k][l] = fr.t2[k] + c01 * fr.normal[k];
-      xuu[k][l] = c20 * fr.normal[k];
-      xuv[k][l] = c11 * fr.normal[k];
-      xvv[k][l] = c02 * fr.normal[k];
-    }
+    for (int k = 0; k < 3; ++k) at[k][l] = fr.t1[k], at[3 + k][l] = fr.t2[k], at[6 + k][l] = fr.normal[k];
+    at[9][l] = coef(c, 1, 0), at[10][l] = coef(c, 0, 1), at[11][l] = coef(c, 2, 0), at[12][l] = coef(c, 1, 1),
+    at[13][l] = coef(c, 0, 2);
   }
-  Lanes r11, r12, r22, q1[3], q2[3], n[3];
-  for (int l = 0; l < kLanes; ++l) r11[l] = std::sqrt(a[0][l] * a[0][l] + a[1][l] * a[1][l] + a[2][l] * a[2][l]);
-  for (int k = 0; k < 3; ++k)
-    for (int l = 0; l < kLanes; ++l) q1[k][l] = a[k][l] / r11[l];
-  for (int l = 0; l < kLanes; ++l) r12[l] = q1[0][l] * b[0][l] + q1[1][l] * b[1][l] + q1[2][l] * b[2][l];
-  for (int k = 0; k < 3; ++k)
-    for (int l = 0; l < kLanes; ++l) q2[k][l] = b[k][l] - r12[l] * q1[k][l];
-  for (int l = 0; l < kLanes; ++l) r22[l] = std::sqrt(q2[0][l] * q2[0][l] + q2[1][l] * q2[1][l] + q2[2][l] * q2[2][l]);
-  for (int k = 0; k < 3; ++k)
-    for (int l = 0; l < kLanes; ++l) q2[k][l] = q2[k][l] / r22[l];
-  for (int l = 0; l < kLanes; ++l) {
-    n[0][l] = q1[1][l] * q2[2][l] - q1[2][l] * q2[1][l];
-    n[1][l] = q1[2][l] * q2[0][l] - q1[0][l] * q2[2][l];
-    n[2][l] = q1[0][l] * q2[1][l] - q1[1][l] * q2[0][l];
+  const auto row = [&](int i) { return *reinterpret_cast<const V*>(at[i]); };
+  const V c10 = row(9), c01 = row(10), c20 = row(11), c11 = row(12), c02 = row(13);
+  V a[3], b[3], xuu[3], xuv[3], xvv[3];
+  for (int k = 0; k < 3; ++k) {
+    const V nk = row(6 + k);
+    a[k] = row(k) + c10 * nk;
+    b[k] = row(3 + k) + c01 * nk;
+    xuu[k] = c20 * nk;
+    xuv[k] = c11 * nk;
+    xvv[k] = c02 * nk;
   }
-  Lanes w11, w12, w22, mean, gauss, k1, k2, disc;
-  for (int l = 0; l < kLanes; ++l) {
-    const double b11 = n[0][l] * xuu[0][l] + n[1][l] * xuu[1][l] + n[2][l] * xuu[2][l];
-    const double b12 = n[0][l] * xuv[0][l] + n[1][l] * xuv[1][l] + n[2][l] * xuv[2][l];
-    const double b22 = n[0][l] * xvv[0][l] + n[1][l] * xvv[1][l] + n[2][l] * xvv[2][l];
-    const double i11 = 1 / r11[l], i12 = -r12[l] / (r11[l] * r22[l]), i22 = 1 / r22[l];
-    w11[l] = -(i11 * b11 * i11);
-    w12[l] = -(i11 * (b11 * i12 + b12 * i22));
-    w22[l] = -(i12 * (b11 * i12 + b12 * i22) + i22 * (b12 * i12 + b22 * i22));
-  }
-  for (int l = 0; l < kLanes; ++l) {
-    mean[l] = 0.5 * (w11[l] + w22[l]);
-    gauss[l] = w11[l] * w22[l] - w12[l] * w12[l];
-    disc[l] = std::sqrt((w11[l] - w22[l]) * (w11[l] - w22[l]) + 4 * w12[l] * w12[l]);
-    k1[l] = 0.5 * (w11[l] + w22[l] + disc[l]);
-    k2[l] = 0.5 * (w11[l] + w22[l] - disc[l]);
-  }
-  Lanes e1[3], e2[3], z;
-  bool round[kLanes];  // equal principal curvatures: the directions are q1, q2
-  for (int l = 0; l < kLanes; ++l) {
-    round[l] = disc[l] <= 1e-14 * (std::abs(w11[l]) + std::abs(w22[l]) + 1e-300);
-    // (w11 - k2) q1 + w12 q2 if |w11 - k2| > |w11 - k1|, otherwise w12 q1 - (w11 - k1) q2
-    const bool first = std::abs(w11[l] - k2[l]) > std::abs(w11[l] - k1[l]);
-    const double s1 = first ? w11[l] - k2[l] : w12[l], s2 = first ? w12[l] : w11[l] - k1[l];
-    for (int k = 0; k < 3; ++k) e1[k][l] = first ? s1 * q1[k][l] + s2 * q2[k][l] : s1 * q1[k][l] - s2 * q2[k][l];
-  }
-  for (int l = 0; l < kLanes; ++l) {
-    z[l] = e1[0][l] * e1[0][l] + e1[1][l] * e1[1][l] + e1[2][l] * e1[2][l];
-    z[l] = z[l] > 0 ? std::sqrt(z[l]) : 1.0;  // Eigen's normalized(): a zero vector stays
-  }
-  for (int k = 0; k < 3; ++k)
-    for (int l = 0; l < kLanes; ++l) e1[k][l] = round[l] ? q1[k][l] : e1[k][l] / z[l];
-  for (int l = 0; l < kLanes; ++l) {
-    const double x = n[1][l] * e1[2][l] - n[2][l] * e1[1][l], y = n[2][l] * e1[0][l] - n[0][l] * e1[2][l],
-                 z = n[0][l] * e1[1][l] - n[1][l] * e1[0][l];
-    e2[0][l] = round[l] ? q2[0][l] : x;
-    e2[1][l] = round[l] ? q2[1][l] : y;
-    e2[2][l] = round[l] ? q2[2][l] : z;
-  }
+  const V r11 = SqrtLanes(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
+  V q1[3], q2[3], n[3];
+  for (int k = 0; k < 3; ++k) q1[k] = a[k] / r11;
+  const V r12 = q1[0] * b[0] + q1[1] * b[1] + q1[2] * b[2];
+  for (int k = 0; k < 3; ++k) q2[k] = b[k] - r12 * q1[k];
+  const V r22 = SqrtLanes(q2[0] * q2[0] + q2[1] * q2[1] + q2[2] * q2[2]);
+  for (int k = 0; k < 3; ++k) q2[k] = q2[k] / r22;
+  n[0] = q1[1] * q2[2] - q1[2] * q2[1];
+  n[1] = q1[2] * q2[0] - q1[0] * q2[2];
+  n[2] = q1[0] * q2[1] - q1[1] * q2[0];
+  const V b11 = n[0] * xuu[0] + n[1] * xuu[1] + n[2] * xuu[2];
+  const V b12 = n[0] * xuv[0] + n[1] * xuv[1] + n[2] * xuv[2];
+  const V b22 = n[0] * xvv[0] + n[1] * xvv[1] + n[2] * xvv[2];
+  const V i11 = 1 / r11, i12 = -r12 / (r11 * r22), i22 = 1 / r22;
+  const V w11 = -(i11 * b11 * i11);
+  const V w12 = -(i11 * (b11 * i12 + b12 * i22));
+  const V w22 = -(i12 * (b11 * i12 + b12 * i22) + i22 * (b12 * i12 + b22 * i22));
+  const V mean = 0.5 * (w11 + w22);
+  const V gauss = w11 * w22 - w12 * w12;
+  const V disc = SqrtLanes((w11 - w22) * (w11 - w22) + 4 * w12 * w12);
+  const V k1 = 0.5 * (w11 + w22 + disc);
+  const V k2 = 0.5 * (w11 + w22 - disc);
+  // Equal principal curvatures: the directions are q1, q2.
+  const M round = disc <= 1e-14 * (Magnitude(w11) + Magnitude(w22) + 1e-300);
+  // (w11 - k2) q1 + w12 q2 if |w11 - k2| > |w11 - k1|, otherwise w12 q1 - (w11 - k1) q2
+  const M first = Magnitude(w11 - k2) > Magnitude(w11 - k1);
+  const V s1 = Pick(first, w11 - k2, w12), s2 = Pick(first, w12, w11 - k1);
+  V e1[3], e2[3];
+  for (int k = 0; k < 3; ++k) e1[k] = Pick(first, s1 * q1[k] + s2 * q2[k], s1 * q1[k] - s2 * q2[k]);
+  V z = e1[0] * e1[0] + e1[1] * e1[1] + e1[2] * e1[2];
+  z = Pick(z > 0, SqrtLanes(z), V{} + 1);  // Eigen's normalized(): a zero vector stays
+  for (int k = 0; k < 3; ++k) e1[k] = Pick(round, q1[k], e1[k] / z);
+  e2[0] = Pick(round, q2[0], n[1] * e1[2] - n[2] * e1[1]);
+  e2[1] = Pick(round, q2[1], n[2] * e1[0] - n[0] * e1[2]);
+  e2[2] = Pick(round, q2[2], n[0] * e1[1] - n[1] * e1[0]);
   for (int l = 0; l < count; ++l) {
     const int64_t v = vs[l];
     d.diagnostics[v] = fits.diagnostics(static_cast<int>(v));
@@ -165,19 +166,20 @@ __attribute__((target_clones("arch=x86-64-v4", "avx2", "default"))) void HeightL
     if (q & kPrincipalCurvatures) d.k1(v) = k1[l], d.k2(v) = k2[l];
     if (q & kPrincipalDirections)
       for (int k = 0; k < 3; ++k) d.dir1(v, k) = e1[k][l], d.dir2(v, k) = e2[k][l];
-    if (q & kCurvatureTensor)  // column-major C = k1 e1 e1^T + k2 e2 e2^T as Eigen forms it
-      for (int j = 0; j < 3; ++j)
-        for (int i = 0; i < 3; ++i)
-          d.tensor(v, 3 * j + i) = e1[j][l] * (k1[l] * e1[i][l]) + e2[j][l] * (k2[l] * e2[i][l]);
   }
+  if (q & kCurvatureTensor)  // column-major C = k1 e1 e1^T + k2 e2 e2^T as Eigen forms it
+    for (int j = 0; j < 3; ++j)
+      for (int i = 0; i < 3; ++i) {
+        const V t = e1[j] * (k1 * e1[i]) + e2[j] * (k2 * e2[i]);
+        for (int l = 0; l < count; ++l) d.tensor(vs[l], 3 * j + i) = t[l];
+      }
 }
 
-// Vertices [begin, end): height-function fits kLanes at a time, the others one by one.
-void EvaluateRange(const SurfaceFits& fits, uint32_t q, int64_t begin, int64_t end, Differentials& d) {
-  if (fits.dims() != 1) {
-    for (int64_t v = begin; v < end; ++v) EvaluateVertex(fits, q, v, d);
-    return;
-  }
+// Height-function fits (dims 1) of vertices [begin, end), kLanes at a time (one call per
+// range: the clone's dispatch and entry once, not per 8 vertices).
+__attribute__((target_clones("arch=x86-64-v4", "avx2", "default"))) void HeightRange(const SurfaceFits& fits, uint32_t q,
+                                                                                   int64_t begin, int64_t end,
+                                                                                   Differentials& d) {
   int64_t lanes[kLanes];
   int count = 0;
   for (int64_t v = begin; v < end; ++v) {
@@ -189,6 +191,12 @@ void EvaluateRange(const SurfaceFits& fits, uint32_t q, int64_t begin, int64_t e
     if (count == kLanes) HeightLanes(fits, q, lanes, count, d), count = 0;
   }
   if (count > 0) HeightLanes(fits, q, lanes, count, d);
+}
+
+// Vertices [begin, end): height-function fits kLanes at a time, the others one by one.
+void EvaluateRange(const SurfaceFits& fits, uint32_t q, int64_t begin, int64_t end, Differentials& d) {
+  if (fits.dims() == 1) return HeightRange(fits, q, begin, end, d);
+  for (int64_t v = begin; v < end; ++v) EvaluateVertex(fits, q, v, d);
 }
 
 }  // namespace
