@@ -180,11 +180,6 @@ inline const char* FastCoordinates(const char* p, const char* end, double xyz[3]
   return LineEnd(p, end);
 }
 
-/// The decimal digits at p (a digit; up to 10 of them) as *value; where they end
-/// (nullptr: more than 10).
-/// Fewer than 8 digits cost one 8-byte load and no branch per digit (SWAR: the digits
-/// moved to the word's top bytes, the bytes below them read as leading zeros, then the
-/// usual eight-digit multiply-shift).
 /// The value of the n digits (1 <= n <= 8) at p, which has 8 readable bytes: one load
 /// and a multiply-shift (the digits moved to the word's top bytes, the bytes below them
 /// read as leading zeros).
@@ -198,6 +193,11 @@ inline uint64_t EightDigitsValue(const char* p, int n) {
          32;
 }
 
+/// The decimal digits at p (a digit; up to 10 of them) as *value; where they end
+/// (nullptr: more than 10).
+/// Fewer than 8 digits cost one 8-byte load and no branch per digit (SWAR: the digits
+/// moved to the word's top bytes, the bytes below them read as leading zeros, then
+/// EightDigitsValue).
 inline const char* FastDigits(const char* p, const char* end, uint64_t* value) {
   if (end - p >= 8) {
     uint64_t w;
