@@ -147,6 +147,7 @@ class RingGrower {
  public:
   RingGrower(const Topology& t, const Mesh& m, const Spans* spans, const RingSpec& spec)
       : t_(t), m_(m), spans_(spans), spec_(spec), marks_(t.num_vertices),
+        fans_(kFans && t.fan_rows && !t.has_quads),
         start_(static_cast<int>(std::lround(2 * spec.rings))),
         max_steps_(std::max(start_, static_cast<int>(std::lround(2 * spec.max_rings)))) {}
 
@@ -163,7 +164,7 @@ class RingGrower {
     out.clear();
     marks_.Start(static_cast<uint32_t>(v) + 1);
     const int start = start_, max_steps = max_steps_;
-    if (!kFans || start < 3 || !FanSteps(v, spec.max_points)) {
+    if (!fans_ || start < 3 || !FanSteps(v, spec.max_points)) {
       out.clear();
       Add(v, 0);
       layer_begin_ = 0;
@@ -320,6 +321,7 @@ class RingGrower {
   const Spans* spans_;
   const RingSpec spec_;
   MarkTable marks_;
+  const bool fans_;  // FanSteps apply (rows in fan order, triangles)
   const int start_, max_steps_;  // half steps: required, at most
   std::vector<int32_t> scratch_;
   std::vector<int32_t> flaps_, at_;  // FanSteps: f_i, v's position at u_i
@@ -406,6 +408,26 @@ Neighborhoods BuildNeighborhoods(const Topology& topo, const Mesh& mesh, const R
     std::vector<int64_t>().swap(start);
   }
   if (static_cast<int>(topo.locality_order.size()) == nv) nb.ordered = OrderStencils(nb, topo.locality_order, threads);
+  return nb;
+}
+
+Neighborhoods BuildNeighborhoodsOf(const Topology& topo, const Mesh& mesh, const RingSpec& spec,
+                                   const std::vector<int32_t>& vertices, int num_threads) {
+  const int n = static_cast<int>(vertices.size());
+  const int threads = ResolveThreads(num_threads);
+  std::vector<std::vector<int32_t>> stencils(n);
+  Neighborhoods nb;
+  nb.rings.resize(n);
+  // The grower that fills spans as it goes (no spans of the whole mesh for a few stencils).
+  ParallelForBlocks(n, threads, [&](int64_t begin, int64_t end, int) {
+    RingGrower<true> grower(topo, mesh, nullptr, spec);
+    for (int64_t i = begin; i < end; ++i) nb.rings[i] = grower.Grow(vertices[i], stencils[i]);
+  });
+  nb.offsets.resize(n + 1);
+  nb.offsets[0] = 0;
+  for (int i = 0; i < n; ++i) nb.offsets[i + 1] = nb.offsets[i] + static_cast<int32_t>(stencils[i].size());
+  nb.indices.reserve(nb.offsets[n]);
+  for (const auto& s : stencils) nb.indices.insert(nb.indices.end(), s.begin(), s.end());
   return nb;
 }
 

@@ -71,4 +71,10 @@ RingSpec RingSpecFor(const FitOptions& options);
 Neighborhoods BuildNeighborhoods(const Topology& topo, const Mesh& mesh, const RingSpec& spec,
                                  int num_threads = 0, const std::function<void()>& faces_read = nullptr);
 
+/// The stencils of `vertices` alone: row i (nb.Points(i)) is vertices[i]'s stencil, equal to
+/// BuildNeighborhoods' (points, order, ring); no `ordered`. Costs the few stencils, not the
+/// mesh's (the noise test's sample: EstimateNoise).
+Neighborhoods BuildNeighborhoodsOf(const Topology& topo, const Mesh& mesh, const RingSpec& spec,
+                                   const std::vector<int32_t>& vertices, int num_threads = 0);
+
 }  // namespace geomfit

@@ -263,29 +263,39 @@ double ResidualRms(const WlsProblem& P, int degree) {
 
 }  // namespace
 
-absl::StatusOr<NoiseEstimate> EstimateNoise(const Mesh& mesh, const Topology& topo, const Positions& normals,
-                                            const RunContext& ctx) {
-  constexpr int kMaxSamples = 2000;
-  const int nv = mesh.NumVertices();
-  const int stride = std::max(1, nv / kMaxSamples);
+RingSpec NoiseStencilSpec() {
   RingSpec spec;
   spec.rings = 2.5;
   spec.min_points = 40;
   spec.min_points_boundary = 40;
   spec.max_points = 80;
-  const Neighborhoods nb = BuildNeighborhoods(topo, mesh, spec, ctx.threads());
+  return spec;
+}
+
+absl::StatusOr<NoiseEstimate> EstimateNoise(const Mesh& mesh, const Topology& topo, const Positions& normals,
+                                            const RunContext& ctx, const Neighborhoods* all_stencils) {
+  constexpr int kMaxSamples = 2000;
+  const int nv = mesh.NumVertices();
+  const int stride = std::max(1, nv / kMaxSamples);
   const int samples = (nv + stride - 1) / stride;
+  std::vector<int32_t> sample(samples);
+  for (int i = 0; i < samples; ++i) sample[i] = i * stride;
+  // The sample's stencils alone (row i: sample[i]'s), or row v of every vertex's.
+  const Neighborhoods own =
+      all_stencils ? Neighborhoods{} : BuildNeighborhoodsOf(topo, mesh, NoiseStencilSpec(), sample, ctx.threads());
   std::vector<double> ratio(samples, -1), level(samples, -1), sextic(samples, -1);
   const double h = AverageEdgeLength(mesh);
   absl::Status s = ParallelFor(samples, ctx, [&](int64_t i) {
-    const int v = static_cast<int>(i * stride);
+    const int v = sample[i];
+    const int row = all_stencils ? v : static_cast<int>(i);
+    const Neighborhoods& nb = all_stencils ? *all_stencils : own;
     const Eigen::Vector3d m0 = normals.row(v).transpose();
-    if (topo.is_boundary[v] || m0.squaredNorm() == 0 || nb.Size(v) < 30) return;
+    if (topo.is_boundary[v] || m0.squaredNorm() == 0 || nb.Size(row) < 30) return;
     const LocalFrame fr = FrameFromNormal(mesh.positions.row(v).transpose(), m0);
     WlsProblem P;
     P.rows = 0;
-    for (int k = 0; k < nb.Size(v); ++k) {
-      const int p = nb.Points(v)[k];
+    for (int k = 0; k < nb.Size(row); ++k) {
+      const int p = nb.Points(row)[k];
       if (normals.row(p).dot(m0) < 0.5) continue;  // folded parts of coarse stencils
       const Eigen::Vector3d d = mesh.positions.row(p).transpose() - fr.origin;
       P.u[P.rows] = d.dot(fr.t1);

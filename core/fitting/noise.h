@@ -285,8 +285,14 @@ struct NoiseEstimate {
 inline constexpr double kNoisyResidualRatio = 0.2;
 inline constexpr double kNoisySexticRatio = 0.5;
 
+/// The noise test's stencils: 2.5 rings, grown to 40 points, at most 80.
+RingSpec NoiseStencilSpec();
 /// `normals`: approximate vertex normals (frames). CANCELLED / DEADLINE_EXCEEDED from ctx.
+/// The stencils are built for the sampled vertices alone (BuildNeighborhoodsOf); with
+/// `all_stencils` (every vertex's, of NoiseStencilSpec(): the tests' reference path) those
+/// are read instead, with the same result bit for bit.
 absl::StatusOr<NoiseEstimate> EstimateNoise(const Mesh& mesh, const Topology& topo, const Positions& normals,
-                                            const RunContext& ctx = {});
+                                            const RunContext& ctx = {},
+                                            const Neighborhoods* all_stencils = nullptr);
 
 }  // namespace geomfit

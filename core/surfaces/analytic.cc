@@ -500,17 +500,30 @@ Mesh PerturbAlongNormals(const Mesh& mesh, const AnalyticSurface& surface, doubl
 }
 
 double AverageEdgeLength(const Mesh& mesh) {
-  std::set<std::pair<int, int>> seen;
+  // Each edge once, summed in the order the faces first name it, with an open-addressing
+  // set of the keys (a, b), a < b (a std::set of pairs cost ~130 ms on 87k vertices).
+  const int64_t corners = 4 * static_cast<int64_t>(mesh.NumFaces());
+  int shift = 64;
+  while ((uint64_t{1} << (64 - shift)) < static_cast<uint64_t>(corners + corners / 2 + 1)) --shift;
+  const uint64_t mask = (uint64_t{1} << (64 - shift)) - 1, kEmpty = ~uint64_t{0};
+  std::vector<uint64_t> seen(mask + 1, kEmpty);
   double sum = 0;
+  int64_t edges = 0;
   for (int f = 0; f < mesh.NumFaces(); ++f) {
     const int n = mesh.FaceSize(f);
     for (int i = 0; i < n; ++i) {
       int a = mesh.faces(f, i), b = mesh.faces(f, (i + 1) % n);
       if (a > b) std::swap(a, b);
-      if (seen.emplace(a, b).second) sum += (mesh.positions.row(a) - mesh.positions.row(b)).norm();
+      const uint64_t key = (static_cast<uint64_t>(static_cast<uint32_t>(a)) << 32) | static_cast<uint32_t>(b);
+      uint64_t slot = shift == 64 ? 0 : (key * 0x9E3779B97F4A7C15ull) >> shift;
+      while (seen[slot] != kEmpty && seen[slot] != key) slot = (slot + 1) & mask;
+      if (seen[slot] == key) continue;
+      seen[slot] = key;
+      ++edges;
+      sum += (mesh.positions.row(a) - mesh.positions.row(b)).norm();
     }
   }
-  return seen.empty() ? 0 : sum / seen.size();
+  return edges == 0 ? 0 : sum / edges;
 }
 
 }  // namespace geomfit

@@ -10,6 +10,7 @@
 #include <gtest/gtest.h>
 
 #include "core/fitting/neighborhood.h"
+#include "core/fitting/noise.h"
 #include "core/surfaces/analytic.h"
 #include "tests/mesh/make_mesh.h"
 
@@ -512,6 +513,51 @@ TEST(NeighborhoodTest, FanStepsEqualThePlainRingRuleWhereverTheyApplyOrNot) {
     }
   }
   EXPECT_GT(checked, 100000);
+}
+
+// BuildNeighborhoodsOf (a few vertices' stencils: the noise test's sample) gives those
+// vertices' rows of BuildNeighborhoods (points, order, ring), with FanSteps where the
+// rows are fans and start further out (2.5 rings) and the general steps elsewhere:
+// FanTestMeshes shuffled, relabelled with rotational and source rows and as they are,
+// every third vertex in reverse order, degrees 1-6 and the noise test's spec, 1 and 2 threads.
+TEST(NeighborhoodTest, StencilsOfAFewVerticesEqualTheirRowsOfAllStencils) {
+  std::vector<RingSpec> specs;
+  for (int degree = 1; degree <= 6; ++degree) {
+    FitOptions o;
+    o.degree = degree;
+    specs.push_back(RingSpecFor(o));
+  }
+  specs.push_back(NoiseStencilSpec());
+  int checked = 0, fan_meshes = 0, mesh_index = 0;
+  for (const Mesh& plain : FanTestMeshes()) {
+    const Mesh source = testing_util::ShuffleVertices(plain, 23 + mesh_index++);
+    for (int variant = 0; variant < 3; ++variant) {
+      LocalityRelabelling r;
+      if (variant < 2) r = RelabelForLocality(source, variant ? RowOrder::kSource : RowOrder::kRotational).value();
+      const Mesh& m = variant < 2 ? r.mesh : source;
+      const Topology t = (variant < 2 ? BuildTopology(r) : BuildTopology(source)).value();
+      fan_meshes += t.fan_rows && !t.has_quads;
+      std::vector<int32_t> some;
+      for (int v = m.NumVertices() - 1; v >= 0; v -= 3) some.push_back(v);
+      for (size_t k = 0; k < specs.size(); ++k) {
+        const Neighborhoods all = BuildNeighborhoods(t, m, specs[k], 1);
+        for (int threads : {1, 2}) {
+          const Neighborhoods few = BuildNeighborhoodsOf(t, m, specs[k], some, threads);
+          ASSERT_EQ(few.offsets.size(), some.size() + 1);
+          int mismatches = 0;
+          for (size_t i = 0; i < some.size(); ++i, ++checked) {
+            const int v = some[i];
+            mismatches += std::vector<int32_t>(few.Points(i), few.Points(i) + few.Size(i)) !=
+                              std::vector<int32_t>(all.Points(v), all.Points(v) + all.Size(v)) ||
+                          few.rings[i] != all.rings[v];
+          }
+          EXPECT_EQ(mismatches, 0) << "mesh " << mesh_index - 1 << ", variant " << variant << ", spec " << k;
+        }
+      }
+    }
+  }
+  EXPECT_GT(fan_meshes, 3);
+  EXPECT_GT(checked, 20000);
 }
 
 }  // namespace

@@ -563,6 +563,50 @@ TEST(NoiseAwareTest, AutoKeepsCleanMeshesClean) {
   EXPECT_GE(largest_ratio, 0.1);
 }
 
+// Issue 16: EstimateNoise builds the stencils of its ~2,000 sampled vertices alone; its
+// estimate equals, bit for bit, the one read from every vertex's stencils (the reference
+// path), on clean and noisy meshes with and without fan rows, open and closed; stencils of
+// another spec (2 rings, 30-60 points) change it (the comparison can fail).
+TEST(NoiseAwareTest, EstimateFromTheSampledStencilsEqualsTheOneFromAllStencils) {
+  auto torus = MakeTorus();
+  auto bump = NamedSurface("bump").value();
+  GeneratorOptions g;
+  g.n = 64;
+  const Mesh t64 = GenerateTorusMesh(g);
+  g.n = 32;
+  std::vector<Mesh> meshes = {t64, PerturbAlongNormals(t64, *torus, 0.2, 3),
+                              PerturbAlongNormals(GenerateNamedMesh("bump", g).value(), *bump, 0.5, 2),
+                              GenerateDelaunaySphereMesh(3000, 0.3)};
+  RingSpec other = NoiseStencilSpec();
+  other.rings = 2;
+  other.min_points = other.min_points_boundary = 30;
+  other.max_points = 60;
+  auto same = [](double a, double b) { return std::memcmp(&a, &b, sizeof a) == 0; };
+  int differs = 0;
+  for (size_t k = 0; k < meshes.size(); ++k) {
+    for (bool relabel : {false, true}) {
+      LocalityRelabelling r;
+      if (relabel) r = RelabelForLocality(meshes[k]).value();
+      const Mesh& m = relabel ? r.mesh : meshes[k];
+      const Topology topo = (relabel ? BuildTopology(r) : BuildTopology(m)).value();
+      const Positions normals = ApproximateVertexNormals(m, topo, NormalWeighting::kArea);
+      const NoiseEstimate a = EstimateNoise(m, topo, normals).value();
+      const Neighborhoods all = BuildNeighborhoods(topo, m, NoiseStencilSpec());
+      const NoiseEstimate b = EstimateNoise(m, topo, normals, {}, &all).value();
+      EXPECT_GT(a.samples, 900);
+      EXPECT_EQ(a.samples, b.samples);
+      EXPECT_TRUE(same(a.residual_ratio, b.residual_ratio)) << k << " " << a.residual_ratio << " " << b.residual_ratio;
+      EXPECT_TRUE(same(a.sextic_ratio, b.sextic_ratio)) << k << " " << a.sextic_ratio << " " << b.sextic_ratio;
+      EXPECT_TRUE(same(a.noise_over_h, b.noise_over_h)) << k;
+      EXPECT_EQ(a.noisy, b.noisy);
+      const Neighborhoods wrong = BuildNeighborhoods(topo, m, other);
+      const NoiseEstimate c = EstimateNoise(m, topo, normals, {}, &wrong).value();
+      differs += !same(a.residual_ratio, c.residual_ratio) && !same(a.sextic_ratio, c.sextic_ratio);
+    }
+  }
+  EXPECT_EQ(differs, 2 * static_cast<int>(meshes.size()));
+}
+
 // Smoothing by projection moves every vertex onto its own approximating fit: on a sphere
 // with O(h^2) noise the radial errors shrink (the first pass removes most of the noise; the
 // fits' own O(h^4) bias bounds what further passes gain).
