@@ -519,6 +519,7 @@ absl::StatusOr<Topology> FanTopology(const LocalityRelabelling& r) {
   std::vector<int64_t> by_next(nv, -1);
   std::vector<int32_t> succ;
   std::vector<uint8_t> has_pred;
+  constexpr int kAhead = 4;
   for (int v = 0; v < nv; ++v) {
     const int k = t.NumVertexFaces(v);
     const int32_t off = t.vf_offsets[v], vv_off = t.vv_offsets[v];
@@ -530,6 +531,9 @@ absl::StatusOr<Topology> FanTopology(const LocalityRelabelling& r) {
     }
     const int32_t* faces = t.vf_faces.data() + off;
     const std::array<int32_t, 2>* sp = spokes.data() + off;
+    if (rotational && v + kAhead < nv)  // the start's scores read the spokes' positions
+      for (int32_t i = t.vf_offsets[v + kAhead]; i < t.vf_offsets[v + kAhead + 1]; ++i)
+        __builtin_prefetch(P + 3 * static_cast<int64_t>(spokes[i][0]));
     if (static_cast<int>(succ.size()) < k) succ.resize(k), has_pred.resize(k);
     const int64_t stamp = static_cast<int64_t>(v) << 32;
     bool clash = false;

@@ -74,18 +74,18 @@ const char* PlainFace(const char* p, const char* end, int64_t num_vertices, int3
   if ((space | digit) != line || (space & 1) == 0) return nullptr;
   // Each index's first and last digit, in order.
   uint32_t first = digit & ~(digit << 1), last = digit & ~(digit >> 1);
-  const int count = __builtin_popcount(first);
-  if (count < 3 || count > 4) return nullptr;
   row[3] = -1;
-  for (int i = 0; i < count; ++i) {
+  int count = 0;
+  for (; first != 0; ++count) {
+    if (count == 4) return nullptr;
     const int a = __builtin_ctz(first), b = __builtin_ctz(last);
     first &= first - 1, last &= last - 1;
     if (b - a >= 8) return nullptr;  // 9 or more digits
     const uint64_t k = EightDigitsValue(p + a, b - a + 1);
     if (k == 0 || k > static_cast<uint64_t>(num_vertices)) return nullptr;
-    row[i] = static_cast<int32_t>(k - 1);
+    row[count] = static_cast<int32_t>(k - 1);
   }
-  return p + len + 1;
+  return count < 3 ? nullptr : p + len + 1;
 }
 #endif
 
