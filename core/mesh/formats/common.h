@@ -42,18 +42,10 @@ class MeshBuilder {
     row[0] = p[0], row[1] = p[1], row[2] = p[2];
   }
   void AddFace(const int32_t* v, int n) {
-    int32_t* row = NextFace();
-    for (int i = 0; i < 4; ++i) row[i] = i < n ? v[i] : -1;
-    ++num_faces_;
-  }
-  /// The next face's row (4 slots) for a reader to write in place (no copy through a
-  /// temporary: its 4-byte stores would be read back as one wider load, which waits);
-  /// it counts once CommitFace() is called.
-  int32_t* NextFace() {
     if (num_faces_ == faces_.rows()) ReserveFaces(std::max<int64_t>(64, 2 * num_faces_));
-    return faces_.data() + 4 * num_faces_;
+    int32_t* row = faces_.data() + 4 * num_faces_++;
+    for (int i = 0; i < 4; ++i) row[i] = i < n ? v[i] : -1;
   }
-  void CommitFace() { ++num_faces_; }
   /// The mesh; the builder is empty afterwards.
   Mesh Build();
 

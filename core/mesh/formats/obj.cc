@@ -50,10 +50,9 @@ const char* FastFace(const char* p, const char* end, int64_t num_vertices, int32
 /// The commonest face line after its "f" (at p): spaces and 3 or 4 indices of 1-8 digits
 /// each, then "\n", all within the 32 bytes at p (40 readable): the bytes classified at
 /// once (two 16-byte compares), each index then read from its own offset (no chain of
-/// one index's end to the next one's start). The same indices as FastFace, written to
-/// `row` (-1 in a triangle's fourth slot); nullptr for anything else (FastFace then
-/// reads the line).
-const char* PlainFace(const char* p, const char* end, int64_t num_vertices, int32_t row[4]) {
+/// one index's end to the next one's start). The same indices as FastFace; nullptr for
+/// anything else (FastFace then reads the line).
+const char* PlainFace(const char* p, const char* end, int64_t num_vertices, int32_t v[4], int* n) {
   if (end - p < 40) return nullptr;
   const __m128i lo = _mm_loadu_si128(reinterpret_cast<const __m128i*>(p));
   const __m128i hi = _mm_loadu_si128(reinterpret_cast<const __m128i*>(p + 16));
@@ -74,7 +73,6 @@ const char* PlainFace(const char* p, const char* end, int64_t num_vertices, int3
   if ((space | digit) != line || (space & 1) == 0) return nullptr;
   // Each index's first and last digit, in order.
   uint32_t first = digit & ~(digit << 1), last = digit & ~(digit >> 1);
-  row[3] = -1;
   int count = 0;
   for (; first != 0; ++count) {
     if (count == 4) return nullptr;
@@ -83,9 +81,11 @@ const char* PlainFace(const char* p, const char* end, int64_t num_vertices, int3
     if (b - a >= 8) return nullptr;  // 9 or more digits
     const uint64_t k = EightDigitsValue(p + a, b - a + 1);
     if (k == 0 || k > static_cast<uint64_t>(num_vertices)) return nullptr;
-    row[count] = static_cast<int32_t>(k - 1);
+    v[count] = static_cast<int32_t>(k - 1);
   }
-  return count < 3 ? nullptr : p + len + 1;
+  if (count < 3) return nullptr;
+  *n = count;
+  return p + len + 1;
 }
 #endif
 
@@ -128,16 +128,15 @@ absl::StatusOr<Mesh> ParseObj(absl::string_view bytes, absl::string_view source,
         double xyz[3];
         if ((next = FastCoordinates(p + 1, end, xyz, true)) != nullptr) b.AddVertex(xyz);
       } else if (*p == 'f') {
+        int32_t v[4];
+        int n;
 #if defined(__SSE2__)
-        next = PlainFace(p + 1, end, b.NumVertices(), b.NextFace());
-        if (next != nullptr) b.CommitFace();
+        next = PlainFace(p + 1, end, b.NumVertices(), v, &n);
+        if (next == nullptr) next = FastFace(p + 1, end, b.NumVertices(), v, &n);
+#else
+        next = FastFace(p + 1, end, b.NumVertices(), v, &n);
 #endif
-        if (next == nullptr) {
-          int32_t v[4];
-          int n;
-          next = FastFace(p + 1, end, b.NumVertices(), v, &n);
-          if (next != nullptr) b.AddFace(v, n);
-        }
+        if (next != nullptr) b.AddFace(v, n);
       }
       if (next == nullptr) next = SkippedLine(p, end);
       if (next != nullptr) {
