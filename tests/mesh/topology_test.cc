@@ -564,6 +564,132 @@ TEST(LocalityRelabellingTest, RotationalRowsEqualTheRotatedSourceRows) {
   EXPECT_GT(ties, 100);
 }
 
+// A plain statement of BuildTopology(LocalityRelabelling)'s rows: each vertex's faces
+// in face order, a closed fan started at the first face (face order) of highest score
+// (the next spoke's cos^2 with kRowDirection, with its sign: dot |dot| / |s|^2) for
+// kRotational, at its first face for kSource, an open one at its face with no
+// predecessor; then each next face found by a search (the face whose next spoke is this
+// one's prev spoke); kSource rows then sorted by source index.
+void ReferenceFanRows(const LocalityRelabelling& r, std::vector<int32_t>* vf, std::vector<int32_t>* vv,
+                      std::vector<int32_t>* vv_offsets, std::vector<uint8_t>* boundary) {
+  const Mesh& m = r.mesh;
+  const int nv = m.NumVertices();
+  std::vector<std::vector<int32_t>> around(nv);
+  for (int f = 0; f < m.NumFaces(); ++f)
+    for (int c = 0; c < m.FaceSize(f); ++c) around[m.faces(f, c)].push_back(f);
+  vf->clear(), vv->clear(), boundary->assign(nv, 0);
+  vv_offsets->assign(1, 0);
+  for (int v = 0; v < nv; ++v) {
+    const std::vector<int32_t>& faces = around[v];
+    const int k = static_cast<int>(faces.size());
+    std::vector<std::array<int32_t, 2>> sp(k);
+    for (int i = 0; i < k; ++i) sp[i] = Spokes(m, faces[i], v);
+    auto next_of = [&](int i) {  // the face after face i around v, or -1
+      for (int j = 0; j < k; ++j)
+        if (sp[j][0] == sp[i][1]) return j;
+      return -1;
+    };
+    int start = -1;
+    for (int i = 0; i < k && start < 0; ++i) {
+      bool has_pred = false;
+      for (int j = 0; j < k; ++j) has_pred |= next_of(j) == i;
+      if (!has_pred) start = i;
+    }
+    const bool open = start >= 0;
+    if (!open && k > 0) {
+      start = 0;
+      if (r.order == RowOrder::kRotational) {
+        double best = -std::numeric_limits<double>::infinity();
+        for (int i = 0; i < k; ++i) {
+          double s[3], dot = 0, len2 = 0;
+          for (int c = 0; c < 3; ++c) s[c] = m.positions(sp[i][0], c) - m.positions(v, c);
+          dot = s[0] * kRowDirection[0] + s[1] * kRowDirection[1] + s[2] * kRowDirection[2];
+          len2 = s[0] * s[0] + s[1] * s[1] + s[2] * s[2];
+          const double score = dot * std::abs(dot) / len2;
+          if (score > best) best = score, start = i;
+        }
+      }
+    }
+    std::vector<int32_t> f_row, v_row;
+    for (int i = start, c = 0; c < k; ++c, i = next_of(i)) f_row.push_back(faces[i]), v_row.push_back(sp[i][0]);
+    if (open) v_row.push_back(Spokes(m, f_row.back(), v)[1]);
+    if (r.order == RowOrder::kSource) {
+      std::sort(f_row.begin(), f_row.end(), [&](int32_t x, int32_t y) { return r.face_source[x] < r.face_source[y]; });
+      std::sort(v_row.begin(), v_row.end(),
+                [&](int32_t x, int32_t y) { return r.vertex_source[x] < r.vertex_source[y]; });
+    }
+    vf->insert(vf->end(), f_row.begin(), f_row.end());
+    vv->insert(vv->end(), v_row.begin(), v_row.end());
+    vv_offsets->push_back(static_cast<int32_t>(vv->size()));
+    (*boundary)[v] = open;
+  }
+}
+
+// BuildTopology(LocalityRelabelling) (one pass per vertex: stamped spoke slots, a
+// predecessor bit mask, rows written in fan order) gives ReferenceFanRows' rows exactly,
+// the closed fans' starts included where scores tie (positions snapped to a grid):
+// shuffled irregular and Delaunay triangles, quads, open meshes with one and several
+// boundary loops, isolated vertices, vertices of more than 32 faces (a cone's apex),
+// both row orders.
+TEST(LocalityRelabellingTest, FanRowsEqualAPlainFanWalk) {
+  GeneratorOptions g;
+  g.n = 10;
+  GeneratorOptions q = g;
+  q.quads = true;
+  // A cone: an apex with 40 faces, a closed fan past the bit mask's 32.
+  Mesh cone;
+  cone.positions.resize(42, 3);
+  Faces cone_faces(80, 4);
+  for (int i = 0; i < 40; ++i) {
+    const double a = 2 * M_PI * i / 40;
+    cone.positions.row(i) << std::cos(a), std::sin(a) * 1.3, 0.2 * std::sin(3 * a);
+    cone_faces.row(i) << 40, i, (i + 1) % 40, -1;       // apex at +z
+    cone_faces.row(40 + i) << 41, (i + 1) % 40, i, -1;  // apex at -z
+  }
+  cone.positions.row(40) << 0.1, 0.05, 1.0;
+  cone.positions.row(41) << -0.05, 0.1, -1.0;
+  cone.faces = std::move(cone_faces);
+  const Mesh meshes[] = {GenerateTorusMesh(g), GenerateBumpMesh(q), GenerateTorusMesh(q),
+                         GenerateDelaunaySphereMesh(500, 0.3), GenerateOpenCylinderMesh(g), HoledTorus(g),
+                         HoledTorus(q), cone};
+  int ties = 0, rows = 0;
+  for (const Mesh& base : meshes)
+    for (double grid : {0.0, 0.25})
+      for (RowOrder order : {RowOrder::kRotational, RowOrder::kSource}) {
+        Mesh m = testing_util::ShuffleVertices(base, 11);
+        if (grid > 0) m.positions = (m.positions.array() / grid).round() * grid;
+        const LocalityRelabelling r = RelabelForLocality(m, order).value();
+        const absl::StatusOr<Topology> u = BuildTopology(r);
+        if (!u.ok()) {  // snapping can fold a mesh; then the source fails too
+          ASSERT_FALSE(BuildTopology(m).ok()) << u.status();
+          continue;
+        }
+        std::vector<int32_t> vf, vv, vv_offsets;
+        std::vector<uint8_t> boundary;
+        ReferenceFanRows(r, &vf, &vv, &vv_offsets, &boundary);
+        ASSERT_EQ(u->vf_faces, vf);
+        ASSERT_EQ(u->vv, vv);
+        ASSERT_EQ(u->vv_offsets, vv_offsets);
+        ASSERT_EQ(u->is_boundary, boundary);
+        rows += u->num_vertices;
+        // Ties: closed fans with two spokes of equal score.
+        if (order == RowOrder::kRotational && grid > 0)
+          for (int v = 0; v < u->num_vertices; ++v) {
+            std::vector<double> scores;
+            for (int32_t w : Neighbors(*u, v)) {
+              double s[3];
+              for (int c = 0; c < 3; ++c) s[c] = r.mesh.positions(w, c) - r.mesh.positions(v, c);
+              const double dot = s[0] * kRowDirection[0] + s[1] * kRowDirection[1] + s[2] * kRowDirection[2];
+              scores.push_back(dot * std::abs(dot) / (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]));
+            }
+            std::sort(scores.begin(), scores.end());
+            ties += !u->is_boundary[v] && scores.size() > 1 && scores.end()[-1] == scores.end()[-2];
+          }
+      }
+  EXPECT_GT(rows, 10000);
+  EXPECT_GT(ties, 20);
+}
+
 // BuildTopology of a relabelling (built from each vertex's fan, no half-edge sort)
 // succeeds exactly when BuildTopology of the source does, with the same boundary,
 // isolated vertices and row sets: small meshes with random damage (faces flipped,
