@@ -30,19 +30,23 @@
 
 namespace geomfit::server {
 
+/// A token that trips at the call's deadline (and when Cancel is called).
+inline std::unique_ptr<CancellationToken> DeadlineToken(grpc::CallbackServerContext* ctx) {
+  const auto deadline = ctx->deadline();
+  if (deadline >= std::chrono::system_clock::time_point::max() - std::chrono::hours(24 * 365)) {
+    return std::make_unique<CancellationToken>();
+  }
+  const auto left = deadline - std::chrono::system_clock::now();
+  return std::make_unique<CancellationToken>(
+      std::chrono::steady_clock::now() + std::chrono::duration_cast<std::chrono::steady_clock::duration>(left));
+}
+
 /// A token that trips at the call's deadline and when the client cancels the call (or
 /// the server shuts down past its drain time): unary calls get no OnCancel, so the token
-/// polls the context, which gRPC allows from any thread until the call is finished.
+/// polls the context, which gRPC allows from any thread until the call is finished; the
+/// token must not outlive the call (a unary call's work returns before it answers).
 inline std::unique_ptr<CancellationToken> TokenFor(grpc::CallbackServerContext* ctx) {
-  const auto deadline = ctx->deadline();
-  std::unique_ptr<CancellationToken> token;
-  if (deadline >= std::chrono::system_clock::time_point::max() - std::chrono::hours(24 * 365)) {
-    token = std::make_unique<CancellationToken>();
-  } else {
-    const auto left = deadline - std::chrono::system_clock::now();
-    token = std::make_unique<CancellationToken>(
-        std::chrono::steady_clock::now() + std::chrono::duration_cast<std::chrono::steady_clock::duration>(left));
-  }
+  std::unique_ptr<CancellationToken> token = DeadlineToken(ctx);
   token->SetPoll([ctx] { return ctx->IsCancelled(); });
   return token;
 }
@@ -306,7 +310,10 @@ class ReadReactor final : public grpc::ServerReadReactor<grpc::ByteBuffer> {
 /// not written are dropped. The chunk pushed as `last` goes out together with OK at
 /// once, from the thread that pushed it (or that saw the write before it complete),
 /// even while the work is still returning. The reactor is deleted once both gRPC is
-/// done with it (OnDone) and the work has returned.
+/// done with it (OnDone) and the work has returned. The work may thus outlive the call's
+/// context (gRPC frees it after OnDone), so its token never polls the context: OnCancel
+/// (client, deadline, shutdown, idle watchdog) and OnDone trip it, and it checks the
+/// deadline itself.
 template <typename Response>
 class WriteReactor final : public grpc::ServerWriteReactor<Response>,
                            private ChunkSink<Response>,
@@ -320,7 +327,7 @@ class WriteReactor final : public grpc::ServerWriteReactor<Response>,
   /// hands the request over for the call's lifetime); the chunks' are unscoped.
   WriteReactor(Service* service, grpc::CallbackServerContext* ctx, ThreadPool* pool, Service::Call call,
                const google::protobuf::Message* request, WorkFn work)
-      : ServerStreamBase(service, ctx, std::move(call)), token_(TokenFor(ctx)), work_(std::move(work)) {
+      : ServerStreamBase(service, ctx, std::move(call)), token_(DeadlineToken(ctx)), work_(std::move(work)) {
     if (absl::Status admitted = Open(request, [this](std::chrono::milliseconds idle) { return Stalled(idle); });
         !admitted.ok()) {
       Done(admitted);
@@ -360,6 +367,7 @@ class WriteReactor final : public grpc::ServerWriteReactor<Response>,
   }
   void OnDone() override {
     CloseWatch();
+    token_->Cancel();  // the call is over: what the work does next goes nowhere
     std::unique_lock<std::mutex> lock(mu_);
     done_ = true;
     room_.notify_all();

@@ -7,6 +7,8 @@
 
 #include <gtest/gtest.h>
 
+#include "tests/server/test_util.h"
+
 namespace geomfit::server {
 namespace {
 
@@ -97,17 +99,33 @@ TEST(CacheTest, ValueLargerThanBudgetIsReturnedNotKept) {
   EXPECT_EQ(cache.bytes(), 0);
 }
 
+/// A computation that holds until `gate` opens, then returns `result`.
+Cache::ComputeFn HeldUntil(testing::Gate* gate, absl::StatusOr<Cache::Computed> result, std::atomic<int>* calls) {
+  return [=]() {
+    ++*calls;
+    gate->Task()();
+    return result;
+  };
+}
+
+// Synchronised on events, not sleeps: the leader computes until the waiter is waiting
+// (its token is polled in the wait loop), whatever the load.
 TEST(CacheTest, ErrorsAreNotCachedAndCancelledLeaderDoesNotFailWaiters) {
   Cache cache(1 << 20);
   std::atomic<int> calls{0};
-  auto cancelled = [&]() -> absl::StatusOr<Cache::Computed> {
-    ++calls;
-    std::this_thread::sleep_for(std::chrono::milliseconds(100));
-    return absl::CancelledError("leader cancelled");
-  };
-  std::thread leader([&] { EXPECT_FALSE(cache.GetOrCompute(K(Tier::kFitting, "k"), cancelled).ok()); });
-  std::this_thread::sleep_for(std::chrono::milliseconds(20));
-  auto r = cache.GetOrCompute(K(Tier::kFitting, "k"), Value(5, 1, &calls));
+  testing::Gate gate;
+  std::thread leader([&] {
+    EXPECT_FALSE(
+        cache.GetOrCompute(K(Tier::kFitting, "k"), HeldUntil(&gate, absl::CancelledError("leader cancelled"), &calls))
+            .ok());
+  });
+  gate.AwaitStart();
+  CancellationToken waiting;  // never trips: its poll says the waiter waits
+  waiting.SetPoll([&] {
+    gate.Open();
+    return false;
+  });
+  auto r = cache.GetOrCompute(K(Tier::kFitting, "k"), Value(5, 1, &calls), &waiting);
   leader.join();
   ASSERT_TRUE(r.ok()) << r.status();
   EXPECT_EQ(*std::static_pointer_cast<const int>(*r), 5);
@@ -116,12 +134,18 @@ TEST(CacheTest, ErrorsAreNotCachedAndCancelledLeaderDoesNotFailWaiters) {
 
 TEST(CacheTest, WaiterGivesUpWithItsOwnToken) {
   Cache cache(1 << 20);
-  std::thread leader([&] { (void)cache.GetOrCompute(K(Tier::kFitting, "slow"), Value(1, 1, nullptr, 300)); });
-  std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  std::atomic<int> calls{0};
+  testing::Gate gate;  // the leader computes until the waiter gave up
+  const Cache::Computed one{std::make_shared<const int>(1), 1};
+  std::thread leader(
+      [&] { EXPECT_TRUE(cache.GetOrCompute(K(Tier::kFitting, "slow"), HeldUntil(&gate, one, &calls)).ok()); });
+  gate.AwaitStart();
   CancellationToken token(CancellationToken::Clock::now() + std::chrono::milliseconds(30));
-  auto r = cache.GetOrCompute(K(Tier::kFitting, "slow"), Value(2, 1), &token);
+  auto r = cache.GetOrCompute(K(Tier::kFitting, "slow"), Value(2, 1, &calls), &token);
   EXPECT_EQ(r.status().code(), absl::StatusCode::kDeadlineExceeded);
+  gate.Open();
   leader.join();
+  EXPECT_EQ(calls.load(), 1) << "the waiter did not compute";
 }
 
 TEST(CacheTest, RetiredRevisionsAreDroppedAndKeptOut) {

@@ -166,7 +166,9 @@ TEST(ClientTest, RetriesWhileTheServerIsUnavailable) {
   const int port = FreePort();
   ClientOptions o;
   o.target = "127.0.0.1:" + std::to_string(port);
-  o.max_attempts = 30;
+  // ~30 s of retries: the server starts 300 ms in, but the channel reconnects on gRPC's
+  // own backoff (1 s, 2.6 s, ...), which a loaded machine's late start may push past 3 s.
+  o.max_attempts = 300;
   o.initial_backoff = std::chrono::milliseconds(50);
   o.max_backoff = std::chrono::milliseconds(100);
   auto client = Client::Connect(o);

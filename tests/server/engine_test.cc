@@ -1,7 +1,6 @@
 // The engine through the service: every long RPC stops computing once the client
 // cancels (the server's CPU time, not the client's wall time), a request finishes on the
 // revision it started with, and shutdown honours the drain time.
-#include <atomic>
 #include <functional>
 #include <thread>
 
@@ -66,12 +65,23 @@ class EngineTest : public ::testing::Test {
     v1::IntegrateResponse out;
     ASSERT_TRUE(server_.stub().Integrate(&ctx, r, &out).ok());
   }
-  grpc::Status LongIntegrate(grpc::ClientContext* ctx, v1::IntegrateResponse* out) {
+  v1::IntegrateRequest LongIntegrateRequest() const {
     v1::IntegrateRequest r;
     r.set_mesh_id(id_);
     *r.mutable_options() = Surface(4);
     r.set_quadrature_degree(30);
-    return server_.stub().Integrate(ctx, r, out);
+    return r;
+  }
+  grpc::Status LongIntegrate(grpc::ClientContext* ctx, v1::IntegrateResponse* out) {
+    return server_.stub().Integrate(ctx, LongIntegrateRequest(), out);
+  }
+  /// The long integration as IntegrateStream on `*thread` (its response in *out): the
+  /// future is ready once the integration's own phase began, on the revision it took
+  /// (an event, not a sleep that a loaded machine outlasts).
+  std::future<void> LongIntegrateInBackground(v1::IntegrateResponse* out, grpc::Status* status, std::thread* thread) {
+    return testing::StreamInBackground<v1::IntegrateResponse>(
+        [this, r = LongIntegrateRequest()](grpc::ClientContext* ctx) { return server_.stub().IntegrateStream(ctx, r); },
+        "integrate", out, status, thread);
   }
 
   InProcessServer server_;
@@ -145,11 +155,8 @@ TEST_F(EngineTest, RequestFinishesOnTheRevisionItStartedWith) {
   WarmSurface();
   v1::IntegrateResponse out;
   grpc::Status status;
-  std::thread t([&] {
-    grpc::ClientContext ctx;
-    status = LongIntegrate(&ctx, &out);
-  });
-  std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  std::thread t;
+  LongIntegrateInBackground(&out, &status, &t).wait();  // integrating revision 1
   Mesh moved = testing::TestTorus(100);
   moved.positions *= 1.5;
   v1::SetPositionsRequest update;
@@ -167,22 +174,16 @@ TEST_F(EngineTest, RequestFinishesOnTheRevisionItStartedWith) {
 
 TEST_F(EngineTest, DrainCancelsLongWorkAtTheDeadline) {
   WarmSurface();
-  std::atomic<bool> done{false};
+  v1::IntegrateResponse out;
   grpc::Status status;
-  std::thread t([&] {
-    grpc::ClientContext ctx;
-    v1::IntegrateResponse out;
-    status = LongIntegrate(&ctx, &out);
-    done = true;
-  });
-  std::this_thread::sleep_for(std::chrono::milliseconds(200));
-  ASSERT_FALSE(done) << "the integration is too short to test draining";
-  const auto start = std::chrono::steady_clock::now();
-  server_.server().Shutdown(1.0);
-  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  std::thread t;
+  LongIntegrateInBackground(&out, &status, &t).wait();  // in its long phase
+  // CPU, not wall time, after the drain deadline: a loaded machine slows the stop down.
+  const double cpu = testing::CpuSecondsAfterCancel([&] { server_.server().Shutdown(0.5); },
+                                                    std::chrono::milliseconds(500));
   t.join();
-  EXPECT_LT(seconds, 1.5) << "shutdown waited for the integration";
-  EXPECT_FALSE(status.ok());
+  EXPECT_LT(cpu, testing::kStoppedCpuSeconds) << "the integration went on after the drain deadline";
+  EXPECT_FALSE(status.ok()) << "the integration ended before the drain deadline: too short to test draining";
 }
 
 }  // namespace

@@ -363,7 +363,9 @@ TEST(StreamLimitsTest, DownloadReaderThatStopsReadingIsEnded) {
   ASSERT_TRUE(reader->Read(&chunk));
   ASSERT_TRUE(chunk.has_info());
   ASSERT_GT(chunk.info().num_vertices() * 24, 1 << 20) << "the mesh must outgrow the transport's windows";
-  std::this_thread::sleep_for(std::chrono::milliseconds(1500));  // stop reading
+  // Stop reading until the server ended the stream (an event, not a sleep that a loaded
+  // machine outlasts); the client's 60 s deadline would end it much later.
+  StatsWhen(server.stub(), [](const v1::Statistics& s) { return s.open_streams() == 0; });
   int64_t read = 1;
   while (reader->Read(&chunk)) ++read;
   const grpc::Status s = reader->Finish();

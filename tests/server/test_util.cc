@@ -229,8 +229,8 @@ double ProcessCpuSeconds() {
   return static_cast<double>(t.tv_sec) + 1e-9 * static_cast<double>(t.tv_nsec);
 }
 
-double CpuSecondsAfterCancel(const std::function<void()>& cancel) {
-  const auto start = std::chrono::steady_clock::now();
+double CpuSecondsAfterCancel(const std::function<void()>& cancel, std::chrono::milliseconds delay) {
+  const auto start = std::chrono::steady_clock::now() + delay;
   std::thread canceller(cancel);  // a CancelJob waits for the job's end: not in the window's start
   std::this_thread::sleep_until(start + std::chrono::milliseconds(100));
   const double cpu0 = ProcessCpuSeconds();

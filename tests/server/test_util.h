@@ -1,11 +1,14 @@
 #pragma once
 // Shared helpers of the server tests: meshes, an in-process server on a loopback
 // port, raw stream helpers and a health probe that uses no generated code.
+#include <chrono>
 #include <condition_variable>
 #include <functional>
+#include <future>
 #include <mutex>
 #include <memory>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include <grpcpp/grpcpp.h>
@@ -71,12 +74,14 @@ grpc::Status WatchJob(v1::GeomFit::Stub& stub, const std::string& job_id, int64_
 
 /// CPU seconds of this process (an in-process server's threads; its clients only wait).
 double ProcessCpuSeconds();
-/// Starts `cancel` (a client cancelling a call or a job) on a thread of its own and
-/// returns the CPU seconds this process spends from 100 ms to 700 ms after it began.
+/// Starts `cancel` (a client cancelling a call or a job, or a server draining for
+/// `delay` before it cancels what is left) on a thread of its own and returns the CPU
+/// seconds this process spends from delay + 100 ms to delay + 700 ms after it began.
 /// A server still computing then burns ~0.6 s per thread, one that stopped within
 /// 100 ms a few ms: CPU time, not wall time, so a loaded machine cannot fake a stop's
 /// delay (it can only hide part of a failure to stop).
-double CpuSecondsAfterCancel(const std::function<void()>& cancel);
+double CpuSecondsAfterCancel(const std::function<void()>& cancel,
+                             std::chrono::milliseconds delay = std::chrono::milliseconds(0));
 /// What a test allows CpuSecondsAfterCancel once the server stopped: the margin absorbs
 /// a loaded machine that delays a thread's last block.
 inline constexpr double kStoppedCpuSeconds = 0.15;
@@ -113,6 +118,34 @@ class Gate {
   int started_ = 0;
   bool open_ = false;
 };
+
+/// Reads the server stream `open(ctx)` (a 60 s deadline) on `*thread`, keeping its last
+/// message in *last (if not null) and its status in *status. The returned future is ready once a
+/// progress message of `phase` arrived, so the call is surely in that phase (an event,
+/// not a sleep that a loaded machine outlasts), or once the stream ended without one.
+template <typename Response, typename Open>
+std::future<void> StreamInBackground(Open open, const std::string& phase, Response* last, grpc::Status* status,
+                                     std::thread* thread) {
+  auto started = std::make_shared<std::promise<void>>();
+  std::future<void> future = started->get_future();
+  *thread = std::thread([open, phase, last, status, started] {
+    grpc::ClientContext ctx;
+    ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(60));
+    auto reader = open(&ctx);
+    Response r;
+    bool told = false;
+    while (reader->Read(&r)) {
+      if (!told && r.has_progress() && r.progress().phase() == phase) {
+        started->set_value();
+        told = true;
+      }
+      if (last != nullptr) *last = r;
+    }
+    *status = reader->Finish();
+    if (!told) started->set_value();
+  });
+  return future;
+}
 
 /// RESOURCE_EXHAUSTED "tenant quota QUOTA reached" (QUOTA: "--quota-meshes=3").
 inline bool IsQuotaError(const absl::Status& s, const std::string& quota) {

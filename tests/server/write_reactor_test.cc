@@ -27,14 +27,26 @@ using Response = v1::ComputeDifferentialsResponse;
 constexpr int kChunks = 400;
 constexpr int kChunkBytes = 64 << 10;
 
+/// Polls `pred` (a state of the server or of the work) until it holds; fails after many polls.
+template <typename Pred>
+bool Eventually(Pred pred) {
+  for (int i = 0; i < 4000; ++i) {
+    if (pred()) return true;
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
+  return false;
+}
+
 /// A Service (for the reactor's admission, accounting and logging) whose
-/// ComputeDifferentials pushes kChunks eager chunks of kChunkBytes.
+/// ComputeDifferentials pushes kChunks eager chunks of kChunkBytes; `linger`: the work
+/// then runs on, polling its token, until the token trips (the call is over).
 class PushingService final : public v1::GeomFit::CallbackService {
  public:
-  explicit PushingService(double idle_seconds)
+  explicit PushingService(double idle_seconds, bool linger = false)
       : limits_(0, std::chrono::milliseconds(static_cast<int64_t>(idle_seconds * 1e3))),
         pool_(1, 8),
-        service_(nullptr, &pool_, &pool_, &stats_) {
+        service_(nullptr, &pool_, &pool_, &stats_),
+        linger_(linger) {
     service_.SetStreamLimits(&limits_);
   }
 
@@ -49,6 +61,7 @@ class PushingService final : public v1::GeomFit::CallbackService {
                                           sink->Push(std::move(chunk), i + 1 == kChunks);
                                           pushed_.fetch_add(1);
                                         }
+                                        if (linger_) tripped_.store(Eventually([&] { return cancel.IsCancelled(); }));
                                         returned_.store(true);
                                         return cancel.Check();
                                       });
@@ -57,6 +70,7 @@ class PushingService final : public v1::GeomFit::CallbackService {
   StreamLimits& limits() { return limits_; }
   int pushed() const { return pushed_.load(); }
   bool returned() const { return returned_.load(); }
+  bool tripped() const { return tripped_.load(); }
   void StopPool() { pool_.Stop(); }
 
  private:
@@ -66,13 +80,15 @@ class PushingService final : public v1::GeomFit::CallbackService {
   server::Service service_;
   std::atomic<int> pushed_{0};
   std::atomic<bool> returned_{false};
+  const bool linger_;
+  std::atomic<bool> tripped_{false};
 };
 
 /// The test service on a loopback port, and a stub whose streams take at most 16 KiB
 /// ahead of the reader.
 class Harness {
  public:
-  explicit Harness(double idle_seconds) : service_(idle_seconds) {
+  explicit Harness(double idle_seconds, bool linger = false) : service_(idle_seconds, linger) {
     grpc::ServerBuilder builder;
     builder.AddListeningPort("127.0.0.1:0", grpc::InsecureServerCredentials(), &port_);
     builder.RegisterService(&service_);
@@ -101,16 +117,6 @@ class Harness {
   std::unique_ptr<grpc::Server> server_;
   std::unique_ptr<v1::GeomFit::Stub> stub_;
 };
-
-/// Polls `pred` (the server's state) until it holds; fails after many polls.
-template <typename Pred>
-bool Eventually(Pred pred) {
-  for (int i = 0; i < 4000; ++i) {
-    if (pred()) return true;
-    std::this_thread::sleep_for(std::chrono::milliseconds(5));
-  }
-  return false;
-}
 
 /// The work is blocked in Push: it stays at the same chunk over many polls of a
 /// stalled reader while two chunks are held.
@@ -185,6 +191,25 @@ TEST(WriteReactorTest, ReaderThatReadsGetsEveryChunkInOrder) {
   EXPECT_TRUE(reader->Finish().ok());
   EXPECT_EQ(read, kChunks);
   EXPECT_TRUE(Eventually([&] { return h.service().limits().open_streams() == 0; }));
+  EXPECT_EQ(h.service().limits().reserved_bytes(), 0);
+}
+
+// The work may run on after its last chunk went out with OK, past OnDone, when gRPC
+// frees the call's context: its token then trips (OnDone) without touching the context.
+// (The token used to poll the freed context: a crash under load right after the last
+// Push, made certain here by polling across OnDone.)
+TEST(WriteReactorTest, WorkThatRunsOnAfterItsLastChunkSeesTheCallEnd) {
+  Harness h(0, /*linger=*/true);
+  grpc::ClientContext ctx;
+  auto reader = h.stub().ComputeDifferentials(&ctx, v1::ComputeDifferentialsRequest());
+  Response chunk;
+  int read = 0;
+  while (reader->Read(&chunk)) ++read;
+  EXPECT_TRUE(reader->Finish().ok());
+  EXPECT_EQ(read, kChunks);
+  ASSERT_TRUE(Eventually([&] { return h.service().returned(); }));
+  EXPECT_TRUE(h.service().tripped());
+  EXPECT_EQ(h.service().limits().open_streams(), 0);
   EXPECT_EQ(h.service().limits().reserved_bytes(), 0);
 }
 
