@@ -1,6 +1,7 @@
 // In-process commands of the `geomfit` tool: curvature --local, generate, convert.
 #include <cstdio>
 #include <functional>
+#include <mutex>
 #include <vector>
 
 #include <sys/stat.h>
@@ -59,6 +60,28 @@ bool RelabelForFit(const Mesh& mesh, const FitOptions& o) {
          !HasLocalNumbering(mesh);
 }
 
+/// `quantities` of every vertex of a mesh nobody else needs: each block of fits is
+/// evaluated as soon as it is fitted and then dropped (FitSurfaceOnceInBlocks), so the
+/// whole mesh's frames and coefficients are never held; the values of
+/// ComputeDifferentials(FitSurface(...)).
+absl::StatusOr<Differentials> FitAndEvaluate(Mesh mesh, Topology topo, const FitOptions& o, uint32_t quantities,
+                                             const RunContext& ctx) {
+  // Allocated at the first block, once the stencils and point records are built and
+  // the mesh freed (its memory, not fresh pages).
+  const int64_t nv = mesh.NumVertices();
+  Differentials d;
+  std::once_flag allocated;
+  GF_RETURN_IF_ERROR(FitSurfaceOnceInBlocks(
+      std::move(mesh), std::move(topo), o,
+      [&](const SurfaceFits& fits, int64_t begin, int64_t end) {
+        std::call_once(allocated, [&] { d = AllocateDifferentials(nv, quantities); });
+        EvaluateDifferentials(fits, quantities, begin, end, &d);
+      },
+      ctx));
+  if (nv == 0) d = AllocateDifferentials(0, quantities);
+  return d;
+}
+
 /// Quantities of every vertex and their order (LocalFit::source).
 struct LocalFit {
   Differentials d;
@@ -85,24 +108,22 @@ absl::StatusOr<LocalFit> FitLocal(Mesh* source_mesh, bool keep_mesh, const std::
       validated();
       if (!keep_mesh) *source_mesh = Mesh();
       std::vector<int32_t>().swap(r->face_source);  // BuildTopology's alone
-      // The fit frees the mesh and topology as it goes; the quantities need no stencils.
-      FitRequest request;
-      request.keep_neighborhoods = false;
-      GF_ASSIGN_OR_RETURN(const auto fits,
-                          FitSurfaceOnce(std::move(r->mesh), std::move(*topo), o, request, ctx));
-      GF_ASSIGN_OR_RETURN(Differentials d, ComputeDifferentials(*fits, quantities, ctx));
+      // The fit frees the mesh and topology as it goes, and its blocks' fits once evaluated.
+      GF_ASSIGN_OR_RETURN(Differentials d, FitAndEvaluate(std::move(r->mesh), std::move(*topo), o, quantities, ctx));
       return LocalFit{std::move(d), std::move(r->vertex_source)};
     }
   }
   absl::StatusOr<Topology> topo = ValidateMesh(mesh, ctx.threads());
   GF_RETURN_IF_ERROR(WithPrefix(topo.status(), path));
   validated();
+  // Unless the output needs the mesh, the fit frees it and the topology as it goes.
+  if (!keep_mesh) {
+    GF_ASSIGN_OR_RETURN(Differentials d, FitAndEvaluate(std::move(*source_mesh), std::move(*topo), o, quantities, ctx));
+    return LocalFit{std::move(d), {}};
+  }
   FitRequest request;
   request.keep_neighborhoods = false;  // the quantities need no stencils
-  // Unless the output needs the mesh, the fit frees it and the topology as it goes.
-  GF_ASSIGN_OR_RETURN(const auto fits, keep_mesh ? FitSurface(mesh, *topo, o, nullptr, request, ctx)
-                                                 : FitSurfaceOnce(std::move(*source_mesh), std::move(*topo), o,
-                                                                  request, ctx));
+  GF_ASSIGN_OR_RETURN(const auto fits, FitSurface(mesh, *topo, o, nullptr, request, ctx));
   *topo = Topology();
   GF_ASSIGN_OR_RETURN(Differentials d, ComputeDifferentials(*fits, quantities, ctx));
   return LocalFit{std::move(d), {}};
