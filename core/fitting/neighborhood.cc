@@ -341,11 +341,15 @@ void GrowStencils(const Topology& topo, const Mesh& mesh, const Spans* spans, co
     std::vector<int32_t> stencil;
     auto& idx = block_indices[b];
     if (kFans) {
-      // A 1.5-ring stencil on a fan is the vertex, its n neighbours and n flaps: 1 + 2n
-      // (+10% for the few that grow further), so one block grown in vertex order fits
-      // BuildNeighborhoods' no-copy test and stays where it is (no copy above it).
+      // A 1.5-ring stencil on a fan is the vertex, its n neighbours and n flaps: 1 + 2n;
+      // below min_points it grows to 2 rings, ~1 + 3n among valence-6 vertices (+10%
+      // for the rest), so one block grown in vertex order fits BuildNeighborhoods'
+      // no-copy test and stays where it is (no copy above it).
       int64_t fan_points = 0;
-      for (int64_t i = begin; i < end; ++i) fan_points += 1 + 2 * topo.NumNeighbors(order[i]);
+      for (int64_t i = begin; i < end; ++i) {
+        const int n = topo.NumNeighbors(order[i]);
+        fan_points += 1 + 2 * n >= spec.min_points ? 1 + 2 * n : 1 + 3 * n;
+      }
       idx.reserve(fan_points + fan_points / 10 + 64);
     } else {
       idx.reserve((end - begin) * std::max(24, 2 * spec.min_points));  // stencils rarely pass 1.5x min_points

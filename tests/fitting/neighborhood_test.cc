@@ -164,6 +164,31 @@ TEST(NeighborhoodTest, FacesAndRowsAreNotReadAfterTheHook) {
     }
 }
 
+// On fan rows at degree 2 (stencils from 1.5 rings) one block grown in vertex order is
+// reserved at 1 + 2n points a vertex (+10%): it passes BuildNeighborhoods' no-copy test
+// and is kept where it was grown (a copy would land above it: fresh pages in a CLI
+// run). A copy has capacity == size; a reserve too small doubles (capacity ~2x size).
+TEST(NeighborhoodTest, FanStencilsStayWhereTheyAreGrown) {
+  GeneratorOptions g;
+  g.n = 40;
+  for (const Mesh& generated : {GenerateTorusMesh(g), GenerateBumpMesh(g)}) {
+    const Mesh shuffled = testing_util::ShuffleVertices(generated, 5, nullptr);
+    const LocalityRelabelling r = RelabelForLocality(shuffled).value();
+    const Topology topo = BuildTopology(r).value();
+    ASSERT_TRUE(topo.fan_rows);
+    FitOptions o;
+    o.degree = 2;
+    const Neighborhoods nb = BuildNeighborhoods(topo, r.mesh, RingSpecFor(o), 1);
+    const size_t size = nb.indices.size();
+    EXPECT_GT(nb.indices.capacity(), size);
+    EXPECT_LE(nb.indices.capacity(), size + size / 8);
+    // The same stencils as grown in two blocks (copied to vertex order).
+    const Neighborhoods two = BuildNeighborhoods(topo, r.mesh, RingSpecFor(o), 2);
+    EXPECT_EQ(nb.offsets, two.offsets);
+    EXPECT_EQ(nb.indices, two.indices);
+  }
+}
+
 // A mesh numbered at random (here 27,648 vertices, far from local) is grown in
 // breadth-first order: the stencils must be those of the same mesh in its generated
 // (local) order, relabelled, for any thread count.

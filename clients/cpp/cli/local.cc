@@ -38,12 +38,13 @@ void Verbose(bool on, const std::string& line) {
 size_t ReadHeapBytes(int64_t file_bytes) { return static_cast<size_t>(2.3 * static_cast<double>(file_bytes)); }
 
 /// Heap bytes the rest of a `curvature --local` run spans for `vertices` at `degree`
-/// (the fit's: stencils and their spans, frames, coefficients, point records, mesh and
-/// topology, freed as the fit goes: FitSurfaceOnce), as measured on the gmsh torus (87k
-/// vertices, one thread: the resident heap, reading included, of runs that back nothing
-/// ahead, 4 KB pages). An estimate: what it leaves out faults in on use.
+/// (the fit's: stencils and their spans, point records, mesh and topology, freed as the
+/// fit goes, its blocks' frames and coefficients evaluated and dropped: FitAndEvaluate;
+/// the quantities and the output's table), as measured on the gmsh torus (87k vertices,
+/// one thread: the resident heap, reading included, of runs that back nothing ahead,
+/// 4 KB pages). An estimate: what it leaves out faults in on use.
 size_t FitHeapBytes(int vertices, int degree) {
-  constexpr int kBytesPerVertex[] = {370, 370, 395, 420, 520, 595, 780};  // degrees 0-6
+  constexpr int kBytesPerVertex[] = {370, 370, 295, 420, 465, 490, 780};  // degrees 0-6
   const int d = std::max(degree, 0);
   return static_cast<size_t>(vertices) * (d <= 6 ? kBytesPerVertex[d] : kBytesPerVertex[6] + 150 * (d - 6));
 }
