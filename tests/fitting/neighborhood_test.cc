@@ -164,10 +164,11 @@ TEST(NeighborhoodTest, FacesAndRowsAreNotReadAfterTheHook) {
     }
 }
 
-// On fan rows at degree 2 (stencils from 1.5 rings) one block grown in vertex order is
-// reserved at 1 + 2n points a vertex (+10%): it passes BuildNeighborhoods' no-copy test
-// and is kept where it was grown (a copy would land above it: fresh pages in a CLI
-// run). A copy has capacity == size; a reserve too small doubles (capacity ~2x size).
+// One block grown in vertex order is kept where it was grown (a copy would land above
+// it: fresh pages in a CLI run): its capacity is the reserve's, larger than its size (a
+// copy's is its size). On fan rows at degree 2 (stencils from 1.5 rings) the reserve is
+// 1 + 2n points a vertex (2 rings below min_points, +10%): within 1/8 of the size (a
+// reserve too small doubles: ~2x the size).
 TEST(NeighborhoodTest, FanStencilsStayWhereTheyAreGrown) {
   GeneratorOptions g;
   g.n = 40;
@@ -186,6 +187,11 @@ TEST(NeighborhoodTest, FanStencilsStayWhereTheyAreGrown) {
     const Neighborhoods two = BuildNeighborhoods(topo, r.mesh, RingSpecFor(o), 2);
     EXPECT_EQ(nb.offsets, two.offsets);
     EXPECT_EQ(nb.indices, two.indices);
+    // The span path (degree 4: 2 rings) keeps its one block too, spare capacity and all.
+    o.degree = 4;
+    const Neighborhoods spans = BuildNeighborhoods(topo, r.mesh, RingSpecFor(o), 1);
+    EXPECT_GT(spans.indices.capacity(), spans.indices.size());
+    EXPECT_EQ(spans.indices, BuildNeighborhoods(topo, r.mesh, RingSpecFor(o), 2).indices);
   }
 }
 
