@@ -44,7 +44,7 @@ size_t ReadHeapBytes(int64_t file_bytes) { return static_cast<size_t>(2.3 * stat
 /// one thread: the resident heap, reading included, of runs that back nothing ahead,
 /// 4 KB pages). An estimate: what it leaves out faults in on use.
 size_t FitHeapBytes(int vertices, int degree) {
-  constexpr int kBytesPerVertex[] = {370, 370, 295, 420, 465, 490, 560};  // degrees 0-6
+  constexpr int kBytesPerVertex[] = {320, 320, 295, 370, 415, 440, 510};  // degrees 0-6
   const int d = std::max(degree, 0);
   return static_cast<size_t>(vertices) * (d <= 6 ? kBytesPerVertex[d] : kBytesPerVertex[6] + 150 * (d - 6));
 }
