@@ -246,7 +246,7 @@ struct HeightQueue {
 }  // namespace
 
 SurfaceJet SurfaceFits::Jet(int v) const {
-  const LocalFrame& fr = frames_[v];
+  const LocalFrame& fr = frame(v);
   const double* c = coefficients(v);
   const int n = num_coefficients();
   auto at = [&](int d, int j, int k) { return TaylorIndex(j, k) < n ? c[d * n + TaylorIndex(j, k)] : 0.0; };
@@ -272,7 +272,7 @@ SurfaceJet SurfaceFits::Jet(int v) const {
 }
 
 SurfaceFits::LocalPoint SurfaceFits::Evaluate(int v, const Eigen::Vector3d& x) const {
-  const LocalFrame& fr = frames_[v];
+  const LocalFrame& fr = frame(v);
   const Eigen::Vector3d d = x - fr.origin;
   const double u = d.dot(fr.t1), w = d.dot(fr.t2);
   const int n = num_coefficients(), deg = options_.degree;
@@ -304,7 +304,8 @@ class SurfaceFitter {
   static absl::StatusOr<std::shared_ptr<const SurfaceFits>> Fit(
       const Mesh& mesh, const Topology& topo, const FitOptions& o,
       std::shared_ptr<const Neighborhoods> nb, const FitRequest& req, const RunContext& ctx,
-      const FittedBlockFn& on_fitted, Mesh* consumable_mesh = nullptr, Topology* consumable_topo = nullptr) {
+      const FittedBlockFn& on_fitted, Mesh* consumable_mesh = nullptr, Topology* consumable_topo = nullptr,
+      const FittedBlockFn* blocks = nullptr) {
     if (absl::Status s = ValidateFitOptions(o); !s.ok()) return s;
     if (topo.num_vertices != mesh.NumVertices() || topo.num_faces != mesh.NumFaces())
       return absl::InvalidArgumentError(absl::StrFormat(
@@ -314,6 +315,8 @@ class SurfaceFitter {
     // FitSurfaceOnce's plain path: the mesh and topology are freed as soon as they are
     // read (fit.h), the normals computed before the faces go.
     const bool consume = consumable_mesh != nullptr && own_nb && PlainFit(o) && !on_fitted;
+    // FitSurfaceOnceInBlocks: each block's fits handed over in a window of their own.
+    const FittedBlockFn* const windows = consume && blocks && *blocks && !req.stencils ? blocks : nullptr;
     std::shared_ptr<FitInputs> consumed_inputs;
     if (consume) consumed_inputs = MakeFitInputs(mesh, topo, o.frame_normals, nullptr, ctx.threads());
     const std::function<void()> faces_read = [&] {
@@ -504,7 +507,8 @@ class SurfaceFitter {
       if (absl::Status s = FitAll(*input, topo, pass_options, pass_nb, *frame_normals, req, ctx,
                                   last && !slopes && !blend ? &on_fitted : nullptr,
                                   fixed_tangent.empty() ? nullptr : fixed_tangent.data(), phase, *fits,
-                                  cached ? &inputs->records : nullptr, consume ? &positions_read : nullptr);
+                                  cached ? &inputs->records : nullptr, consume ? &positions_read : nullptr,
+                                  last ? windows : nullptr);
           !s.ok())
         return s;
       if (slopes) {
@@ -565,7 +569,8 @@ class SurfaceFitter {
                              const FitRequest& req, const RunContext& ctx, const FittedBlockFn* on_fitted,
                              const uint8_t* fixed_tangent, std::string_view phase, SurfaceFits& f,
                              const PointRecords* cached_records = nullptr,
-                             const std::function<void()>* positions_read = nullptr) {
+                             const std::function<void()>* positions_read = nullptr,
+                             const FittedBlockFn* windows = nullptr) {
     const int nv = mesh.NumVertices();
     f.options_ = o;
     f.neighborhoods_ = nb;
@@ -582,7 +587,8 @@ class SurfaceFitter {
     // Vertices in the topology's locality order (neighbouring stencils share cache
     // lines), unless blocks must be reported as index ranges: the stencils in that order
     // (the neighbourhoods', else ordered here), positions and normals copied in it.
-    const bool local_order = !(on_fitted && *on_fitted) && static_cast<int>(topo.locality_order.size()) == nv;
+    const bool local_order =
+        !(on_fitted && *on_fitted) && !windows && static_cast<int>(topo.locality_order.size()) == nv;
     OrderedStencils own;
     if (local_order && static_cast<int>(nb->ordered.order.size()) != nv)
       own = OrderStencils(*nb, topo.locality_order, ctx.threads());
@@ -599,9 +605,12 @@ class SurfaceFitter {
     if (positions_read) (*positions_read)();
     // Frames, coefficients and diagnostics unwritten here (a serial pass over ~14 MB at
     // 87k vertices, degree 2, ~10% of a 1-thread run): the fit loop resets each vertex's.
-    f.frames_.resize(nv);
-    f.coefficients_.resize(static_cast<size_t>(nv) * stride);
-    f.diagnostics_.resize(nv);
+    // `windows`: none for the whole mesh; each block's in its own window below.
+    if (!windows) {
+      f.frames_.resize(nv);
+      f.coefficients_.resize(static_cast<size_t>(nv) * stride);
+      f.diagnostics_.resize(nv);
+    }
     const FitInput in{mesh, *nb, normals, o, std::cos(o.safeguard_angle_deg * M_PI / 180.0), topo,
                       points.data(), os ? os->rank.data() : nullptr, fixed_tangent,
                       fixed_tangent != nullptr && o.HermiteHessian()};
@@ -617,6 +626,19 @@ class SurfaceFitter {
       const int64_t end = std::min<int64_t>(nv, (chunk + 1) * kGrain);
       std::unique_ptr<FitBatch> batch(new FitBatch);  // default-initialized: no 800 KB memset
       HeightQueue heights;
+      // Where the block's outputs go: f's rows, or (windows) the block's own window,
+      // whose row 0 is vertex `first`.
+      SurfaceFits window;
+      SurfaceFits& g = windows ? window : f;
+      const int64_t first = windows ? chunk * kGrain : 0;
+      if (windows) {
+        const int64_t rows = std::min<int64_t>(nv, (chunk + 1) * kGrain) - first;
+        window.options_ = o;
+        window.first_ = static_cast<int>(first);
+        window.frames_.resize(rows);
+        window.coefficients_.resize(rows * stride);
+        window.diagnostics_.resize(rows);
+      }
       const auto vertex_at = [&](int64_t k) -> int64_t { return os ? os->order[k] : k; };
       // The lanes read their stencils in slots: the ordered ones, else (vertex order) the
       // neighbourhoods' own.
@@ -653,11 +675,11 @@ class SurfaceFitter {
           }
           // Its outputs too (input numbering: random lines; a store that misses holds up
           // every later store).
-          const char* fr = reinterpret_cast<const char*>(&f.frames_[w]);
+          const char* fr = reinterpret_cast<const char*>(&g.frames_[w - first]);
           __builtin_prefetch(fr, 1);
           __builtin_prefetch(fr + sizeof(LocalFrame) - 1, 1);
-          __builtin_prefetch(&f.diagnostics_[w], 1);
-          const double* c = f.coefficients_.data() + w * stride;
+          __builtin_prefetch(&g.diagnostics_[w - first], 1);
+          const double* c = g.coefficients_.data() + (w - first) * stride;
           __builtin_prefetch(c, 1);
           __builtin_prefetch(c + stride - 1, 1);
           __builtin_prefetch(&topo.is_boundary[w]);
@@ -671,10 +693,11 @@ class SurfaceFitter {
           for (int i = 0, n = nb->Size(w); i < n; ++i) __builtin_prefetch(os->rank.data() + p[i]);
         }
         const int64_t v = vertex_at(k);
-        f.diagnostics_[v] = VertexDiagnostics{};
-        if (topo.is_boundary[v]) f.diagnostics_[v].flags = kFlagBoundary;
-        const FitOutput out{&f.frames_[v], f.coefficients_.data() + v * stride,
-                            &f.diagnostics_[v], req.stencils ? f.stencils_.data() + f.stencil_offsets_[v] : nullptr,
+        const int64_t row = v - first;
+        g.diagnostics_[row] = VertexDiagnostics{};
+        if (topo.is_boundary[v]) g.diagnostics_[row].flags = kFlagBoundary;
+        const FitOutput out{&g.frames_[row], g.coefficients_.data() + row * stride,
+                            &g.diagnostics_[row], req.stencils ? f.stencils_.data() + f.stencil_offsets_[v] : nullptr,
                             f.stencil_rows_};
         if (lane_setup) {
           if (Eigen::Map<const Eigen::Vector3d>(in.points[os ? k : v].n).squaredNorm() != 0) {  // else isolated: below
@@ -692,8 +715,8 @@ class SurfaceFitter {
         // A lane's frame and coefficients are written whole by FitHeightsBatch or, for the
         // lanes it leaves, by SetUpVertex and the solvers (SolveWls zeroes its output
         // first); the other paths start from reset outputs.
-        f.frames_[v] = LocalFrame{};
-        std::fill_n(f.coefficients_.data() + v * stride, stride, 0.0);
+        g.frames_[row] = LocalFrame{};
+        std::fill_n(g.coefficients_.data() + row * stride, stride, 0.0);
         const int slot = batch->count;
         if (!SetUpVertex(static_cast<int>(v), in, out, batch->problems[slot])) continue;
         batch->outs[slot] = out;
@@ -702,7 +725,10 @@ class SurfaceFitter {
       }
       heights.Flush(in, hin, settings, *batch);
       batch->Flush(in, settings, req.batched_kernel);
-      if (on_fitted && *on_fitted) (*on_fitted)(f, begin, end);
+      if (windows)
+        (*windows)(window, begin, end);
+      else if (on_fitted && *on_fitted)
+        (*on_fitted)(f, begin, end);
     }, 1, phase);
   }
 };
@@ -717,6 +743,18 @@ absl::StatusOr<std::shared_ptr<const SurfaceFits>> FitSurface(
 absl::StatusOr<std::shared_ptr<const SurfaceFits>> FitSurfaceOnce(Mesh mesh, Topology topo, const FitOptions& options,
                                                                    const FitRequest& request, const RunContext& ctx) {
   return SurfaceFitter::Fit(mesh, topo, options, nullptr, request, ctx, nullptr, &mesh, &topo);
+}
+
+absl::Status FitSurfaceOnceInBlocks(Mesh mesh, Topology topo, const FitOptions& options,
+                                    const FittedBlockFn& on_block, const RunContext& ctx) {
+  FitRequest request;
+  request.keep_neighborhoods = false;
+  const int nv = mesh.NumVertices();
+  GF_ASSIGN_OR_RETURN(const auto fits,
+                      SurfaceFitter::Fit(mesh, topo, options, nullptr, request, ctx, nullptr, &mesh, &topo, &on_block));
+  // Off the plain path the fits are whole: one block.
+  if (fits->num_vertices() == nv && nv > 0) on_block(*fits, 0, nv);
+  return absl::OkStatus();
 }
 
 }  // namespace geomfit

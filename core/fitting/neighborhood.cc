@@ -64,21 +64,27 @@ std::vector<int32_t> GrowthOrder(const Topology& t) {
 // the vertex in a quad (-1 for a triangle). A stencil point's ring step then reads one
 // span instead of a face row per incident face (on an external numbering a cache miss
 // each) and needs no search for the vertex in the row (a branch the predictor misses on
-// an irregular mesh, whose rows start at any corner).
-int SpanSize(const Topology& t, int v) { return 2 + t.NumNeighbors(v) + 4 * t.NumVertexFaces(v); }
+// an irregular mesh, whose rows start at any corner). Meshes of triangles alone keep the
+// records' first 2 ints (the rest is -1, -1): 80 bytes a valence-6 vertex instead of 128.
+int FaceRecordInts(const Topology& t) { return t.has_quads ? 4 : 2; }
+int SpanSize(const Topology& t, int v) {
+  return 2 + t.NumNeighbors(v) + FaceRecordInts(t) * t.NumVertexFaces(v);
+}
 
 void FillSpan(const Topology& t, const Mesh& m, int v, int32_t* out) {
-  const int nn = t.NumNeighbors(v), nf = t.NumVertexFaces(v);
+  const int nn = t.NumNeighbors(v), nf = t.NumVertexFaces(v), rec = FaceRecordInts(t);
   *out++ = nn;
   *out++ = nf;
   out = std::copy(t.Neighbors(v), t.Neighbors(v) + nn, out);
-  for (int j = 0; j < nf; ++j, out += 4) {
+  for (int j = 0; j < nf; ++j, out += rec) {
     const int32_t* row = m.faces.data() + 4 * static_cast<int64_t>(t.VertexFaces(v)[j]);
     const int n = row[3] < 0 ? 3 : 4;
     const int c = (row[1] == v) + 2 * (row[2] == v) + 3 * (row[3] == v);  // branch-free
+    int32_t r[4];
     for (int q = 0, k = 0; q < 4; ++q)
-      if (q != c) out[k++] = row[q];  // row[3] = -1 lands in out[2] for a triangle
-    out[3] = n == 4 ? (c + 2) % 4 - ((c + 2) % 4 > c) : -1;
+      if (q != c) r[k++] = row[q];  // row[3] = -1 lands in r[2] for a triangle
+    r[3] = n == 4 ? (c + 2) % 4 - ((c + 2) % 4 > c) : -1;
+    std::copy_n(r, rec, out);
   }
 }
 
@@ -289,6 +295,11 @@ class RingGrower {
       for (size_t i = layer_begin_; i < layer_end_; ++i) {
         const int32_t* span = SpanOf(out[i]);
         const int32_t* face = span + 2 + span[0];
+        if (!t_.has_quads) {  // 2-int records: a triangle's other corners
+          for (int j = 0; j < span[1]; ++j, face += 2)
+            if (In(face[0], k2) || In(face[1], k2)) Add(face[0], k2 + 1), Add(face[1], k2 + 1);
+          continue;
+        }
         for (int j = 0; j < span[1]; ++j, face += 4) {
           const int opposite = face[3];
           if (!(In(face[0], k2) && opposite != 0) && !(In(face[1], k2) && opposite != 1) &&
@@ -342,7 +353,20 @@ void GrowStencils(const Topology& topo, const Mesh& mesh, const Spans* spans, co
     RingGrower<kFans> grower(topo, mesh, spans, spec);
     std::vector<int32_t> stencil;
     auto& idx = block_indices[b];
-    idx.reserve((end - begin) * std::max(24, 2 * spec.min_points));  // stencils rarely pass 1.5x min_points
+    if (kFans) {
+      // A 1.5-ring stencil on a fan is the vertex, its n neighbours and n flaps: 1 + 2n;
+      // below min_points it grows to 2 rings, ~1 + 3n among valence-6 vertices (+10%
+      // for the rest), so one block grown in vertex order fits BuildNeighborhoods'
+      // no-copy test and stays where it is (no copy above it).
+      int64_t fan_points = 0;
+      for (int64_t i = begin; i < end; ++i) {
+        const int n = topo.NumNeighbors(order[i]);
+        fan_points += 1 + 2 * n >= spec.min_points ? 1 + 2 * n : 1 + 3 * n;
+      }
+      idx.reserve(fan_points + fan_points / 10 + 64);
+    } else {
+      idx.reserve((end - begin) * std::max(24, 2 * spec.min_points));  // stencils rarely pass 1.5x min_points
+    }
     for (int64_t i = begin; i < end; ++i) {
       const int v = order[i];
       if (kFans && i + 4 < end) grower.Prefetch(order[i + 4]);
@@ -389,12 +413,11 @@ Neighborhoods BuildNeighborhoods(const Topology& topo, const Mesh& mesh, const R
   if (threads == 1 || nv == 1) {
     bool identity = true;
     for (int i = 0; i < nv && identity; ++i) identity = order[i] == i;
-    // One block grown in vertex order is the result, unless its spare capacity is large:
-    // then the copy below, exact in size, and the block's memory is left to the fit's
-    // arrays (a CLI run's heap is backed ahead of use: spare capacity costs as much as
-    // used memory; -4 MB at degree 2 on an 87k-vertex mesh).
-    const std::vector<int32_t>& block = block_indices[0];
-    if (identity && block.capacity() <= block.size() + block.size() / 8) nb.indices = std::move(block_indices[0]);
+    // One block grown in vertex order is the result, where it was grown: its spare
+    // capacity is address space that nothing touches, while an exact copy would land
+    // above it on fresh pages (the block is the heap's top then: +18 MB touched at
+    // degree 6 on an 87k-vertex mesh). Fan stencils reserve close to their size.
+    if (identity) nb.indices = std::move(block_indices[0]);
   }
   if (nb.indices.empty()) {
     nb.indices.resize(nb.offsets[nv]);

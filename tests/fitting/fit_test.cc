@@ -3,6 +3,7 @@
 #include <cmath>
 #include <cstring>
 #include <map>
+#include <mutex>
 #include <random>
 
 #include <gmock/gmock.h>
@@ -442,6 +443,102 @@ TEST(FitTest, FitSurfaceOnceGivesFitSurfacesBits) {
         boundary += (a.flags & kFlagBoundary) != 0;
       }
       EXPECT_GT(boundary, 0);
+    }
+  }
+}
+
+// FitSurfaceOnceInBlocks hands each block's fits over in a window of its own, dropped
+// after the call: every vertex once, in blocks of vertex indices whose windows hold
+// that block alone (first_vertex() == begin), FitSurface's bits, on the plain path (LHF
+// d2 on fan rows, d4 on spans, LOP; with and without a locality order); elsewhere (two
+// passes, normal pre-fit, noise mode) one block of the whole fits. Quantities evaluated
+// block by block (what `curvature --local` does) equal ComputeDifferentials' bits. Each
+// window is overwritten with NaNs after its block is read: a later read of it would change
+// the results.
+TEST(FitTest, FitSurfaceOnceInBlocksHandsOverFitSurfacesBits) {
+  GeneratorOptions g;
+  g.n = 40;
+  const Mesh shuffled = testing_util::ShuffleVertices(GenerateBumpMesh(g), 7, nullptr);
+  const LocalityRelabelling r = RelabelForLocality(shuffled).value();
+  for (int variant = 0; variant < 7; ++variant) {
+    const Topology topo = variant == 6 ? BuildTopology(r.mesh).value() : BuildTopology(r).value();
+    const int nv = r.mesh.NumVertices();
+    FitOptions o;
+    o.degree = variant == 1 ? 4 : 2;
+    if (variant == 2) o.method = FitMethod::kLOP;
+    if (variant == 3) o.two_pass = true;
+    if (variant == 4) o.normal_degree = 3;
+    if (variant == 5) o.noise = NoiseMode::kOn;
+    const bool plain = variant <= 2 || variant == 6;
+    for (int threads : {1, 2}) {
+      SCOPED_TRACE(::testing::Message() << "variant " << variant << " threads " << threads);
+      const RunContext ctx(nullptr, threads);
+      const auto want = FitSurface(r.mesh, topo, o, nullptr, {}, ctx).value();
+      const Differentials want_d = ComputeDifferentials(*want, kAllQuantities, 1);
+      const size_t ncoef = static_cast<size_t>(want->dims()) * want->num_coefficients();
+      std::vector<LocalFrame> frames(nv);
+      std::vector<double> coefficients(nv * ncoef);
+      std::vector<VertexDiagnostics> diagnostics(nv);
+      std::vector<int> seen(nv, 0);
+      Differentials d = AllocateDifferentials(nv, kAllQuantities);
+      std::mutex mu;
+      std::vector<std::pair<int64_t, int64_t>> blocks;
+      ASSERT_TRUE(FitSurfaceOnceInBlocks(
+                      r.mesh, topo, o,
+                      [&](const SurfaceFits& fits, int64_t begin, int64_t end) {
+                        {
+                          std::lock_guard<std::mutex> lock(mu);
+                          blocks.emplace_back(begin, end);
+                        }
+                        ASSERT_EQ(fits.first_vertex(), begin);
+                        ASSERT_EQ(fits.num_vertices(), end - begin);
+                        for (int64_t v = begin; v < end; ++v) {
+                          ++seen[v];
+                          frames[v] = fits.frame(static_cast<int>(v));
+                          std::memcpy(&coefficients[v * ncoef], fits.coefficients(static_cast<int>(v)), ncoef * 8);
+                          diagnostics[v] = fits.diagnostics(static_cast<int>(v));
+                        }
+                        EvaluateDifferentials(fits, kAllQuantities, begin, end, &d);
+                        // Poison the window: whatever reads it after the call gets NaNs.
+                        for (int64_t v = begin; v < end; ++v) {
+                          auto& fr = const_cast<LocalFrame&>(fits.frame(static_cast<int>(v)));
+                          fr.origin.setConstant(std::nan("")), fr.normal.setConstant(std::nan(""));
+                          double* c = const_cast<double*>(fits.coefficients(static_cast<int>(v)));
+                          std::fill_n(c, ncoef, std::nan(""));
+                        }
+                      },
+                      ctx)
+                      .ok());
+      if (plain) {
+        EXPECT_GT(blocks.size(), 1u);
+        for (const auto& [begin, end] : blocks) EXPECT_LE(end - begin, 512);
+      } else {
+        ASSERT_EQ(blocks.size(), 1u);
+        EXPECT_EQ(blocks[0], std::make_pair(int64_t{0}, int64_t{nv}));
+      }
+      for (int v = 0; v < nv; ++v) {
+        ASSERT_EQ(seen[v], 1) << "vertex " << v;
+        ASSERT_EQ(0, std::memcmp(&frames[v], &want->frame(v), sizeof(LocalFrame))) << "vertex " << v;
+        ASSERT_EQ(0, std::memcmp(&coefficients[v * ncoef], want->coefficients(v), ncoef * 8)) << "vertex " << v;
+        const VertexDiagnostics &a = diagnostics[v], &b = want->diagnostics(v);
+        ASSERT_EQ(a.points, b.points);
+        ASSERT_EQ(a.degree_used, b.degree_used);
+        ASSERT_EQ(a.rank, b.rank);
+        ASSERT_EQ(a.flags, b.flags);
+        ASSERT_EQ(0, std::memcmp(&a.condition, &b.condition, sizeof(float)));
+        ASSERT_EQ(d.diagnostics[v].flags, want_d.diagnostics[v].flags);
+      }
+      const auto same = [](const auto& x, const auto& y) {
+        return x.size() == y.size() && std::memcmp(x.data(), y.data(), x.size() * sizeof(double)) == 0;
+      };
+      EXPECT_TRUE(same(d.normals, want_d.normals));
+      EXPECT_TRUE(same(d.mean, want_d.mean));
+      EXPECT_TRUE(same(d.gaussian, want_d.gaussian));
+      EXPECT_TRUE(same(d.k1, want_d.k1));
+      EXPECT_TRUE(same(d.k2, want_d.k2));
+      EXPECT_TRUE(same(d.dir1, want_d.dir1));
+      EXPECT_TRUE(same(d.dir2, want_d.dir2));
+      EXPECT_TRUE(same(d.tensor, want_d.tensor));
     }
   }
 }

@@ -165,6 +165,37 @@ TEST(NeighborhoodTest, FacesAndRowsAreNotReadAfterTheHook) {
     }
 }
 
+// One block grown in vertex order is kept where it was grown (a copy would land above
+// it: fresh pages in a CLI run): its capacity is the reserve's, larger than its size (a
+// copy's is its size). On fan rows at degree 2 (stencils from 1.5 rings) the reserve is
+// 1 + 2n points a vertex (2 rings below min_points, +10%): within 1/8 of the size (a
+// reserve too small doubles: ~2x the size).
+TEST(NeighborhoodTest, FanStencilsStayWhereTheyAreGrown) {
+  GeneratorOptions g;
+  g.n = 40;
+  for (const Mesh& generated : {GenerateTorusMesh(g), GenerateBumpMesh(g)}) {
+    const Mesh shuffled = testing_util::ShuffleVertices(generated, 5, nullptr);
+    const LocalityRelabelling r = RelabelForLocality(shuffled).value();
+    const Topology topo = BuildTopology(r).value();
+    ASSERT_TRUE(topo.fan_rows);
+    FitOptions o;
+    o.degree = 2;
+    const Neighborhoods nb = BuildNeighborhoods(topo, r.mesh, RingSpecFor(o), 1);
+    const size_t size = nb.indices.size();
+    EXPECT_GT(nb.indices.capacity(), size);
+    EXPECT_LE(nb.indices.capacity(), size + size / 8);
+    // The same stencils as grown in two blocks (copied to vertex order).
+    const Neighborhoods two = BuildNeighborhoods(topo, r.mesh, RingSpecFor(o), 2);
+    EXPECT_EQ(nb.offsets, two.offsets);
+    EXPECT_EQ(nb.indices, two.indices);
+    // The span path (degree 4: 2 rings) keeps its one block too, spare capacity and all.
+    o.degree = 4;
+    const Neighborhoods spans = BuildNeighborhoods(topo, r.mesh, RingSpecFor(o), 1);
+    EXPECT_GT(spans.indices.capacity(), spans.indices.size());
+    EXPECT_EQ(spans.indices, BuildNeighborhoods(topo, r.mesh, RingSpecFor(o), 2).indices);
+  }
+}
+
 // A mesh numbered at random (here 27,648 vertices, far from local) is grown in
 // breadth-first order: the stencils must be those of the same mesh in its generated
 // (local) order, relabelled, for any thread count.

@@ -1,6 +1,7 @@
 // In-process commands of the `geomfit` tool: curvature --local, generate, convert.
 #include <cstdio>
 #include <functional>
+#include <mutex>
 #include <vector>
 
 #include <sys/stat.h>
@@ -37,12 +38,13 @@ void Verbose(bool on, const std::string& line) {
 size_t ReadHeapBytes(int64_t file_bytes) { return static_cast<size_t>(2.3 * static_cast<double>(file_bytes)); }
 
 /// Heap bytes the rest of a `curvature --local` run spans for `vertices` at `degree`
-/// (the fit's: stencils and their spans, frames, coefficients, point records, mesh and
-/// topology, freed as the fit goes: FitSurfaceOnce), as measured on the gmsh torus (87k
-/// vertices, one thread: the resident heap, reading included, of runs that back nothing
-/// ahead, 4 KB pages). An estimate: what it leaves out faults in on use.
+/// (the fit's: stencils and their spans, point records, mesh and topology, freed as the
+/// fit goes, its blocks' frames and coefficients evaluated and dropped: FitAndEvaluate;
+/// the quantities and the output's table), as measured on the gmsh torus (87k vertices,
+/// one thread: the resident heap, reading included, of runs that back nothing ahead,
+/// 4 KB pages). An estimate: what it leaves out faults in on use.
 size_t FitHeapBytes(int vertices, int degree) {
-  constexpr int kBytesPerVertex[] = {370, 370, 395, 420, 520, 595, 780};  // degrees 0-6
+  constexpr int kBytesPerVertex[] = {320, 320, 295, 370, 415, 440, 510};  // degrees 0-6
   const int d = std::max(degree, 0);
   return static_cast<size_t>(vertices) * (d <= 6 ? kBytesPerVertex[d] : kBytesPerVertex[6] + 150 * (d - 6));
 }
@@ -57,6 +59,30 @@ size_t FitHeapBytes(int vertices, int degree) {
 bool RelabelForFit(const Mesh& mesh, const FitOptions& o) {
   return (o.method == FitMethod::kLHF || o.method == FitMethod::kLOP) && o.noise == NoiseMode::kOff &&
          !HasLocalNumbering(mesh);
+}
+
+/// `quantities` of every vertex of a mesh nobody else needs: each block of fits is
+/// evaluated as soon as it is fitted and then dropped (FitSurfaceOnceInBlocks), so the
+/// whole mesh's frames and coefficients are never held; the values of
+/// ComputeDifferentials(FitSurface(...)).
+absl::StatusOr<Differentials> FitAndEvaluate(Mesh mesh, Topology topo, const FitOptions& o, uint32_t quantities,
+                                             const RunContext& ctx) {
+  // Allocated at the first block, once the stencils and point records are built and
+  // the mesh freed (its memory, not fresh pages).
+  const int64_t nv = mesh.NumVertices();
+  Differentials d;
+  std::once_flag allocated;
+  GF_RETURN_IF_ERROR(FitSurfaceOnceInBlocks(
+      std::move(mesh), std::move(topo), o,
+      [&](const SurfaceFits& fits, int64_t begin, int64_t end) {
+        std::call_once(allocated, [&] { d = AllocateDifferentials(nv, quantities); });
+        EvaluateDifferentials(fits, quantities, begin, end, &d);
+      },
+      ctx));
+  if (nv == 0) d = AllocateDifferentials(0, quantities);
+  // Evaluated with the fit's blocks (inside its "fit" phase): the phase still reported.
+  ctx.Report("evaluate", nv, nv);
+  return d;
 }
 
 /// Quantities of every vertex and their order (LocalFit::source).
@@ -85,24 +111,22 @@ absl::StatusOr<LocalFit> FitLocal(Mesh* source_mesh, bool keep_mesh, const std::
       validated();
       if (!keep_mesh) *source_mesh = Mesh();
       std::vector<int32_t>().swap(r->face_source);  // BuildTopology's alone
-      // The fit frees the mesh and topology as it goes; the quantities need no stencils.
-      FitRequest request;
-      request.keep_neighborhoods = false;
-      GF_ASSIGN_OR_RETURN(const auto fits,
-                          FitSurfaceOnce(std::move(r->mesh), std::move(*topo), o, request, ctx));
-      GF_ASSIGN_OR_RETURN(Differentials d, ComputeDifferentials(*fits, quantities, ctx));
+      // The fit frees the mesh and topology as it goes, and its blocks' fits once evaluated.
+      GF_ASSIGN_OR_RETURN(Differentials d, FitAndEvaluate(std::move(r->mesh), std::move(*topo), o, quantities, ctx));
       return LocalFit{std::move(d), std::move(r->vertex_source)};
     }
   }
   absl::StatusOr<Topology> topo = ValidateMesh(mesh, ctx.threads());
   GF_RETURN_IF_ERROR(WithPrefix(topo.status(), path));
   validated();
+  // Unless the output needs the mesh, the fit frees it and the topology as it goes.
+  if (!keep_mesh) {
+    GF_ASSIGN_OR_RETURN(Differentials d, FitAndEvaluate(std::move(*source_mesh), std::move(*topo), o, quantities, ctx));
+    return LocalFit{std::move(d), {}};
+  }
   FitRequest request;
   request.keep_neighborhoods = false;  // the quantities need no stencils
-  // Unless the output needs the mesh, the fit frees it and the topology as it goes.
-  GF_ASSIGN_OR_RETURN(const auto fits, keep_mesh ? FitSurface(mesh, *topo, o, nullptr, request, ctx)
-                                                 : FitSurfaceOnce(std::move(*source_mesh), std::move(*topo), o,
-                                                                  request, ctx));
+  GF_ASSIGN_OR_RETURN(const auto fits, FitSurface(mesh, *topo, o, nullptr, request, ctx));
   *topo = Topology();
   GF_ASSIGN_OR_RETURN(Differentials d, ComputeDifferentials(*fits, quantities, ctx));
   return LocalFit{std::move(d), {}};
