@@ -613,8 +613,9 @@ class SurfaceFitter {
                             WlsBatchNormalEquations();
     const HeightLanesInput hin{in.points, in.cos_cut};
     constexpr int64_t kGrain = 512;
-    return ParallelFor((nv + kGrain - 1) / kGrain, ctx, [&](int64_t chunk) {
-      const int64_t end = std::min<int64_t>(nv, (chunk + 1) * kGrain);
+    // Blocks of kGrain vertices in contiguous shares per thread (ChunkShares): a thread's
+    // next block is the one whose point records it prefetches below.
+    return ParallelForShares(nv, kGrain, ctx, [&](int64_t begin, int64_t end) {
       std::unique_ptr<FitBatch> batch(new FitBatch);  // default-initialized: no 800 KB memset
       HeightQueue heights;
       const auto vertex_at = [&](int64_t k) -> int64_t { return os ? os->order[k] : k; };
@@ -624,7 +625,6 @@ class SurfaceFitter {
       // Lanes are queued by stencil size (a stable counting sort of the block), so the
       // stencils of a batch differ little in size: few padded rows. Each lane's result
       // is independent of its batch.
-      const int64_t begin = chunk * kGrain;
       const int n = static_cast<int>(end - begin);
       int64_t walk[kGrain];
       if (lane_setup) {
@@ -703,7 +703,7 @@ class SurfaceFitter {
       heights.Flush(in, hin, settings, *batch);
       batch->Flush(in, settings, req.batched_kernel);
       if (on_fitted && *on_fitted) (*on_fitted)(f, begin, end);
-    }, 1, phase);
+    }, phase);
   }
 };
 
