@@ -622,17 +622,18 @@ class SurfaceFitter {
                             WlsBatchNormalEquations();
     const HeightLanesInput hin{in.points, in.cos_cut};
     constexpr int64_t kGrain = 512;
-    return ParallelFor((nv + kGrain - 1) / kGrain, ctx, [&](int64_t chunk) {
-      const int64_t end = std::min<int64_t>(nv, (chunk + 1) * kGrain);
+    // Blocks of kGrain vertices in contiguous shares per thread (ChunkShares): a thread's
+    // next block is the one whose point records it prefetches below.
+    return ParallelForShares(nv, kGrain, ctx, [&](int64_t begin, int64_t end) {
       std::unique_ptr<FitBatch> batch(new FitBatch);  // default-initialized: no 800 KB memset
       HeightQueue heights;
       // Where the block's outputs go: f's rows, or (windows) the block's own window,
       // whose row 0 is vertex `first`.
       SurfaceFits window;
       SurfaceFits& g = windows ? window : f;
-      const int64_t first = windows ? chunk * kGrain : 0;
+      const int64_t first = windows ? begin : 0;
       if (windows) {
-        const int64_t rows = std::min<int64_t>(nv, (chunk + 1) * kGrain) - first;
+        const int64_t rows = end - begin;
         window.options_ = o;
         window.first_ = static_cast<int>(first);
         window.frames_.resize(rows);
@@ -646,7 +647,6 @@ class SurfaceFitter {
       // Lanes are queued by stencil size (a stable counting sort of the block), so the
       // stencils of a batch differ little in size: few padded rows. Each lane's result
       // is independent of its batch.
-      const int64_t begin = chunk * kGrain;
       const int n = static_cast<int>(end - begin);
       int64_t walk[kGrain];
       if (lane_setup) {
@@ -729,7 +729,7 @@ class SurfaceFitter {
         (*windows)(window, begin, end);
       else if (on_fitted && *on_fitted)
         (*on_fitted)(f, begin, end);
-    }, 1, phase);
+    }, phase);
   }
 };
 

@@ -217,26 +217,23 @@ void EvaluateDifferentials(const SurfaceFits& fits, uint32_t q, int64_t begin, i
   EvaluateRange(fits, q, begin, end, *d);
 }
 
+constexpr int64_t kEvaluateGrain = 512;
+
 Differentials ComputeDifferentials(const SurfaceFits& fits, uint32_t q, int num_threads) {
   Differentials d = AllocateDifferentials(fits.num_vertices(), q);
-  constexpr int64_t kGrain = 256;
-  const int64_t nv = fits.num_vertices();
-  ParallelFor((nv + kGrain - 1) / kGrain, num_threads,
-              [&](int64_t c) { EvaluateRange(fits, q, c * kGrain, std::min(nv, (c + 1) * kGrain), d); }, 1);
+  // Ranges in contiguous shares per thread (ChunkShares): a thread reads the fits it
+  // wrote (FitAll hands out its blocks the same way) and its streams run on.
+  ParallelForShares(fits.num_vertices(), kEvaluateGrain, RunContext(nullptr, num_threads),
+                    [&](int64_t begin, int64_t end) { EvaluateRange(fits, q, begin, end, d); })
+      .IgnoreError();  // never cancelled
   return d;
 }
 
 absl::StatusOr<Differentials> ComputeDifferentials(const SurfaceFits& fits, uint32_t q, const RunContext& ctx) {
   Differentials d = AllocateDifferentials(fits.num_vertices(), q);
-  constexpr int64_t kGrain = 1024;
-  const int64_t nv = fits.num_vertices();
-  // Progress in vertices as before: the range of each chunk is evaluated at its first item.
-  GF_RETURN_IF_ERROR(ParallelFor(
-      nv, ctx,
-      [&](int64_t v) {
-        if (v % kGrain == 0) EvaluateRange(fits, q, v, std::min(nv, v + kGrain), d);
-      },
-      kGrain, "evaluate"));
+  GF_RETURN_IF_ERROR(ParallelForShares(
+      fits.num_vertices(), kEvaluateGrain, ctx, [&](int64_t begin, int64_t end) { EvaluateRange(fits, q, begin, end, d); },
+      "evaluate"));  // progress in vertices
   return d;
 }
 

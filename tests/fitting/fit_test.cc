@@ -333,7 +333,7 @@ TEST(FitTest, IsolatedAndStarvedVerticesAreFlaggedNotFatal) {
 }
 
 // Frames, coefficients, diagnostics and stencils are sized unwritten and reset per
-// vertex by the thread that fits it: equal bit for bit for 1, 2 and 3 threads, on every
+// vertex by the thread that fits it: equal bit for bit for 1, 2, 3 and 7 threads, on every
 // path (lane set-up at degree 2, the batched kernel, stencils, blocks reported in vertex
 // order), with boundary and isolated vertices, over storage poisoned with NaN before.
 TEST(FitTest, FitsAreBitIdenticalForAnyThreadCount) {
@@ -355,7 +355,7 @@ TEST(FitTest, FitsAreBitIdenticalForAnyThreadCount) {
       int64_t reported = 0;
       const FittedBlockFn count = [&](const SurfaceFits&, int64_t b, int64_t e) { reported += e - b; };
       std::shared_ptr<const SurfaceFits> one;
-      for (int threads : {1, 2, 3}) {
+      for (int threads : {1, 2, 3, 7}) {
         SCOPED_TRACE(::testing::Message() << "degree " << degree << " path " << path << " threads " << threads);
         {  // freed storage of the fits' sizes full of NaN, for the fit's vectors to reuse
           std::vector<std::vector<double>> poison;
