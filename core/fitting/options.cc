@@ -89,6 +89,7 @@ FitOptionsBits FitOptionsIdentity(const FitOptions& o) {
   b[17 + kMaxDegree] = static_cast<uint64_t>(o.NormalDegree());
   b[18 + kMaxDegree] = o.HermiteHessian();
   b[19 + kMaxDegree] = static_cast<uint64_t>(o.SlopePasses());
+  b[20 + kMaxDegree] = o.CubicHermite();
   return b;
 }
 
@@ -102,6 +103,7 @@ std::string FitOptionsKey(const FitOptions& o) {
   absl::StrAppendFormat(&key, " n%s sp%d %s nd%d hh%d", NoiseModeName(o.noise), o.SmoothingPasses(),
                         WlsSolverName(o.solver), o.NormalDegree(), o.HermiteHessian());
   if (o.SlopePasses() > 0) absl::StrAppendFormat(&key, " sr%d", o.SlopePasses());
+  if (o.degree == 3 && !o.CubicHermite()) absl::StrAppend(&key, " ch0");
   return key;
 }
 

@@ -105,6 +105,15 @@ struct FitOptions {
   /// max-norm ones growing towards 0.5x on fine marching-cubes meshes (bench/README.md). Not for
   /// noisy input.
   int slope_refinement = 0;
+  /// Hermite curvatures of degree-3 fits (interpolating LHF fits with the QR solver, noise
+  /// off): after the fit, its Hessian is refitted to the Hermite rows of the slope
+  /// refinement's curvature pass (slopes.h, hermite.h: 4 h_j / r_j^2 - g_j / r_j, the quartic
+  /// term cancels, the cubic form as four more unknowns) with the neighbours' fitted
+  /// normals, in the frame of the vertex's fitted normal (c10 = c01 = 0); normals and the
+  /// cubic terms stay the fit's. A degree-3 fit's Hessian otherwise carries the quartic
+  /// term through the stencil's even moments: H and K 0.55-0.96x CGAL's with it off
+  /// (bench/README.md, `clean4`). Ignored by the GFD operators (FitRequest::stencils).
+  bool cubic_hermite = true;
 
   /// Whether the Hermite curvatures apply (see hermite_hessian).
   bool HermiteHessian() const {
@@ -117,6 +126,11 @@ struct FitOptions {
                    NormalDegree() == degree
                ? slope_refinement
                : 0;
+  }
+  /// Whether the degree-3 Hermite curvatures run (see cubic_hermite).
+  bool CubicHermite() const {
+    return cubic_hermite && degree == 3 && method == FitMethod::kLHF && solver == WlsSolver::kQR && Interpolates() &&
+           noise == NoiseMode::kOff && NormalDegree() == degree;
   }
   /// The normal pre-fit's degree actually used; equal to `degree` when there is none
   /// (the noise mode at degree 2 always refines its normals with a cubic, noise.h).
@@ -155,7 +169,7 @@ std::string FitOptionsKey(const FitOptions& options);
 /// as exact bit patterns: two option sets give identical fits iff their bits are equal.
 /// Cache keys are built from these, never from formatted text (`%g` aliases 1.5 and
 /// 1.5000001).
-using FitOptionsBits = std::array<uint64_t, 20 + kMaxDegree>;
+using FitOptionsBits = std::array<uint64_t, 21 + kMaxDegree>;
 FitOptionsBits FitOptionsIdentity(const FitOptions& options);
 
 const char* FitMethodName(FitMethod m);

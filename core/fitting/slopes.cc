@@ -18,12 +18,12 @@ namespace {
 // not depend on its batch or on the instruction set (no fused multiply-adds,
 // core/CMakeLists.txt).
 constexpr int kLanes = 8;
-constexpr int kCoef = 6;  // NumCoefficients(2)
 // One slot's record in the normal copies: one aligned 64-byte line, read whole by a row's
 // gather. kRadius2: the stencil's squared radius from the last normal pass (0: the pass
 // failed); kFitted: 1 for a degree-2 fit to refine, else 0. After the Hessian pass the
 // other copy holds per slot (c20, c11, c02, ok, the refined normal, kFitted).
 constexpr int kRec = 8, kRadius2 = 6, kFitted = 7;
+constexpr int kCentre = 7;  // Work::centre's doubles per slot: normal, f30 f21 f12 f03
 using Lanes = double[kLanes];
 
 // Solves kLanes symmetric positive definite N x N systems (upper triangles of `a` used,
@@ -81,6 +81,9 @@ struct Work {
   double* xn[2] = {};                // kRec doubles per slot; normals of the previous / next pass
   std::vector<int32_t> walk;         // the slots in batch order: each chunk's sorted by stencil size
   double cos_cut = 0;
+  bool own_radius = false;           // no normal pass: the Hessian pass measures the stencils' radii
+  const double* centre = nullptr;    // with own_radius: per slot the fit's frame normal (the Hessians
+                                     //   stay in the fits' frames) and cubic derivatives, kCentre doubles
   int Vertex(int64_t k) const { return order ? order[k] : static_cast<int>(k); }
   int Size(int64_t k) const { return std::min(offsets[k + 1] - offsets[k], kMaxStencil); }
 };
@@ -107,6 +110,8 @@ struct alignas(64) Batch {
   const double* xn = nullptr;
   int32_t slot[kLanes];
   alignas(64) Lanes x, y, z, m[3], t1[3], t2[3];  // aligned: loaded as vectors
+  alignas(64) Lanes g1, g2;  // the fitted gradient (c10, c01) in the frame (0 without Work::centre)
+  alignas(64) Lanes f3[4];   // the fit's cubic derivatives f30 f21 f12 f03 (0 without Work::centre)
   int32_t idx[kMaxStencil][kLanes];
   alignas(64) Lanes dx[kMaxStencil], dy[kMaxStencil], dz[kMaxStencil], nx[kMaxStencil], ny[kMaxStencil], nz[kMaxStencil],
       live[kMaxStencil];
@@ -116,12 +121,21 @@ struct alignas(64) Batch {
     for (int l = 0; l < kLanes; ++l) {
       const int64_t k = slot[l] = slots[l < n ? l : 0];
       const double* self = xn + kRec * k;
-      x[l] = self[0], y[l] = self[1], z[l] = self[2], m[0][l] = self[3], m[1][l] = self[4], m[2][l] = self[5];
+      const double* frame = W.centre ? W.centre + kCentre * k : self + 3;
+      for (int c = 0; c < 4; ++c) f3[c][l] = W.centre ? frame[3 + c] : 0.0;
+      x[l] = self[0], y[l] = self[1], z[l] = self[2], m[0][l] = frame[0], m[1][l] = frame[1], m[2][l] = frame[2];
       if (l < n) rows = std::max(rows, W.Size(k) - 1);
     }
 #pragma omp simd
     for (int l = 0; l < kLanes; ++l)
       FrameTangents(m[0][l], m[1][l], m[2][l], t1[0][l], t1[1][l], t1[2][l], t2[0][l], t2[1][l], t2[2][l]);
+    for (int l = 0; l < kLanes; ++l) {  // the record's (fitted) normal n in the frame: (c10, c01) = -(n.t1, n.t2) / n.m
+      const double* nf = xn + kRec * static_cast<int64_t>(slot[l]) + 3;
+      const double nm = nf[0] * m[0][l] + nf[1] * m[1][l] + nf[2] * m[2][l];
+      const bool tilt = W.centre && nm > 0;
+      g1[l] = tilt ? -(nf[0] * t1[0][l] + nf[1] * t1[1][l] + nf[2] * t1[2][l]) / nm : 0.0;
+      g2[l] = tilt ? -(nf[0] * t2[0][l] + nf[1] * t2[1][l] + nf[2] * t2[2][l]) / nm : 0.0;
+    }
     for (int l = 0; l < kLanes; ++l) {
       const int32_t* pts = W.points + W.offsets[slot[l]];
       const int size = l < n ? std::max(1, W.Size(slot[l])) : 1;
@@ -247,11 +261,23 @@ __attribute__((always_inline)) inline void HermiteHessians(const Work& W, const 
   (void)W;
   // Row weights s / (s + 0.3)^2.5 (hermite.h; FitOptions::hermite_hessian uses 0.1): with the
   // cubic unknowns the near rows, whose normals' error over r is largest, are weighed less.
-  constexpr double kEps = 0.3, kRidge = 0.01;
-  alignas(64) Lanes radius2, inv_radius2, inv_radius;
+  // Degree 3 (Work::centre): s / (s + 0.5)^2.5 and the ridge 0.3% towards the fit's cubic
+  // (scanned on gmsh, marching-cubes and generated meshes: bench/README.md, `clean4`).
+  const double kEps = W.centre ? 0.5 : 0.3, kRidge = W.centre ? 0.003 : 0.01;
+  alignas(64) Lanes radius2, inv_radius2, inv_radius, r2max = {};
+  const double cos_cut = W.cos_cut;
+  if (W.own_radius)  // the squared radius of the rows kept, as the normal pass measures it
+    for (int i = 0; i < B.rows; ++i)
+#pragma omp simd
+      for (int l = 0; l < B.lanes; ++l) {
+        double pu, pw, ph, nm, nt1, nt2;
+        Project(B, i, l, pu, pw, ph, nm, nt1, nt2);
+        const double keep = (nm >= cos_cut ? 1.0 : 0.0) * B.live[i][l];
+        r2max[l] = std::max(r2max[l], keep * (pu * pu + pw * pw));
+      }
   for (int l = 0; l < kLanes; ++l) {
     const double* self = B.xn + kRec * static_cast<int64_t>(B.slot[l]);
-    const double r2 = self[kRadius2];
+    const double r2 = W.own_radius ? r2max[l] : self[kRadius2];
     ok[l] = l < B.count && r2 > 0 && self[kFitted] != 0 ? 1.0 : 0.0;
     radius2[l] = r2 > 0 ? r2 : 1.0;
   }
@@ -265,7 +291,6 @@ __attribute__((always_inline)) inline void HermiteHessians(const Work& W, const 
   enum { m40, m31, m22, m13, m04, m50, m41, m32, m23, m14, m05, m60, m51, m42, m33, m24, m15, m06,
          v20, v11, v02, v30, v21, v12, v03, kSums };
   alignas(64) double acc[kSums][kLanes] = {};
-  const double cos_cut = W.cos_cut;
   for (int i = 0; i < B.rows; ++i) {
 #pragma omp simd
     for (int l = 0; l < B.lanes; ++l) {
@@ -274,6 +299,12 @@ __attribute__((always_inline)) inline void HermiteHessians(const Work& W, const 
       const double gamma = (nm >= cos_cut ? nm : 0.0) * B.live[i][l];
       HermiteRowOf(pu, pw, ph, nt1, nt2, nm, gamma, inv_radius2[l], kEps, value, c0, c1, c2, inv_r2,
                    weight);
+      // In a tilted frame (height a.p + p^T Hess p / 2 + ...), 4h - p.grad h = 3 a.p + p^T Hess p + ...
+      // With the fit's cubic form C too: the rows' remainder is then the cubic's error, whose
+      // unknowns' ridge pulls them towards the fit's cubic rather than towards zero.
+      const double cubic = B.f3[0][l] * pu * pu * pu + 3 * B.f3[1][l] * pu * pu * pw + 3 * B.f3[2][l] * pu * pw * pw +
+                           B.f3[3][l] * pw * pw * pw;
+      value -= (3 * (B.g1[l] * pu + B.g2[l] * pw) + cubic / 6) * inv_r2;
       const double u = pu * inv_radius[l], w = pw * inv_radius[l];
       const double s = inv_r2 * radius2[l];  // radius^2 / r^2 (0 when excluded)
       const double wm = weight * s * s, wv = weight * value * s;
@@ -378,12 +409,13 @@ __attribute__((target_clones("arch=x86-64-v4", "avx2", "default"))) void Hessian
 
 absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighborhoods& nb, double cos_cut, int passes,
                           const RunContext& ctx, const VertexDiagnostics* diagnostics, LocalFrame* frames,
-                          double* coefficients) {
+                          double* coefficients, int num_coefficients) {
   const int threads = ctx.threads();
   const int nv = mesh.NumVertices();
   Work W;
   W.nv = nv;
   W.cos_cut = cos_cut;
+  W.own_radius = passes == 0;
   // Stencils as slots: the neighbourhoods' own in the topology's locality order (built
   // with them, else here), or their CSR in vertex order.
   const bool local = static_cast<int>(topo.locality_order.size()) == nv;
@@ -405,15 +437,22 @@ absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighbor
   // slots at random: one line a vertex instead of three).
   const int32_t* rank = os ? os->rank.data() : nullptr;
   auto slot_of = [&](int64_t v) -> int64_t { return rank ? rank[v] : v; };
+  std::unique_ptr<double[]> centre(W.own_radius ? new double[kCentre * static_cast<size_t>(nv)] : nullptr);
+  W.centre = centre.get();
   ParallelFor(nv, threads, [&](int64_t v) {
     if (v + 16 < nv) __builtin_prefetch(W.xn[0] + kRec * slot_of(v + 16), 1);
     const int64_t k = slot_of(v);
     double* dst = W.xn[0] + kRec * k;
     const LocalFrame& fr = frames[v];
-    const double* c = coefficients + v * kCoef;
+    const double* c = coefficients + v * num_coefficients;
     const Eigen::Vector3d n = (fr.normal - c[TaylorIndex(1, 0)] * fr.t1 - c[TaylorIndex(0, 1)] * fr.t2).normalized();
     for (int i = 0; i < 3; ++i) dst[i] = mesh.positions(v, i), dst[3 + i] = n[i];
     dst[kRadius2] = 0, dst[kFitted] = diagnostics[v].degree_used >= 2 ? 1.0 : 0.0;
+    if (W.centre) {
+      double* to = centre.get() + kCentre * k;
+      for (int i = 0; i < 3; ++i) to[i] = fr.normal[i];
+      for (int j = 0; j < 4; ++j) to[3 + j] = num_coefficients >= 10 ? c[TaylorIndex(3 - j, j)] : 0.0;
+    }
   }, 4096);
   // Normal passes, from one copy of the normals into the other (every vertex reads its
   // neighbours' previous normals), then the Hessians in the refined frames.
@@ -437,9 +476,13 @@ absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighbor
     if (v + 16 < nv) __builtin_prefetch(refined + kRec * slot_of(v + 16));
     const double* x = refined + kRec * slot_of(v);
     if (x[kFitted] == 0) return;
+    double* c = coefficients + v * num_coefficients;
+    if (W.centre) {  // the fit's frame, tangent plane and cubic terms kept
+      if (x[3] > 0) c[TaylorIndex(2, 0)] = x[0], c[TaylorIndex(1, 1)] = x[1], c[TaylorIndex(0, 2)] = x[2];
+      return;
+    }
     frames[v] = FrameFromNormal(Eigen::Vector3d(mesh.positions(v, 0), mesh.positions(v, 1), mesh.positions(v, 2)),
                                 Eigen::Vector3d(x[4], x[5], x[6]));
-    double* c = coefficients + v * kCoef;
     if (x[3] > 0) c[TaylorIndex(2, 0)] = x[0], c[TaylorIndex(1, 1)] = x[1], c[TaylorIndex(0, 2)] = x[2];
     c[TaylorIndex(1, 0)] = c[TaylorIndex(0, 1)] = 0;
   }, 4096);

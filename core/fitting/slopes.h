@@ -44,8 +44,15 @@ namespace geomfit {
 /// neighbourhoods' ordered stencils), 8 at a time in vector lanes; every vertex's
 /// result is independent of its batch and of the instruction set. Polls `ctx` between
 /// chunks; the fits are written only at the end (a cancelled run leaves them unrefined).
+///
+/// With `passes` = 0 (FitOptions::cubic_hermite: degree-3 fits, `num_coefficients` = 10,
+/// whose normals are O(h^3) already) only the curvature pass runs, in each fit's own frame:
+/// the rows subtract the fit's linear term (4h - p.grad h = 3 a.p + p^T Hess p + C(p) / 6 +
+/// O(p^5) in a tilted frame) and its cubic form, the four cubic unknowns then correct that
+/// cubic (ridge 0.3%, weights s / (s + 0.5)^2.5), and only c20, c11, c02 are replaced:
+/// frames, normals and cubic terms stay the fit's.
 absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighborhoods& nb, double cos_cut, int passes,
                           const RunContext& ctx, const VertexDiagnostics* diagnostics, LocalFrame* frames,
-                          double* coefficients);
+                          double* coefficients, int num_coefficients = 6);
 
 }  // namespace geomfit

@@ -265,9 +265,9 @@ v1::ComputeDifferentialsRequest StreamedRequest(const std::string& id) {
   return request;
 }
 
-void ExpectSameAsInProcess(const Differentials& d, const Mesh& mesh) {
+void ExpectSameAsInProcess(const Differentials& d, const Mesh& mesh, int degree = 3) {
   FitOptions options;
-  options.degree = 3;
+  options.degree = degree;
   auto local = ComputeDifferentials(mesh, options, kAllQuantities, RunContext(nullptr, 1));
   ASSERT_TRUE(local.ok());
   EXPECT_EQ(d.normals, local->normals);
@@ -398,6 +398,9 @@ TEST_F(HandlersTest, TheOwnerSendsAFollowersLastChunkAsSoonAsItEnds) {
   const int64_t last_start = (n - 1) / kRows * kRows;
   ASSERT_GT(n - last_start, 2 * 512) << "the last chunk should span several fitted blocks";
   v1::ComputeDifferentialsRequest request = StreamedRequest(info->mesh_id());  // a chunk per fitted block
+  // Degree 4: degree 3's fits are reported once their Hermite curvatures are refitted, in one
+  // block (FitOptions::cubic_hermite, as the degree-2 slope refinement's).
+  request.mutable_options()->set_degree(4);
   v1::ComputeDifferentialsRequest follower_request = request;
   follower_request.set_chunk_rows(kRows);
   CancellationToken token;
@@ -458,8 +461,8 @@ TEST_F(HandlersTest, TheOwnerSendsAFollowersLastChunkAsSoonAsItEnds) {
   EXPECT_EQ(owner_summary.joined_compute_ms(), 0);
   EXPECT_EQ(summary.joined_compute_ms(), owner_summary.fit_ms() + owner_summary.evaluate_ms())
       << "the follower reports the computation it joined";
-  EXPECT_EQ(summary.vertices_by_degree(3), n);
-  ExpectSameAsInProcess(*d, mesh);
+  EXPECT_EQ(summary.vertices_by_degree(4), n);
+  ExpectSameAsInProcess(*d, mesh, 4);
 }
 
 TEST_F(HandlersTest, ARequestDuringAPrefetchStreamsFromIt) {
