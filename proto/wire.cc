@@ -108,6 +108,7 @@ absl::StatusOr<FitOptions> FromProto(const v1::FitOptions& p, FitOptions o) {
   if (p.normal_degree() != 0) o.normal_degree = p.normal_degree();
   if (p.hermite_hessian()) o.hermite_hessian = true;
   if (p.slope_refinement() != 0) o.slope_refinement = p.slope_refinement();
+  if (p.has_cubic_hermite()) o.cubic_hermite = p.cubic_hermite();
   switch (p.solver()) {
     case v1::WLS_SOLVER_UNSPECIFIED:
     case v1::WLS_SOLVER_QR: o.solver = WlsSolver::kQR; break;
@@ -195,6 +196,7 @@ v1::FitOptions ToProto(const FitOptions& o) {
   p.set_normal_degree(o.normal_degree);
   p.set_hermite_hessian(o.hermite_hessian);
   p.set_slope_refinement(o.slope_refinement);
+  p.set_cubic_hermite(o.cubic_hermite);
   p.set_solver(o.solver == WlsSolver::kSVD ? v1::WLS_SOLVER_SVD : v1::WLS_SOLVER_QR);
   p.set_safeguard_angle_deg(o.safeguard_angle_deg);
   p.set_interpolate(o.interpolate);

@@ -21,11 +21,13 @@ TEST(WireTest, FitOptionsRoundTripAndUnsetMeansDefault) {
   o.normal_degree = 5;
   o.hermite_hessian = true;
   o.slope_refinement = 2;
+  o.cubic_hermite = false;
   auto back = FromProto(ToProto(o));
   ASSERT_TRUE(back.ok()) << back.status();
   EXPECT_EQ(back->normal_degree, 5);
   EXPECT_TRUE(back->hermite_hessian);
   EXPECT_EQ(back->slope_refinement, 2);
+  EXPECT_FALSE(back->cubic_hermite);
   EXPECT_EQ(FitOptionsKey(*back), FitOptionsKey(o));
   EXPECT_EQ(FitOptionsIdentity(*back), FitOptionsIdentity(o));
   for (FitMethod m : {FitMethod::kLHF, FitMethod::kLOP, FitMethod::kXu, FitMethod::kLSCM}) {
@@ -38,6 +40,7 @@ TEST(WireTest, FitOptionsRoundTripAndUnsetMeansDefault) {
   EXPECT_EQ(defaults->normal_degree, 0);
   EXPECT_FALSE(defaults->hermite_hessian);
   EXPECT_EQ(defaults->slope_refinement, 0);
+  EXPECT_TRUE(defaults->cubic_hermite);
   v1::FitOptions bad;
   bad.set_degree(7);
   EXPECT_EQ(FromProto(bad).status().code(), absl::StatusCode::kInvalidArgument);

@@ -102,6 +102,7 @@ struct CurvatureArgs {
   std::string method = "lhf";
   bool interpolate = false;  ///< --interpolate: explicit default
   bool approximate = false;  ///< --approximate: fit need not pass through the vertex
+  bool plain_cubic = false;  ///< --plain-cubic: FitOptions::cubic_hermite off
   std::string noise = "off";  ///< --noise off|on|auto
   std::string solver = "qr";  ///< --solver qr|svd
   std::string output;        ///< .vtp, .vtu, .npy, .tsv / .txt; empty = TSV on stdout
