@@ -395,6 +395,19 @@ TEST(FitTest, FitsAreBitIdenticalForAnyThreadCount) {
   }
 }
 
+// The FitSurfaceOnce tests' variants: 0-2 and 6 the plain path (LHF d2, d4, LOP; 6 on
+// a topology with a locality order), 3-5 paths that keep their inputs (two passes, a
+// normal pre-fit, the noise mode).
+FitOptions FitOnceVariant(int variant) {
+  FitOptions o;
+  o.degree = variant == 1 ? 4 : 2;
+  if (variant == 2) o.method = FitMethod::kLOP;
+  if (variant == 3) o.two_pass = true;
+  if (variant == 4) o.normal_degree = 3;
+  if (variant == 5) o.noise = NoiseMode::kOn;
+  return o;
+}
+
 // FitSurfaceOnce frees the mesh's faces, the topology's rows, the positions and the
 // normals as soon as its plain path has read them (fit.h): its fits must be FitSurface's
 // bit for bit (a read of anything freed would crash or change them), on the plain path
@@ -412,12 +425,7 @@ TEST(FitTest, FitSurfaceOnceGivesFitSurfacesBits) {
     ASSERT_EQ(topo.locality_order.empty(), variant != 6);
     ASSERT_GT(topo.num_boundary_edges, 0);
     const int nv = r.mesh.NumVertices();
-    FitOptions o;
-    o.degree = variant == 1 ? 4 : 2;
-    if (variant == 2) o.method = FitMethod::kLOP;
-    if (variant == 3) o.two_pass = true;
-    if (variant == 4) o.normal_degree = 3;
-    if (variant == 5) o.noise = NoiseMode::kOn;
+    const FitOptions o = FitOnceVariant(variant);
     for (int threads : {1, 2}) {
       SCOPED_TRACE(::testing::Message() << "variant " << variant << " threads " << threads);
       const RunContext ctx(nullptr, threads);
@@ -463,12 +471,7 @@ TEST(FitTest, FitSurfaceOnceInBlocksHandsOverFitSurfacesBits) {
   for (int variant = 0; variant < 7; ++variant) {
     const Topology topo = variant == 6 ? BuildTopology(r.mesh).value() : BuildTopology(r).value();
     const int nv = r.mesh.NumVertices();
-    FitOptions o;
-    o.degree = variant == 1 ? 4 : 2;
-    if (variant == 2) o.method = FitMethod::kLOP;
-    if (variant == 3) o.two_pass = true;
-    if (variant == 4) o.normal_degree = 3;
-    if (variant == 5) o.noise = NoiseMode::kOn;
+    const FitOptions o = FitOnceVariant(variant);
     const bool plain = variant <= 2 || variant == 6;
     for (int threads : {1, 2}) {
       SCOPED_TRACE(::testing::Message() << "variant " << variant << " threads " << threads);

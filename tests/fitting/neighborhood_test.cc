@@ -502,18 +502,24 @@ std::vector<Mesh> FanTestMeshes() {
   return out;
 }
 
-// Stencils (points, order and ring) equal the plain ring rule on FanTestMeshes shuffled,
-// relabelled with rotational rows (the fan steps' case) and source rows, and as they
-// are (plain BuildTopology), for degrees 1-6 and specs that stop at or around 1.5 rings
-// (max_points below and at a valence-6 1.5-ring's 13, starting at 1 or 2 rings), with 1
-// and 2 threads.
-TEST(NeighborhoodTest, FanStepsEqualThePlainRingRuleWhereverTheyApplyOrNot) {
+// The default ring specs of degrees 1-6, in order.
+std::vector<RingSpec> DefaultSpecsOfDegrees1To6() {
   std::vector<RingSpec> specs;
   for (int degree = 1; degree <= 6; ++degree) {
     FitOptions o;
     o.degree = degree;
     specs.push_back(RingSpecFor(o));
   }
+  return specs;
+}
+
+// Stencils (points, order and ring) equal the plain ring rule on FanTestMeshes shuffled,
+// relabelled with rotational rows (the fan steps' case) and source rows, and as they
+// are (plain BuildTopology), for degrees 1-6 and specs that stop at or around 1.5 rings
+// (max_points below and at a valence-6 1.5-ring's 13, starting at 1 or 2 rings), with 1
+// and 2 threads.
+TEST(NeighborhoodTest, FanStepsEqualThePlainRingRuleWhereverTheyApplyOrNot) {
+  std::vector<RingSpec> specs = DefaultSpecsOfDegrees1To6();
   RingSpec s = specs[1];
   for (int max_points : {7, 11, 12, 13, 14}) s.max_points = max_points, specs.push_back(s);
   s = specs[1];
@@ -552,12 +558,7 @@ TEST(NeighborhoodTest, FanStepsEqualThePlainRingRuleWhereverTheyApplyOrNot) {
 // FanTestMeshes shuffled, relabelled with rotational and source rows and as they are,
 // every third vertex in reverse order, degrees 1-6 and the noise test's spec, 1 and 2 threads.
 TEST(NeighborhoodTest, StencilsOfAFewVerticesEqualTheirRowsOfAllStencils) {
-  std::vector<RingSpec> specs;
-  for (int degree = 1; degree <= 6; ++degree) {
-    FitOptions o;
-    o.degree = degree;
-    specs.push_back(RingSpecFor(o));
-  }
+  std::vector<RingSpec> specs = DefaultSpecsOfDegrees1To6();
   specs.push_back(NoiseStencilSpec());
   int checked = 0, fan_meshes = 0, mesh_index = 0;
   for (const Mesh& plain : FanTestMeshes()) {
