@@ -32,7 +32,10 @@ int NumVertices(const Differentials& d) {
                 d.tensor.rows(), static_cast<Eigen::Index>(d.diagnostics.size())}));
 }
 
-/// Row v of DifferentialsTable(d), stored at row[0..13).
+/// Columns of DifferentialsTable: normal, H, K, k1, k2, dir1, dir2.
+constexpr int kTableColumns = 13;
+
+/// Row v of DifferentialsTable(d), stored at row[0..kTableColumns).
 void TableRow(const Differentials& d, int v, double* row) {
   for (int c = 0; c < 3; ++c) {
     row[c] = At(d.normals, v, c);
@@ -88,7 +91,7 @@ const std::vector<std::string>& DifferentialsColumns() {
 
 RowMajorMatrixXd DifferentialsTable(const Differentials& d) {
   const int nv = NumVertices(d);
-  RowMajorMatrixXd t(nv, 13);
+  RowMajorMatrixXd t(nv, kTableColumns);
   for (int v = 0; v < nv; ++v) TableRow(d, v, t.row(v).data());
   return t;
 }
@@ -191,8 +194,8 @@ absl::Status WriteDifferentials(const std::string& path, const Mesh& mesh, const
   switch (*kind) {
     case OutputKind::kTsv: return WriteFileAtomically(path, DifferentialsTsv(d));
     case OutputKind::kNpy:  // DifferentialsTable's rows, packed a block at a time (no whole table)
-      return WriteNpy(path, NumVertices(d), 13, [&](int64_t begin, int64_t end, double* out) {
-        for (int64_t v = begin; v < end; ++v, out += 13) TableRow(d, static_cast<int>(v), out);
+      return WriteNpy(path, NumVertices(d), kTableColumns, [&](int64_t begin, int64_t end, double* out) {
+        for (int64_t v = begin; v < end; ++v, out += kTableColumns) TableRow(d, static_cast<int>(v), out);
       });
     case OutputKind::kVtp:
     case OutputKind::kVtu: {
@@ -253,19 +256,19 @@ absl::Status WriteRelabelledDifferentials(const std::string& path, const Mesh& m
   std::vector<std::unique_ptr<double[]>> pieces((nv + kPieceRows - 1) / kPieceRows);
   for (size_t p = 0; p < pieces.size(); ++p) {
     const int64_t first = static_cast<int64_t>(p) * kPieceRows, rows = std::min<int64_t>(kPieceRows, nv - first);
-    pieces[p].reset(new double[rows * 13]);  // not zeroed: every row is written
-    for (int64_t r = 0; r < rows; ++r) TableRow(d, static_cast<int>(first + r), pieces[p].get() + 13 * r);
+    pieces[p].reset(new double[rows * kTableColumns]);  // not zeroed: every row is written
+    for (int64_t r = 0; r < rows; ++r) TableRow(d, static_cast<int>(first + r), pieces[p].get() + kTableColumns * r);
   }
   d = Differentials();
-  const auto row = [&](int32_t r) { return pieces[r >> kPieceBits].get() + 13 * (r & (kPieceRows - 1)); };
-  return WriteNpy(path, nv, 13, [&](int64_t begin, int64_t end, double* out) {
+  const auto row = [&](int32_t r) { return pieces[r >> kPieceBits].get() + kTableColumns * (r & (kPieceRows - 1)); };
+  return WriteNpy(path, nv, kTableColumns, [&](int64_t begin, int64_t end, double* out) {
     constexpr int64_t kAhead = 8;
-    for (int64_t v = begin; v < end; ++v, out += 13) {
+    for (int64_t v = begin; v < end; ++v, out += kTableColumns) {
       if (v + kAhead < nv) {
         const double* ahead = row(row_of[v + kAhead]);
         __builtin_prefetch(ahead), __builtin_prefetch(ahead + 12);
       }
-      std::memcpy(out, row(row_of[v]), 13 * sizeof(double));
+      std::memcpy(out, row(row_of[v]), kTableColumns * sizeof(double));
     }
   });
 }
