@@ -12,7 +12,8 @@
 // `torus@/dir/mc%d_raw.obj@/dir/mc%d_proj.obj` fits the first (alpha = 0: as read) and
 // measures at the second's vertices (same numbering, on the surface).
 // Overrides of the noise mode's fit (experiments): NOISE_MPF (min points factor),
-// NOISE_RINGS, NOISE_ND (normal_degree: a normal pre-fit after smoothing). NOISE_DIAG=1
+// NOISE_RINGS, NOISE_ND (normal_degree: a normal pre-fit after smoothing); NOISE_AUTO=1 runs
+// NoiseMode::kAuto instead of kOn. NOISE_DIAG=1
 // prints the errors within 3 rings of the boundary and inside separately.
 // NOISE_DUMP=prefix writes per-vertex exact / fitted H, K and normal errors of the noise
 // mode and CGAL to prefix_{noise,cgal}_SURFACE_dD_nN.txt (error distributions).
@@ -167,7 +168,7 @@ int main(int argc, char** argv) {
           series[0].errors.push_back(MeasureErrors(clean, *surface, def));
           for (size_t i = 0; i < passes.size(); ++i) {
             FitOptions on = o;
-            on.noise = NoiseMode::kOn;
+            on.noise = std::getenv("NOISE_AUTO") ? NoiseMode::kAuto : NoiseMode::kOn;
             on.smoothing_passes = std::atoi(passes[i].c_str());
             if (const char* e = std::getenv("NOISE_MPF")) on.min_points_factor = std::atof(e);
             if (const char* e = std::getenv("NOISE_RINGS")) on.rings = std::atof(e);

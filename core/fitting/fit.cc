@@ -312,6 +312,7 @@ class SurfaceFitter {
           "topology (%d vertices, %d faces) does not match the mesh (%d vertices, %d faces)",
           topo.num_vertices, topo.num_faces, mesh.NumVertices(), mesh.NumFaces()));
     const bool own_nb = !nb;  // stencils of this fit alone: nothing to cache with them
+    const std::shared_ptr<const Neighborhoods> given_nb = nb;
     // FitSurfaceOnce's plain path: the mesh and topology are freed as soon as they are
     // read (fit.h), the normals computed before the faces go.
     const bool consume = consumable_mesh != nullptr && own_nb && PlainFit(o) && !on_fitted;
@@ -418,6 +419,15 @@ class SurfaceFitter {
         else
           smoothed.positions = ProjectOntoFits(*fits, input->positions, ctx.threads(), step);
         high_fits.reset();
+        // Auto at degree >= 3: the first pass moved the vertices by more than the noise
+        // (its bias: the coarse bump), so the default fit is kept (noise.h).
+        if (o.noise == NoiseMode::kAuto && o.degree >= 3 && pass == 1 &&
+            SmoothingBiasDominates(mesh.positions, smoothed.positions, mesh, noise_over_h)) {
+          FitOptions off = o;
+          off.noise = NoiseMode::kOff;
+          return Fit(mesh, topo, off, own_nb ? nullptr : given_nb, req, ctx, on_fitted, consumable_mesh, consumable_topo,
+                     blocks);
+        }
         if (boundary_fits && !unshrink)  // vertices within a ring of the boundary onto their cubic fits
           ParallelFor(mesh.NumVertices(), ctx.threads(), [&](int64_t v) {
             bool near = topo.is_boundary[v];
@@ -452,9 +462,10 @@ class SurfaceFitter {
       const std::string phase = pass < smoothing ? absl::StrFormat("smooth %d/%d", pass + 1, smoothing)
                                 : last           ? std::string("fit")
                                                  : std::string("frames");
-      // Degree 2 on a nearly clean mesh: the smoothed mesh interpolated, slope refinement (noise.h).
-      const bool slope_final = last && eff.noise == NoiseMode::kOn && schedule.slope_passes > 0 && !req.stencils &&
-                               o.normal_degree <= o.degree && !o.hermite_hessian;
+      // Degree 2 (3) on a nearly clean mesh: the smoothed mesh interpolated, slope refinement
+      // (the degree-3 Hermite curvatures, FitOptions::cubic_hermite; noise.h).
+      const bool slope_final = last && eff.noise == NoiseMode::kOn && (schedule.slope_passes > 0 || schedule.hermite_final) &&
+                               !req.stencils && o.normal_degree <= o.degree && !o.hermite_hessian;
       if (slope_final) {
         pass_options.noise = NoiseMode::kOff;
         pass_options.interpolate = true;

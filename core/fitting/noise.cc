@@ -22,6 +22,18 @@ Positions ProjectOntoFits(const SurfaceFits& fits, const Positions& positions, i
   return out;
 }
 
+bool SmoothingBiasDominates(const Positions& before, const Positions& after, const Mesh& mesh, double noise_over_h) {
+  const int n = static_cast<int>(before.rows());
+  const double noise = noise_over_h * AverageEdgeLength(mesh);
+  if (n == 0 || !(noise > 0)) return false;
+  std::vector<double> moved(n);
+  for (int v = 0; v < n; ++v) moved[v] = (after.row(v) - before.row(v)).norm();
+  const auto q90 = moved.begin() + n * 9 / 10, q50 = moved.begin() + n / 2;
+  std::nth_element(moved.begin(), q90, moved.end());
+  std::nth_element(moved.begin(), q50, q90);
+  return *q90 > kSmoothingBiasQuantile90 * noise && *q90 > kSmoothingBiasSpread * *q50;
+}
+
 NoiseSchedule NoiseScheduleFor(int degree, double residual_ratio) {
   NoiseSchedule s;
   if (residual_ratio >= kHeavyNoiseResidualRatio) {
@@ -53,6 +65,8 @@ NoiseSchedule NoiseScheduleFor(int degree, double residual_ratio) {
     if (degree == 4)
       s.final_interpolates = true, s.final_rings = (degree + 1) / 2.0, s.final_points_factor = 1.5,
       s.tangent_weight_epsilon = kNearlyCleanTangentEpsilon;
+    if (degree == 3)  // the default fit on the smoothed mesh (noise.h, hermite_final)
+      s.hermite_final = true, s.final_rings = 0, s.final_points_factor = 0, s.two_scale_final = false;
   }
   if (degree == 2 && residual_ratio < kSlopeRefinementResidualRatio)  // noise.h, slope_passes
     s.smoothing_degree = 5, s.slope_passes = kNoiseSlopePasses;

@@ -62,6 +62,9 @@ struct NoiseSchedule {
   bool final_interpolates = false;
   /// eps of (2.2.1) in the clean tangent pre-fit of final_rings (0: final_weight_epsilon).
   double tangent_weight_epsilon = 0;
+  /// Degree 3: the final fit is the default one on the smoothed mesh (interpolating, clean
+  /// stencils, the Hermite curvatures of FitOptions::cubic_hermite).
+  bool hermite_final = false;
 };
 /// Nearly clean meshes at degrees 3-4 (residual ratio below kLocalSmoothingResidualRatio:
 /// O(h^3) noise, alpha 0.1-0.2: 0.010-0.024 at n = 64; a gmsh torus at 0.1 h^3, h = 0.0126:
@@ -74,7 +77,14 @@ struct NoiseSchedule {
 /// alpha 0.1 at n = 64 d4 normal / H / K 0.72 / 0.63 / 0.61 (K Linf 1.10) -> 0.49 / 0.37 /
 /// 0.38 (0.49)x the best CGAL, bump 0.80 / 0.78 / 0.77 -> 0.69 / 0.60 / 0.54, gmsh torus 0.1
 /// h^3 d4 normal 0.75 -> 0.64x; torus d3 K Linf 0.81 / 0.94 -> 0.69 / 0.83 (alpha 0.2 / 0.1;
-/// bench/README.md, "Nearly clean meshes").
+/// bench/README.md, "Nearly clean meshes"). At degree 3 the final fit is then the default
+/// one on the smoothed mesh (hermite_final: interpolating, clean stencils, the Hermite
+/// curvatures 4h/r^2 - g/r with the neighbours' degree-3 normals, slopes.h), which the
+/// approximating 1.5-ring fit's clean-mesh accuracy at the torus's inner equator had
+/// limited: torus alpha 0.1 d3 H / K 0.40 / 0.61 (K Linf 0.82) -> 0.05 / 0.12 (0.27)x the
+/// best CGAL, bump 0.40 / 0.41 -> 0.13 / 0.12 (bench/README.md, `noise7`). Above
+/// kLocalSmoothingResidualRatio the interpolated centre's noise shows (bump alpha 0.5 h^3:
+/// H Linf 0.44 -> 0.60x), so the two-scale final fit stays there.
 inline constexpr int kNearlyCleanLocalPasses = 2;
 inline constexpr double kFootPointBlendSpread = 0.7;
 inline constexpr double kNearlyCleanTangentEpsilon = 0.01;
@@ -258,6 +268,20 @@ inline constexpr double kUnshrinkSpread = 8;
 Positions BlendFootPoints(const SurfaceFits& low, const SurfaceFits& high, const Positions& positions,
                           const Mesh& mesh, double noise_over_h, double spread, const double* step = nullptr,
                           int num_threads = 0);
+
+/// NoiseMode::kAuto at degree >= 3 (fit.cc): whether the first smoothing pass (`before` ->
+/// `after`) moved the vertices by more than the noise it was to remove. Where the noise
+/// dominates, the moves |after - before| are the noise (uniform alpha h^k along the normal,
+/// marching cubes: 90th percentile 1.1-2.0x the noise level noise_over_h x the mean edge
+/// length, 1.9-2.7x their median); where the smoothing fits' bias does (the strongly curved
+/// open bump at n <= 32 under light noise, which the sextic ratio calls noisy), a tail of
+/// vertices moves much further: 90th percentile 2.5-8x the noise level and 3.3-12x the
+/// median. Both above kSmoothingBiasQuantile90 and kSmoothingBiasSpread: the noise mode
+/// would lose to the default fit (bump 0.2 h^3 n = 32, d3 normal 0.98 vs 0.47x the best
+/// CGAL; bench/README.md, `noise7`).
+inline constexpr double kSmoothingBiasQuantile90 = 2.2;
+inline constexpr double kSmoothingBiasSpread = 3;
+bool SmoothingBiasDominates(const Positions& before, const Positions& after, const Mesh& mesh, double noise_over_h);
 
 /// The unshrink passes' per-vertex steps (negative; 0 where unfitted) from `fits`.
 std::vector<double> UnshrinkSteps(const SurfaceFits& fits, int num_threads = 0);
