@@ -292,8 +292,13 @@ absl::StatusOr<NoiseEstimate> EstimateNoise(const Mesh& mesh, const Topology& to
   const int nv = mesh.NumVertices();
   const int stride = std::max(1, nv / kMaxSamples);
   const int samples = (nv + stride - 1) / stride;
-  std::vector<int32_t> sample(samples);
-  for (int i = 0; i < samples; ++i) sample[i] = i * stride;
+  std::vector<int32_t> sample(samples), rank;
+  const bool by_source = static_cast<int>(topo.vertex_source.size()) == nv;  // relabelled: source indices
+  if (by_source) {
+    rank.resize(nv);
+    for (int v = 0; v < nv; ++v) rank[topo.vertex_source[v]] = v;
+  }
+  for (int i = 0; i < samples; ++i) sample[i] = by_source ? rank[i * stride] : i * stride;
   // The sample's stencils alone (row i: sample[i]'s), or row v of every vertex's.
   const Neighborhoods own =
       all_stencils ? Neighborhoods{} : BuildNeighborhoodsOf(topo, mesh, NoiseStencilSpec(), sample, ctx.threads());

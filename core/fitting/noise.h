@@ -312,7 +312,9 @@ inline constexpr double kNoisySexticRatio = 0.5;
 /// The noise test's stencils: 2.5 rings, grown to 40 points, at most 80.
 RingSpec NoiseStencilSpec();
 /// `normals`: approximate vertex normals (frames). CANCELLED / DEADLINE_EXCEEDED from ctx.
-/// The stencils are built for the sampled vertices alone (BuildNeighborhoodsOf); with
+/// The sample is every (n / 2000)-th vertex, by source index when topo.vertex_source is
+/// set (a relabelled mesh: the same vertices and stencil point sets, hence the same
+/// estimate to round-off). The stencils are built for the sampled vertices alone (BuildNeighborhoodsOf); with
 /// `all_stencils` (every vertex's, of NoiseStencilSpec(): the tests' reference path) those
 /// are read instead, with the same result bit for bit.
 absl::StatusOr<NoiseEstimate> EstimateNoise(const Mesh& mesh, const Topology& topo, const Positions& normals,

@@ -66,7 +66,7 @@ void FillLocalityOrder(Topology* t) {
 
 size_t Topology::Bytes() const {
   return sizeof(*this) +
-         4 * (vf_offsets.size() + vf_faces.size() + vv_offsets.size() + vv.size() + locality_order.size()) +
+         4 * (vf_offsets.size() + vf_faces.size() + vv_offsets.size() + vv.size() + locality_order.size() + vertex_source.size()) +
          is_boundary.size() + is_isolated.size();
 }
 

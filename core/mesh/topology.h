@@ -25,6 +25,10 @@ struct Topology {
   /// may visit vertices in this order; outputs stay indexed by vertex. Empty for a
   /// LocalityRelabelling's topology (its numbering is such an order).
   std::vector<int32_t> locality_order;
+  /// Vertex -> the source mesh's vertex, when the caller sets it (LocalityRelabelling::
+  /// vertex_source; the CLI's `--noise auto`): EstimateNoise then samples by source index,
+  /// the same vertices as on the source mesh. Empty otherwise.
+  std::vector<int32_t> vertex_source;
   int num_boundary_edges = 0;
   int num_isolated = 0;
   /// True when every vf row lists its faces in increasing face index (BuildTopology of a

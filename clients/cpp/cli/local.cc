@@ -54,10 +54,11 @@ size_t FitHeapBytes(int vertices, int degree) {
 /// on the numbering through the topology's row orders alone, which
 /// BuildTopology(LocalityRelabelling) sets in fan order (RowOrder::kRotational: the
 /// source's stencils in another order, results equal to round-off; the parametric
-/// comparison methods read face rows themselves; the noise estimate of
-/// `--noise on|auto` samples vertices by index).
+/// comparison methods read face rows themselves). `--noise auto` relabels too: its noise
+/// estimate samples by source index (Topology::vertex_source), the same vertices, so a
+/// clean mesh gets the `--noise off` fit; `--noise on` keeps the source numbering.
 bool RelabelForFit(const Mesh& mesh, const FitOptions& o) {
-  return (o.method == FitMethod::kLHF || o.method == FitMethod::kLOP) && o.noise == NoiseMode::kOff &&
+  return (o.method == FitMethod::kLHF || o.method == FitMethod::kLOP) && o.noise != NoiseMode::kOn &&
          !HasLocalNumbering(mesh);
 }
 
@@ -111,6 +112,7 @@ absl::StatusOr<LocalFit> FitLocal(Mesh* source_mesh, bool keep_mesh, const std::
       validated();
       if (!keep_mesh) *source_mesh = Mesh();
       std::vector<int32_t>().swap(r->face_source);  // BuildTopology's alone
+      if (o.noise == NoiseMode::kAuto) topo->vertex_source = r->vertex_source;  // the noise test's sample
       // The fit frees the mesh and topology as it goes, and its blocks' fits once evaluated.
       GF_ASSIGN_OR_RETURN(Differentials d, FitAndEvaluate(std::move(r->mesh), std::move(*topo), o, quantities, ctx));
       return LocalFit{std::move(d), std::move(r->vertex_source)};
