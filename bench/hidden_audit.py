@@ -114,7 +114,11 @@ def make_meshes(outdir, log):
             shutil.copy(r["welded"]["exact"], os.path.join(outdir, f"mc{n}_proj.obj"))
     for n in FAMILIES["mce"][1]:
         make_mc_ellipsoid(outdir, n)
-    log("\n| family | level | #V | #F | h | min angle | max angle | valence |\n|---|---|---|---|---|---|---|---|")
+
+
+def mesh_table(outdir, log):
+    log("\n| family | h (gmsh) or N | #V | #F | h (mean edge) | min angle | max angle | valence |")
+    log("|---|---|---|---|---|---|---|---|")
     for fam, (_, lv, pat) in FAMILIES.items():
         for i, p in enumerate(lv, 1):
             V, F = read_obj(os.path.join(outdir, pat % (i if fam in ("gt", "gs", "ge") else p)))
@@ -284,7 +288,12 @@ def seed_order(d, norm):
 # ---------------------------------------------------------------- report
 
 def report(outdir, out):
-    misses = []  # (badness, text)
+    out("### Meshes")
+    mesh_table(outdir, out)
+    misses = {}  # what: [(badness, cell)]
+
+    def miss(bad, what, cell):
+        misses.setdefault(what, []).append((bad, cell))
     out("\n### Clean meshes: ours / CGAL on the same stencils (default options), all levels\n")
     out("Cells: ratio per norm, level 1 / 2 / 3. Bold: > 0.5. Degree 1: normals only.\n")
     out("| mesh | d | #V (L1/L2/L3) | nrm L2 | nrm Linf | H L2 | H Linf | K L2 | K Linf |")
@@ -309,8 +318,8 @@ def report(outdir, out):
                     row += " " + " / ".join(f"**{r:.2f}**" if r > CLEAN_TARGET else f"{r:.2f}" for r in rs) + " |"
                     for j, r in enumerate(rs, 1):
                         if r > CLEAN_TARGET:
-                            misses.append((r / CLEAN_TARGET, f"clean {fam}{tag} L{j} ({lv[j - 1]['nv']} v) d={d} {name}: "
-                                                               f"{r:.2f}x CGAL (target 0.5)"))
+                            miss(r / CLEAN_TARGET, f"clean {fam}{tag} d={d} {name} (x CGAL, target 0.5)",
+                                 f"L{j} ({lv[j - 1]['nv']} v) {r:.2f}")
                 out(row)
                 if d in orders and "geomfit" in orders[d]:
                     o = orders[d]["geomfit"]
@@ -319,8 +328,8 @@ def report(outdir, out):
                     for i, name in enumerate(NORMS):
                         seed = seed_order(d, name)
                         if (d > 1 or i < 2) and o[i] < seed - 0.05:
-                            misses.append((seed / max(o[i], 1e-3), f"order {fam}{tag} d={d} {name}: "
-                                                                   f"{o[i]:.2f} < seed {seed} (CGAL {oc[i]:.2f})"))
+                            miss(seed / max(o[i], 1e-3), f"clean order {fam}{tag} d={d} (seed: normals d, H / K d-1)",
+                                 f"{name} {o[i]:.2f} < {seed} (CGAL {oc[i]:.2f})")
     out("\nObserved orders (least-squares slope over the 3 levels), ours / CGAL; seed: normals d, H and K d-1\n")
     out("| mesh | d | nrm L2 | nrm Linf | H L2 | H Linf | K L2 | K Linf |")
     out("|---|---:|---|---|---|---|---|---|")
@@ -347,7 +356,7 @@ def report(outdir, out):
         out(f"| {fam} L1 | " + " | ".join(f"{v:.2e}" for v in vals) + " |")
         for d, v in zip(range(1, 7), vals):
             if v >= math.sqrt(2):
-                misses.append((10.0, f"flipped normal: {fam} L1 d={d} normal Linf {v:.2f}"))
+                miss(10.0, "flipped normal (fit)", f"{fam} L1 d={d} normal Linf {v:.2f}")
 
     out("\n### Noisy / perturbed meshes: noise on and auto vs the best CGAL (noise or default stencils)\n")
     out("Cells: max over normal L2, normal Linf, H L2, K L2 of ours / min(CGAL, CGAL-d), levels 1 / 2 / 3; "
@@ -363,39 +372,45 @@ def report(outdir, out):
                 continue
             pert = "raw MC" if "raw" in label else f"{label.split('_')[1].replace('h3', '')} h^{k}"
             row = f"| {label.split('_')[0]} | {pert} | {d} |"
+            same = s.get("auto") == s.get("noise sp=-1")
             for name in ("noise sp=-1", "auto"):
                 if name not in s:
                     row += " - | - |"
                     continue
+                mode = "on = auto" if same else "on" if name != "auto" else "auto"
+                if same and name == "auto":
+                    mode = None  # reported once, as "on = auto"
                 lv = []
                 for i, e in enumerate(s[name]):
                     best = [min(a, b) for a, b in zip(s["CGAL"][i], s["CGAL-d"][i])]
                     lv.append(max(x / y for x, y in zip(e, best)))
-                    if i + 1 < len(s[name]) and lv[-1] > NOISY_TARGET:  # coarser levels (finest: below)
+                    if i + 1 < len(s[name]) and lv[-1] > NOISY_TARGET and mode:  # coarser levels (finest: below)
                         rs = [x / y for x, y in zip(e, best)]
-                        misses.append((lv[-1] / NOISY_TARGET, f"noisy (level {i + 1} of {len(s[name])}, not the "
-                                       f"finest) {label.split('_')[0]} {pert} d={d} {name.split()[0]}: {lv[-1]:.2f}x "
-                                       f"best CGAL at {['nrmL2', 'nrmLinf', 'HL2', 'KL2'][int(np.argmax(rs))]}"))
+                        miss(lv[-1] / NOISY_TARGET, f"noisy {label.split('_')[0]} {pert} d={d}, coarser levels "
+                             "(x best CGAL, target 0.7)", f"{mode} L{i + 1} {lv[-1]:.2f} at "
+                             f"{['nrmL2', 'nrmLinf', 'HL2', 'KL2'][int(np.argmax(rs))]}")
                 fin = r["finest"].get(name, [])
                 fmax = max(fin) if fin else math.nan
                 row += " " + " / ".join(f"**{x:.2f}**" if x > NOISY_TARGET else f"{x:.2f}" for x in lv) + " |"
                 row += (f" **{fmax:.2f}**" if fmax > NOISY_TARGET else f" {fmax:.2f}") + \
                        " (" + " ".join(f"{x:.2f}" for x in fin) + ") |"
-                if fmax > NOISY_TARGET:
+                if fmax > NOISY_TARGET and mode:
                     worst = NORMS[int(np.argmax(fin))]
-                    misses.append((fmax / NOISY_TARGET, f"noisy {label.split('_')[0]} {pert} d={d} {name.split()[0]}: "
-                                                        f"finest {fmax:.2f}x best CGAL at {worst} (all: "
-                                                        + " ".join(f"{x:.2f}" for x in fin) + ")"))
+                    miss(fmax / NOISY_TARGET, f"noisy {label.split('_')[0]} {pert} d={d}, finest level "
+                         "(x best CGAL, target 0.7)", f"{mode} {fmax:.2f} at {worst} (nL2 nLinf HL2 HLinf KL2 KLinf: "
+                         + " ".join(f"{x:.2f}" for x in fin) + ")")
             for name in ("noise sp=-1", "auto"):
                 os_ = r["orders"].get(name, [])
+                mode = "on = auto" if same else "on" if name != "auto" else "auto"
+                if same and name == "auto":
+                    mode = None
                 row += " " + " ".join(f"{x:.2f}" for x in os_) + " |"
                 # degree 2 on O(h^2)-perturbed input: normals ~O(h^2), curvatures ~O(h) (REFERENCE.md)
                 for i, (q, seed) in enumerate(zip(("nrmL2", "nrmLinf", "HL2", "KL2"), (2, 2, 1, 1))):
-                    if d == 2 and i < len(os_) and os_[i] < seed - 0.05:
-                        misses.append((seed / max(os_[i], 1e-3), f"noisy order {label.split('_')[0]} {pert} d=2 "
-                                                                 f"{name.split()[0]} {q}: {os_[i]:.2f} < {seed} (CGAL "
-                                                                 f"{r['orders']['CGAL'][i]:.2f}, CGAL-d "
-                                                                 f"{r['orders']['CGAL-d'][i]:.2f})"))
+                    if d == 2 and i < len(os_) and os_[i] < seed - 0.05 and mode:
+                        miss(seed / max(os_[i], 1e-3), f"noisy order {label.split('_')[0]} {pert} d=2 (normals 2, "
+                             "H / K 1)", f"{mode} {q} {os_[i]:.2f} < {seed} (CGAL {r['orders']['CGAL'][i]:.2f}, "
+                             f"CGAL-d {r['orders']['CGAL-d'][i]:.2f})")
             row += " " + " ".join(f"{x:.2f}" for x in r["orders"]["CGAL"]) + " / " + \
                 " ".join(f"{x:.2f}" for x in r["orders"]["CGAL-d"]) + " |"
             out(row)
@@ -432,13 +447,13 @@ def report(outdir, out):
                         ar = float(r["area_err_on"]) / float(r["area_err_off"])
                         cell += f" area {ar:.2f}"
                         if ar > SAFEGUARD_TARGET and float(r["area_err_on"]) > 1e-13 and not probe:
-                            misses.append((ar / SAFEGUARD_TARGET, f"safeguard {mesh} walf d={d} area error on/off {ar:.2f}"))
+                            miss(ar / SAFEGUARD_TARGET, "safeguard area error on / off", f"{mesh} walf d={d} {ar:.2f}")
                     if max(dr, nr) > SAFEGUARD_TARGET and not probe:
                         cell = f"**{cell}**"
-                        misses.append((max(dr, nr) / SAFEGUARD_TARGET, f"safeguard {mesh} {method} d={d}: "
-                                                                       f"distance x{dr:.2f}, normal x{nr:.2f}"))
+                        miss(max(dr, nr) / SAFEGUARD_TARGET, "safeguard on / off", f"{mesh} {method} d={d}: "
+                                                                       f"distance x{dr:.2f}, normal x{nr:.2f}")
                     if float(r["normal_on"]) >= math.sqrt(2):  # off may flip on very coarse meshes
-                        misses.append((10.0, f"flipped normal (reconstruction, safeguard on) {mesh} {method} d={d}"))
+                        miss(10.0, "flipped normal (reconstruction, safeguard on)", f"{mesh} {method} d={d}")
                     if float(r["normal_off"]) >= math.sqrt(2):
                         cell += " off flips"
                     row += f" {cell} |"
@@ -466,12 +481,14 @@ def report(outdir, out):
                 ratio = math.nan if math.isnan(off) else on / off if off > 0 else (1.0 if on == off else math.inf)
                 cells.append(f"{off:.2e} -> {on:.2e} ({ratio:.2f}); " + ("=" if diff == 0 else f"max diff {diff:.0e}"))
                 if ratio > SAFEGUARD_TARGET:
-                    misses.append((ratio / SAFEGUARD_TARGET, f"safeguard CLI {fam} mid d={d} {what}: x{ratio:.2f}"))
+                    miss(ratio / SAFEGUARD_TARGET, "safeguard CLI on / off", f"{fam} mid d={d} {what}: x{ratio:.2f}")
             out(f"| {fam} | {d} | " + " | ".join(cells) + " |")
 
-    out("\n### Every miss, worst first (badness = value / target, or seed / order)\n")
-    for bad, text in sorted(misses, key=lambda x: -x[0]):
-        out(f"- {bad:.2f}: {text}")
+    out("\n### Every miss, worst first\n")
+    out("Badness = value / target (or seed / order); per group its cells, worst first; L1-L3 = levels.\n")
+    for what, cells in sorted(misses.items(), key=lambda kv: -max(b for b, _ in kv[1])):
+        cells.sort(key=lambda c: -c[0])
+        out(f"- **{cells[0][0]:.2f}** {what}: " + "; ".join(c for _, c in cells))
     return misses
 
 
