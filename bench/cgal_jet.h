@@ -48,11 +48,18 @@ inline Differentials CgalDifferentials(const Mesh& mesh, const Neighborhoods& nb
         d.mean(v) = d.gaussian(v) = d.k1(v) = d.k2(v) = NAN;
         continue;
       }
-      CgalMongeVia::Monge_form m = fitter(pts.begin(), pts.end(), degree, 2);
+      // CGAL's precondition d_monge <= d_fitting: a degree-1 jet has a normal only (with
+      // d_monge = 2 CGAL read the curvature coefficients past the degree-1 solution).
+      const int monge = std::min(degree, 2);
+      CgalMongeVia::Monge_form m = fitter(pts.begin(), pts.end(), degree, monge);
       m.comply_wrt_given_normal(CgalKernel::Vector_3(orient(v, 0), orient(v, 1), orient(v, 2)));
       const auto n = m.normal_direction();
       d.normals.row(v) << n.x(), n.y(), n.z();
       d.normals.row(v).normalize();
+      if (monge < 2) {
+        d.mean(v) = d.gaussian(v) = d.k1(v) = d.k2(v) = NAN;
+        continue;
+      }
       const double c1 = m.principal_curvatures(0), c2 = m.principal_curvatures(1);
       d.k1(v) = std::max(-c1, -c2);
       d.k2(v) = std::min(-c1, -c2);

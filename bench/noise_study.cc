@@ -12,11 +12,11 @@
 // `torus@/dir/mc%d_raw.obj@/dir/mc%d_proj.obj` fits the first (alpha = 0: as read) and
 // measures at the second's vertices (same numbering, on the surface).
 // Overrides of the noise mode's fit (experiments): NOISE_MPF (min points factor),
-// NOISE_RINGS, NOISE_ND (normal_degree: a normal pre-fit after smoothing); NOISE_AUTO=1 runs
-// NoiseMode::kAuto instead of kOn. NOISE_DIAG=1
+// NOISE_RINGS, NOISE_ND (normal_degree: a normal pre-fit after smoothing). NOISE_DIAG=1
 // prints the errors within 3 rings of the boundary and inside separately.
 // NOISE_DUMP=prefix writes per-vertex exact / fitted H, K and normal errors of the noise
 // mode and CGAL to prefix_{noise,cgal}_SURFACE_dD_nN.txt (error distributions).
+// NOISE_AUTO=1 adds a series "auto" (FitOptions::noise = kAuto, otherwise default options).
 #include <algorithm>
 #include <cstdio>
 #include <cstdlib>
@@ -141,6 +141,8 @@ int main(int argc, char** argv) {
         std::vector<Series> series;
         series.push_back({"default", {}});
         for (const std::string& p : passes) series.push_back({"noise sp=" + p, {}});
+        const bool with_auto = std::getenv("NOISE_AUTO") != nullptr;
+        if (with_auto) series.push_back({"auto", {}});
         series.push_back({"CGAL", {}});
         series.push_back({"CGAL-d", {}});
         std::vector<double> hs;
@@ -168,7 +170,7 @@ int main(int argc, char** argv) {
           series[0].errors.push_back(MeasureErrors(clean, *surface, def));
           for (size_t i = 0; i < passes.size(); ++i) {
             FitOptions on = o;
-            on.noise = std::getenv("NOISE_AUTO") ? NoiseMode::kAuto : NoiseMode::kOn;
+            on.noise = NoiseMode::kOn;
             on.smoothing_passes = std::atoi(passes[i].c_str());
             if (const char* e = std::getenv("NOISE_MPF")) on.min_points_factor = std::atof(e);
             if (const char* e = std::getenv("NOISE_RINGS")) on.rings = std::atof(e);
@@ -180,6 +182,14 @@ int main(int argc, char** argv) {
             if (std::getenv("NOISE_DIAG")) Diagnose("noise", clean, *surface, dn, topo);
             if (const char* e = std::getenv("NOISE_DUMP"))
               Dump(std::string(e) + "_noise_" + parts[0] + "_d" + ds + "_n" + n + ".txt", clean, *surface, dn);
+          }
+          if (with_auto) {
+            FitOptions au = o;
+            au.noise = NoiseMode::kAuto;
+            watch = Stopwatch();
+            const Differentials da = ComputeDifferentials(*FitSurface(mesh, topo, au).value());
+            secs.push_back(watch.Seconds());
+            series[1 + passes.size()].errors.push_back(MeasureErrors(clean, *surface, da));
           }
           FitOptions on = o;
           on.noise = NoiseMode::kOn;
