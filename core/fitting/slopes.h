@@ -1,5 +1,6 @@
 #pragma once
 #include <cstdint>
+#include <cstdlib>
 
 #include "core/fitting/fit.h"
 #include "core/fitting/frames.h"
@@ -51,6 +52,12 @@ namespace geomfit {
 /// O(p^5) in a tilted frame) and its cubic form, the four cubic unknowns then correct that
 /// cubic (ridge 0.3%, weights s / (s + 0.5)^2.5), and only c20, c11, c02 are replaced:
 /// frames, normals and cubic terms stay the fit's.
+/// The degree-3 normal passes of FitOptions::cubic_hermite.
+inline int CubicSlopePasses() {
+  static const int p = std::getenv("GF_D3P") ? std::atoi(std::getenv("GF_D3P")) : 1;
+  return p;
+}
+
 absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighborhoods& nb, double cos_cut, int passes,
                           const RunContext& ctx, const VertexDiagnostics* diagnostics, LocalFrame* frames,
                           double* coefficients, int num_coefficients = 6);
