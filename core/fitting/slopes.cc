@@ -277,10 +277,7 @@ __attribute__((always_inline)) inline void CubicSlopeNormals(const Work& W, cons
   alignas(64) double acc[kMoments + 9][kLanes] = {};
   alignas(64) Lanes used = {};
   const double cos_cut = W.cos_cut;
-  static const double kEps = std::getenv("GF_D3E") ? std::atof(std::getenv("GF_D3E")) : 0.01;
-  static const double kSub = std::getenv("GF_D3S") ? std::atof(std::getenv("GF_D3S")) : 1.0;
-  static const double kRidge3 = std::getenv("GF_D3R") ? std::atof(std::getenv("GF_D3R")) : 1e-3;
-  static const double kPow = std::getenv("GF_D3W") ? std::atof(std::getenv("GF_D3W")) : 2.0;
+  constexpr double kEps = 0.01;
   for (int i = 0; i < B.rows; ++i) {
 #pragma omp simd
     for (int l = 0; l < B.lanes; ++l) {
@@ -291,17 +288,24 @@ __attribute__((always_inline)) inline void CubicSlopeNormals(const Work& W, cons
       const double cubic = B.f3[0][l] * pu * pu * pu + 3 * B.f3[1][l] * pu * pu * pw + 3 * B.f3[2][l] * pu * pw * pw +
                            B.f3[3][l] * pw * pw * pw;
       // h - p.G / 4 less the fit's cubic term's quarter
-      const double rhs = h + (u * nt1 + w * nt2) / (4 * (ok > 0 ? nm : 1.0)) - kSub * scale[l] * cubic / 24;
-      const double wt = ok * nm * std::pow(r2 + kEps, -kPow);
+      const double rhs = h + (u * nt1 + w * nt2) / (4 * (ok > 0 ? nm : 1.0)) - scale[l] * cubic / 24;
+      const double q = r2 + kEps, wt = ok * nm / (q * q);
       used[l] += ok;
-      double up[7], wp[7];
-      up[0] = wp[0] = 1;
-      for (int k = 1; k < 7; ++k) up[k] = up[k - 1] * u, wp[k] = wp[k - 1] * w;
-      for (int d = 2; d < 7; ++d)
-        for (int q = 0; q <= d; ++q) acc[kBase[d] + q][l] += wt * up[d - q] * wp[q];
-      const double wr = wt * rhs;
-      for (int d = 1, c = 0; d < 4; ++d)
-        for (int q = 0; q <= d; ++q, ++c) acc[kMoments + c][l] += wr * up[d - q] * wp[q];
+      // (Scalars, not arrays: arrays in a simd loop keep GCC from vectorizing it.)
+      const double uu = u * u, uw = u * w, ww = w * w, u3 = uu * u, u2w = uu * w, uw2 = u * ww, w3 = ww * w;
+      const double p20 = wt * uu, p11 = wt * uw, p02 = wt * ww, wr = wt * rhs;
+      acc[0][l] += p20, acc[1][l] += p11, acc[2][l] += p02;
+      acc[3][l] += wt * u3, acc[4][l] += wt * u2w, acc[5][l] += wt * uw2, acc[6][l] += wt * w3;
+      acc[7][l] += p20 * uu, acc[8][l] += p20 * uw, acc[9][l] += p20 * ww, acc[10][l] += p11 * ww,
+          acc[11][l] += p02 * ww;
+      acc[12][l] += p20 * u3, acc[13][l] += p20 * u2w, acc[14][l] += p20 * uw2, acc[15][l] += p20 * w3,
+          acc[16][l] += p11 * w3, acc[17][l] += p02 * w3;
+      acc[18][l] += p20 * uu * uu, acc[19][l] += p20 * uu * uw, acc[20][l] += p20 * uu * ww,
+          acc[21][l] += p20 * uw * ww, acc[22][l] += p20 * ww * ww, acc[23][l] += p11 * ww * ww,
+          acc[24][l] += p02 * ww * ww;
+      acc[25][l] += wr * u, acc[26][l] += wr * w, acc[27][l] += wr * uu, acc[28][l] += wr * uw,
+          acc[29][l] += wr * ww, acc[30][l] += wr * u3, acc[31][l] += wr * u2w, acc[32][l] += wr * uw2,
+          acc[33][l] += wr * w3;
     }
   }
   // Columns u^p w^q, 1 <= p + q <= 3: entry (i, j) the moment of the summed exponents.
@@ -326,9 +330,10 @@ __attribute__((always_inline)) inline void CubicSlopeNormals(const Work& W, cons
   }
 #pragma omp simd
   for (int l = 0; l < kLanes; ++l) ok[l] = used[l] >= 9 && scale[l] > 0 ? 1.0 : 0.0;
+  static const double kRidge = std::getenv("GF_D3R") ? std::atof(std::getenv("GF_D3R")) : 1e-2;
   for (int i = 5; i < 9; ++i)
 #pragma omp simd
-    for (int l = 0; l < kLanes; ++l) a[i][i][l] += kRidge3;
+    for (int l = 0; l < kLanes; ++l) a[i][i][l] += kRidge;
   SolveSpdLanes<9>(a, b, 1e-12, ok);
   static const int kMode = std::getenv("GF_D3M") ? std::atoi(std::getenv("GF_D3M")) : 0;
   alignas(64) double nn[3][kLanes];
@@ -492,10 +497,18 @@ __attribute__((target_clones("arch=x86-64-v4", "avx2", "default"))) void Normals
   for (int64_t j = k0; j < k1; j += kLanes) {
     PrefetchBatch(W, W.xn[from], j + kLanes, k1);
     B->Load(W, W.xn[from], W.walk.data() + j, static_cast<int>(std::min<int64_t>(kLanes, k1 - j)));
-    if (W.centre)
-      CubicSlopeNormals(W, *B, W.xn[1 - from]);
-    else
-      SlopeNormals(W, *B, W.xn[1 - from]);
+    SlopeNormals(W, *B, W.xn[1 - from]);
+  }
+}
+
+__attribute__((target_clones("arch=x86-64-v4", "avx2", "default"))) void CubicNormalsRange(const Work& W, int from,
+                                                                                            int64_t k0, int64_t k1) {
+  std::unique_ptr<Batch> B(new Batch);
+  PrefetchBatch(W, W.xn[from], k0, k1);
+  for (int64_t j = k0; j < k1; j += kLanes) {
+    PrefetchBatch(W, W.xn[from], j + kLanes, k1);
+    B->Load(W, W.xn[from], W.walk.data() + j, static_cast<int>(std::min<int64_t>(kLanes, k1 - j)));
+    CubicSlopeNormals(W, *B, W.xn[1 - from]);
   }
 }
 
@@ -581,7 +594,12 @@ absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighbor
   int from = 0;
   for (int pass = 0; pass < passes; ++pass, from = 1 - from)
     GF_RETURN_IF_ERROR(ParallelFor(
-        chunks, ctx, [&](int64_t c) { NormalsRange(W, from, c * kGrain, std::min<int64_t>(nv, (c + 1) * kGrain)); }, 1));
+        chunks, ctx,
+        [&](int64_t c) {
+          const int64_t k0 = c * kGrain, k1 = std::min<int64_t>(nv, (c + 1) * kGrain);
+          W.centre ? CubicNormalsRange(W, from, k0, k1) : NormalsRange(W, from, k0, k1);
+        },
+        1));
   GF_RETURN_IF_ERROR(ParallelFor(
       chunks, ctx, [&](int64_t c) { HessiansRange(W, from, c * kGrain, std::min<int64_t>(nv, (c + 1) * kGrain)); },
       1));
