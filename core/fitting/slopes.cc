@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstdlib>
 #include <memory>
 #include <vector>
 
@@ -84,7 +83,8 @@ struct Work {
   double cos_cut = 0;
   bool own_radius = false;           // no normal pass: the Hessian pass measures the stencils' radii
   double* centre = nullptr;          // with own_radius: per slot the fit's frame normal (the Hessians
-                                     //   stay in the fits' frames) and cubic derivatives, kCentre doubles
+                                     //   stay in the fits' frames) and cubic derivatives (the fit's, then
+                                     //   each normal pass's), kCentre doubles
   int Vertex(int64_t k) const { return order ? order[k] : static_cast<int>(k); }
   int Size(int64_t k) const { return std::min(offsets[k + 1] - offsets[k], kMaxStencil); }
 };
@@ -251,17 +251,24 @@ __attribute__((always_inline)) inline void SlopeNormals(const Work& W, const Bat
 }
 
 // Pass 1 at degree 3 (Work::centre; see slopes.h): in the fit's frame, with G_j the
-// gradient of the point's normal there, h_j - p_j.G_j / 4 = sum_k (1 - k/4) T_k(p_j)
-// (Euler: p.grad T_k = k T_k for the homogeneous Taylor terms T_k), so the quartic term,
-// the leading error of a degree-3 fit's gradient (2.5), cancels; the rest lies in the
-// degree-3 fit's columns (u, w, the quadratics, the cubics) up to the quintic's O(p^5).
-// The fitted linear term L = (3/4) a - mean(e_j) / 4 (a: the gradient, e_j: the
-// neighbours' slope errors); the pass reports L + g_0 / 4 (g_0: the vertex's own current
-// gradient, error e_0), whose error (e_0 - mean e_j) / 4 loses the smooth part of the
-// bias, as the degree-2 pass's (e_0 - mean e_j) / 3 does. Weights n.m / r^4 (r in units
-// of the first neighbour's distance); the normal matrix Jacobi-scaled before its
-// Cholesky factorisation. Each lane's record into `out` as SlopeNormals' (kRadius2 unused:
-// the Hessian pass measures its own radius).
+// gradient of the height at p_j from the point's normal, h_j - p_j.G_j / 4 =
+// sum_k (1 - k/4) T_k(p_j) (Euler: p.grad T_k = k T_k for the homogeneous Taylor terms T_k
+// of (2.3.1)), so the quartic term, the leading error of a degree-3 fit's gradient (§2.5),
+// cancels and the rest lies in the degree-3 fit's columns (u, w, the quadratics, the
+// cubics) up to the quintic's O(p^5). Fitted: the rows less a quarter of the fit's cubic
+// term, so the four cubic unknowns are (C - C_fit) / 24 and get a ridge (kRidge, relative
+// to the Jacobi-scaled diagonal) towards the fit's cubic: on marching-cubes stencils whose
+// points lie on two circles about the vertex, u (u^2 + w^2) nearly repeats u and the
+// neighbours' slope errors would otherwise reach the gradient magnified (mc N = 128:
+// normal Linf 1.5x CGAL's without the ridge, bench/README.md `d3nrm`). The fitted linear
+// term L = (3/4) a - mean(e_j) / 4 (a: the gradient, e_j: the neighbours' slope errors);
+// the pass reports L + g_0 / 4 (g_0: the vertex's current gradient, error e_0), whose error
+// (e_0 - mean e_j) / 4 loses the smooth part of the bias, as the degree-2 pass's
+// (e_0 - mean e_j) / 3 does. Row weights gamma n.m / (s + 0.01)^2 in s = r^2 / radius^2
+// (the safeguard gamma of (2.2.1) as 0 or 1). Each lane's record into `out` as
+// SlopeNormals' (kRadius2 unused: the Hessian pass measures its own radius), and the
+// fitted cubic into Work::centre (the lane's own slot only), so the Hessian pass subtracts
+// a gradient and a cubic that were fitted together.
 __attribute__((always_inline)) inline void CubicSlopeNormals(const Work& W, const Batch& B, double* out) {
   // Lengths in units of the stencil's radius (its farthest point in space).
   alignas(64) Lanes scale = {};
@@ -277,7 +284,7 @@ __attribute__((always_inline)) inline void CubicSlopeNormals(const Work& W, cons
   alignas(64) double acc[kMoments + 9][kLanes] = {};
   alignas(64) Lanes used = {};
   const double cos_cut = W.cos_cut;
-  constexpr double kEps = 0.01;
+  constexpr double kEps = 0.01, kRidge = 0.01;
   for (int i = 0; i < B.rows; ++i) {
 #pragma omp simd
     for (int l = 0; l < B.lanes; ++l) {
@@ -330,17 +337,15 @@ __attribute__((always_inline)) inline void CubicSlopeNormals(const Work& W, cons
   }
 #pragma omp simd
   for (int l = 0; l < kLanes; ++l) ok[l] = used[l] >= 9 && scale[l] > 0 ? 1.0 : 0.0;
-  static const double kRidge = std::getenv("GF_D3R") ? std::atof(std::getenv("GF_D3R")) : 1e-2;
   for (int i = 5; i < 9; ++i)
 #pragma omp simd
     for (int l = 0; l < kLanes; ++l) a[i][i][l] += kRidge;
   SolveSpdLanes<9>(a, b, 1e-12, ok);
-  static const int kMode = std::getenv("GF_D3M") ? std::atoi(std::getenv("GF_D3M")) : 0;
   alignas(64) double nn[3][kLanes];
 #pragma omp simd
   for (int l = 0; l < B.lanes; ++l) {
     const double l1 = b[0][l] * jacobi[0][l], l2 = b[1][l] * jacobi[1][l];
-    const double a1 = kMode ? l1 * (4.0 / 3) : l1 + B.g1[l] / 4, a2 = kMode ? l2 * (4.0 / 3) : l2 + B.g2[l] / 4;
+    const double a1 = l1 + B.g1[l] / 4, a2 = l2 + B.g2[l] / 4;  // the new gradient
     double v[3];
     for (int c = 0; c < 3; ++c) v[c] = B.m[c][l] - a1 * B.t1[c][l] - a2 * B.t2[c][l];
     const double len = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
@@ -357,8 +362,7 @@ __attribute__((always_inline)) inline void CubicSlopeNormals(const Work& W, cons
     for (int c = 0; c < 3; ++c) dst[3 + c] = refined ? nn[c][l] : self[3 + c];
     dst[kRadius2] = 0.0;
     dst[kFitted] = self[kFitted];
-    static const bool kCub = std::getenv("GF_D3C") ? std::atoi(std::getenv("GF_D3C")) != 0 : true;
-    if (refined && kCub) {  // the cubic with it: its correction (1/4)(C - C_fit)/6 in monomials, radius units
+    if (refined) {  // the cubic with it: its correction (1/4)(C - C_fit)/6 in monomials, radius units
       double* f3 = W.centre + kCentre * k + 3;
       const double s2 = scale[l] * scale[l];
       f3[0] += 24 * b[5][l] * jacobi[5][l] * s2, f3[1] += 8 * b[6][l] * jacobi[6][l] * s2;
