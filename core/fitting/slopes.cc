@@ -319,13 +319,13 @@ __attribute__((always_inline)) inline void CubicSlopeNormals(const Work& W, cons
   static constexpr int kP[9] = {1, 0, 2, 1, 0, 3, 2, 1, 0}, kQ[9] = {0, 1, 0, 1, 2, 0, 1, 2, 3};
   alignas(64) double a[9][9][kLanes], b[9][kLanes], jacobi[9][kLanes];
   alignas(64) Lanes ok;
-  for (int i = 0; i < 9; ++i) {
+  static constexpr int kDiag[9] = {0, 2, 7, 9, 11, 18, 20, 22, 24};  // moments u^2p w^2q (kBase)
 #pragma omp simd
-    for (int l = 0; l < kLanes; ++l) {
-      const double d = acc[kBase[2 * kP[i] + 2 * kQ[i]] + 2 * kQ[i]][l];
+  for (int l = 0; l < B.lanes; ++l)
+    for (int i = 0; i < 9; ++i) {
+      const double d = acc[kDiag[i]][l];
       jacobi[i][l] = 1 / std::sqrt(d > 0 ? d : 1.0);
     }
-  }
   for (int i = 0; i < 9; ++i) {
     for (int j = i; j < 9; ++j) {
       const int k = kBase[kP[i] + kP[j] + kQ[i] + kQ[j]] + kQ[i] + kQ[j];
