@@ -255,9 +255,9 @@ __attribute__((always_inline)) inline void SlopeNormals(const Work& W, const Bat
 // sum_k (1 - k/4) T_k(p_j) (Euler: p.grad T_k = k T_k for the homogeneous Taylor terms T_k
 // of (2.3.1)), so the quartic term, the leading error of a degree-3 fit's gradient (§2.5),
 // cancels and the rest lies in the degree-3 fit's columns (u, w, the quadratics, the
-// cubics) up to the quintic's O(p^5). Fitted: the rows less a quarter of the fit's cubic
-// term, so the four cubic unknowns are (C - C_fit) / 24 and get a ridge (kRidge, relative
-// to the Jacobi-scaled diagonal) towards the fit's cubic: on marching-cubes stencils whose
+// cubics) up to the quintic's O(p^5). Fitted: the rows less a quarter of the current cubic
+// term C_0 (the fit's, then the previous pass's), so the four cubic unknowns are
+// (C - C_0) / 24 and get a ridge (kRidge, relative to the Jacobi-scaled diagonal) towards C_0: on marching-cubes stencils whose
 // points lie on two circles about the vertex, u (u^2 + w^2) nearly repeats u and the
 // neighbours' slope errors would otherwise reach the gradient magnified (mc N = 128:
 // normal Linf 1.5x CGAL's without the ridge, bench/README.md `d3nrm`). The fitted linear
@@ -294,7 +294,7 @@ __attribute__((always_inline)) inline void CubicSlopeNormals(const Work& W, cons
       const double u = pu * scale[l], w = pw * scale[l], h = ph * scale[l], r2 = u * u + w * w;
       const double cubic = B.f3[0][l] * pu * pu * pu + 3 * B.f3[1][l] * pu * pu * pw + 3 * B.f3[2][l] * pu * pw * pw +
                            B.f3[3][l] * pw * pw * pw;
-      // h - p.G / 4 less the fit's cubic term's quarter
+      // h - p.G / 4 less a quarter of the current cubic term
       const double rhs = h + (u * nt1 + w * nt2) / (4 * (ok > 0 ? nm : 1.0)) - scale[l] * cubic / 24;
       const double q = r2 + kEps, wt = ok * nm / (q * q);
       used[l] += ok;
@@ -362,7 +362,7 @@ __attribute__((always_inline)) inline void CubicSlopeNormals(const Work& W, cons
     for (int c = 0; c < 3; ++c) dst[3 + c] = refined ? nn[c][l] : self[3 + c];
     dst[kRadius2] = 0.0;
     dst[kFitted] = self[kFitted];
-    if (refined) {  // the cubic with it: its correction (1/4)(C - C_fit)/6 in monomials, radius units
+    if (refined) {  // the cubic with it: the unknowns are (C - C_0) / 24 in monomials, radius units
       double* f3 = W.centre + kCentre * k + 3;
       const double s2 = scale[l] * scale[l];
       f3[0] += 24 * b[5][l] * jacobi[5][l] * s2, f3[1] += 8 * b[6][l] * jacobi[6][l] * s2;
