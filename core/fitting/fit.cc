@@ -524,7 +524,8 @@ class SurfaceFitter {
         return s;
       if (slopes) {
         GF_RETURN_IF_ERROR(RefineSlopes(*input, topo, *pass_nb, std::cos(pass_options.safeguard_angle_deg * M_PI / 180.0),
-                                        pass_options.SlopePasses(), ctx, fits->diagnostics_.data(),
+                                        pass_options.CubicHermite() ? kCubicSlopePasses : pass_options.SlopePasses(),
+                                        ctx, fits->diagnostics_.data(),
                                         fits->frames_.data(), fits->coefficients_.data(), fits->num_coefficients()));
         if (on_fitted) on_fitted(*fits, 0, mesh.NumVertices());
       }

@@ -105,14 +105,17 @@ struct FitOptions {
   /// max-norm ones growing towards 0.5x on fine marching-cubes meshes (bench/README.md). Not for
   /// noisy input.
   int slope_refinement = 0;
-  /// Hermite curvatures of degree-3 fits (interpolating LHF fits with the QR solver, noise
-  /// off): after the fit, its Hessian is refitted to the Hermite rows of the slope
-  /// refinement's curvature pass (slopes.h, hermite.h: 4 h_j / r_j^2 - g_j / r_j, the quartic
-  /// term cancels, the cubic form as four more unknowns) with the neighbours' fitted
-  /// normals, in the frame of the vertex's fitted normal (c10 = c01 = 0); normals and the
-  /// cubic terms stay the fit's. A degree-3 fit's Hessian otherwise carries the quartic
-  /// term through the stencil's even moments: H and K 0.55-0.96x CGAL's with it off
-  /// (bench/README.md, `clean4`). Ignored by the GFD operators (FitRequest::stencils).
+  /// Slope refinement and Hermite curvatures of degree-3 fits (interpolating LHF fits with
+  /// the QR solver, noise off): after the fit, two normal passes over its stencils with the
+  /// neighbours' normals (slopes.h: h_j - p_j.G_j / 4, in which the quartic term, the
+  /// leading error of the fit's gradient, cancels; each pass shrinks the neighbours' errors
+  /// by 4 and cancels their smooth part), then the vertex's Hessian refitted to the Hermite
+  /// rows of the slope refinement's curvature pass (hermite.h: 4 h_j / r_j^2 - g_j / r_j,
+  /// the quartic term cancels, the cubic form as four more unknowns) with the refined
+  /// normals, in the fit's frame. The fit's c10, c01 (the normal) and c20, c11, c02 change;
+  /// its cubic terms stay. Off, normals are 0.45-0.63x (0.89x Linf on a marching-cubes
+  /// torus) and H, K 0.55-0.96x CGAL Jet_fitting_3's; on, normals 0.03-0.32x, H, K <= 0.54x
+  /// (bench/README.md, `clean4`, `d3nrm`). Ignored by the GFD operators (FitRequest::stencils).
   bool cubic_hermite = true;
 
   /// Whether the Hermite curvatures apply (see hermite_hessian).

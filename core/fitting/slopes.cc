@@ -82,8 +82,9 @@ struct Work {
   std::vector<int32_t> walk;         // the slots in batch order: each chunk's sorted by stencil size
   double cos_cut = 0;
   bool own_radius = false;           // no normal pass: the Hessian pass measures the stencils' radii
-  const double* centre = nullptr;    // with own_radius: per slot the fit's frame normal (the Hessians
-                                     //   stay in the fits' frames) and cubic derivatives, kCentre doubles
+  double* centre = nullptr;          // with own_radius: per slot the fit's frame normal (the Hessians
+                                     //   stay in the fits' frames) and cubic derivatives (the fit's, then
+                                     //   each normal pass's), kCentre doubles
   int Vertex(int64_t k) const { return order ? order[k] : static_cast<int>(k); }
   int Size(int64_t k) const { return std::min(offsets[k + 1] - offsets[k], kMaxStencil); }
 };
@@ -249,6 +250,127 @@ __attribute__((always_inline)) inline void SlopeNormals(const Work& W, const Bat
   }
 }
 
+// Pass 1 at degree 3 (Work::centre; see slopes.h): in the fit's frame, with G_j the
+// gradient of the height at p_j from the point's normal, h_j - p_j.G_j / 4 =
+// sum_k (1 - k/4) T_k(p_j) (Euler: p.grad T_k = k T_k for the homogeneous Taylor terms T_k
+// of (2.3.1)), so the quartic term, the leading error of a degree-3 fit's gradient (§2.5),
+// cancels and the rest lies in the degree-3 fit's columns (u, w, the quadratics, the
+// cubics) up to the quintic's O(p^5). Fitted: the rows less a quarter of the current cubic
+// term C_0 (the fit's, then the previous pass's), so the four cubic unknowns are
+// (C - C_0) / 24 and get a ridge (kRidge, relative to the Jacobi-scaled diagonal) towards C_0: on marching-cubes stencils whose
+// points lie on two circles about the vertex, u (u^2 + w^2) nearly repeats u and the
+// neighbours' slope errors would otherwise reach the gradient magnified (mc N = 128:
+// normal Linf 1.5x CGAL's without the ridge, bench/README.md `d3nrm`). The fitted linear
+// term L = (3/4) a - mean(e_j) / 4 (a: the gradient, e_j: the neighbours' slope errors);
+// the pass reports L + g_0 / 4 (g_0: the vertex's current gradient, error e_0), whose error
+// (e_0 - mean e_j) / 4 loses the smooth part of the bias, as the degree-2 pass's
+// (e_0 - mean e_j) / 3 does. Row weights gamma n.m / (s + 0.01)^2 in s = r^2 / radius^2
+// (the safeguard gamma of (2.2.1) as 0 or 1). Each lane's record into `out` as
+// SlopeNormals' (kRadius2 unused: the Hessian pass measures its own radius), and the
+// fitted cubic into Work::centre (the lane's own slot only), so the Hessian pass subtracts
+// a gradient and a cubic that were fitted together.
+__attribute__((always_inline)) inline void CubicSlopeNormals(const Work& W, const Batch& B, double* out) {
+  // Lengths in units of the stencil's radius (its farthest point in space).
+  alignas(64) Lanes scale = {};
+  for (int i = 0; i < B.rows; ++i)
+#pragma omp simd
+    for (int l = 0; l < B.lanes; ++l)
+      scale[l] = std::max(scale[l], B.live[i][l] * (B.dx[i][l] * B.dx[i][l] + B.dy[i][l] * B.dy[i][l] +
+                                                    B.dz[i][l] * B.dz[i][l]));
+#pragma omp simd
+  for (int l = 0; l < B.lanes; ++l) scale[l] = scale[l] > 0 ? 1 / std::sqrt(scale[l]) : 0.0;
+  // Moments u^p w^q of degrees 2..6 (degree d's at kBase[d] + q), then the right-hand sides.
+  static constexpr int kBase[7] = {0, 0, 0, 3, 7, 12, 18}, kMoments = 25;
+  alignas(64) double acc[kMoments + 9][kLanes] = {};
+  alignas(64) Lanes used = {};
+  const double cos_cut = W.cos_cut;
+  constexpr double kEps = 0.01, kRidge = 0.01;
+  for (int i = 0; i < B.rows; ++i) {
+#pragma omp simd
+    for (int l = 0; l < B.lanes; ++l) {
+      double pu, pw, ph, nm, nt1, nt2;
+      Project(B, i, l, pu, pw, ph, nm, nt1, nt2);
+      const double ok = (nm >= cos_cut ? 1.0 : 0.0) * B.live[i][l];  // the safeguard gamma of (2.2.1), 0 or 1
+      const double u = pu * scale[l], w = pw * scale[l], h = ph * scale[l], r2 = u * u + w * w;
+      const double cubic = B.f3[0][l] * pu * pu * pu + 3 * B.f3[1][l] * pu * pu * pw + 3 * B.f3[2][l] * pu * pw * pw +
+                           B.f3[3][l] * pw * pw * pw;
+      // h - p.G / 4 less a quarter of the current cubic term
+      const double rhs = h + (u * nt1 + w * nt2) / (4 * (ok > 0 ? nm : 1.0)) - scale[l] * cubic / 24;
+      const double q = r2 + kEps, wt = ok * nm / (q * q);
+      used[l] += ok;
+      // (Scalars, not arrays: arrays in a simd loop keep GCC from vectorizing it.)
+      const double uu = u * u, uw = u * w, ww = w * w, u3 = uu * u, u2w = uu * w, uw2 = u * ww, w3 = ww * w;
+      const double p20 = wt * uu, p11 = wt * uw, p02 = wt * ww, wr = wt * rhs;
+      acc[0][l] += p20, acc[1][l] += p11, acc[2][l] += p02;
+      acc[3][l] += wt * u3, acc[4][l] += wt * u2w, acc[5][l] += wt * uw2, acc[6][l] += wt * w3;
+      acc[7][l] += p20 * uu, acc[8][l] += p20 * uw, acc[9][l] += p20 * ww, acc[10][l] += p11 * ww,
+          acc[11][l] += p02 * ww;
+      acc[12][l] += p20 * u3, acc[13][l] += p20 * u2w, acc[14][l] += p20 * uw2, acc[15][l] += p20 * w3,
+          acc[16][l] += p11 * w3, acc[17][l] += p02 * w3;
+      acc[18][l] += p20 * uu * uu, acc[19][l] += p20 * uu * uw, acc[20][l] += p20 * uu * ww,
+          acc[21][l] += p20 * uw * ww, acc[22][l] += p20 * ww * ww, acc[23][l] += p11 * ww * ww,
+          acc[24][l] += p02 * ww * ww;
+      acc[25][l] += wr * u, acc[26][l] += wr * w, acc[27][l] += wr * uu, acc[28][l] += wr * uw,
+          acc[29][l] += wr * ww, acc[30][l] += wr * u3, acc[31][l] += wr * u2w, acc[32][l] += wr * uw2,
+          acc[33][l] += wr * w3;
+    }
+  }
+  // Columns u^p w^q, 1 <= p + q <= 3: entry (i, j) the moment of the summed exponents.
+  static constexpr int kP[9] = {1, 0, 2, 1, 0, 3, 2, 1, 0}, kQ[9] = {0, 1, 0, 1, 2, 0, 1, 2, 3};
+  alignas(64) double a[9][9][kLanes], b[9][kLanes], jacobi[9][kLanes];
+  alignas(64) Lanes ok;
+  static constexpr int kDiag[9] = {0, 2, 7, 9, 11, 18, 20, 22, 24};  // moments u^2p w^2q (kBase)
+#pragma omp simd
+  for (int l = 0; l < B.lanes; ++l)
+    for (int i = 0; i < 9; ++i) {
+      const double d = acc[kDiag[i]][l];
+      jacobi[i][l] = 1 / std::sqrt(d > 0 ? d : 1.0);
+    }
+  for (int i = 0; i < 9; ++i) {
+    for (int j = i; j < 9; ++j) {
+      const int k = kBase[kP[i] + kP[j] + kQ[i] + kQ[j]] + kQ[i] + kQ[j];
+#pragma omp simd
+      for (int l = 0; l < kLanes; ++l) a[i][j][l] = acc[k][l] * jacobi[i][l] * jacobi[j][l];
+    }
+#pragma omp simd
+    for (int l = 0; l < kLanes; ++l) b[i][l] = acc[kMoments + i][l] * jacobi[i][l];
+  }
+#pragma omp simd
+  for (int l = 0; l < kLanes; ++l) ok[l] = used[l] >= 9 && scale[l] > 0 ? 1.0 : 0.0;
+  for (int i = 5; i < 9; ++i)
+#pragma omp simd
+    for (int l = 0; l < kLanes; ++l) a[i][i][l] += kRidge;
+  SolveSpdLanes<9>(a, b, 1e-12, ok);
+  alignas(64) double nn[3][kLanes];
+#pragma omp simd
+  for (int l = 0; l < B.lanes; ++l) {
+    const double l1 = b[0][l] * jacobi[0][l], l2 = b[1][l] * jacobi[1][l];
+    const double a1 = l1 + B.g1[l] / 4, a2 = l2 + B.g2[l] / 4;  // the new gradient
+    double v[3];
+    for (int c = 0; c < 3; ++c) v[c] = B.m[c][l] - a1 * B.t1[c][l] - a2 * B.t2[c][l];
+    const double len = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+    const bool good = ok[l] > 0 && len > 0 && len < HUGE_VAL;
+    for (int c = 0; c < 3; ++c) nn[c][l] = good ? v[c] / len : 0.0;
+    ok[l] = good ? 1.0 : 0.0;
+  }
+  for (int l = 0; l < B.count; ++l) {
+    const int64_t k = B.slot[l];
+    const double* self = B.xn + kRec * k;
+    const bool refined = self[kFitted] != 0 && ok[l] > 0;  // else its own normal
+    double* dst = out + kRec * k;
+    dst[0] = B.x[l], dst[1] = B.y[l], dst[2] = B.z[l];
+    for (int c = 0; c < 3; ++c) dst[3 + c] = refined ? nn[c][l] : self[3 + c];
+    dst[kRadius2] = 0.0;
+    dst[kFitted] = self[kFitted];
+    if (refined) {  // the cubic with it: the unknowns are (C - C_0) / 24 in monomials, radius units
+      double* f3 = W.centre + kCentre * k + 3;
+      const double s2 = scale[l] * scale[l];
+      f3[0] += 24 * b[5][l] * jacobi[5][l] * s2, f3[1] += 8 * b[6][l] * jacobi[6][l] * s2;
+      f3[2] += 8 * b[7][l] * jacobi[7][l] * s2, f3[3] += 24 * b[8][l] * jacobi[8][l] * s2;
+    }
+  }
+}
+
 // Pass 2 on a batch: each lane's Hessian (c20, c11, c02) in its frame (the refined
 // normal's), fitted to the Hermite rows (hermite.h) together with the cubic form C of
 // their remainder C r / 6 (four more unknowns; the rows' value is
@@ -383,6 +505,17 @@ __attribute__((target_clones("arch=x86-64-v4", "avx2", "default"))) void Normals
   }
 }
 
+__attribute__((target_clones("arch=x86-64-v4", "avx2", "default"))) void CubicNormalsRange(const Work& W, int from,
+                                                                                            int64_t k0, int64_t k1) {
+  std::unique_ptr<Batch> B(new Batch);
+  PrefetchBatch(W, W.xn[from], k0, k1);
+  for (int64_t j = k0; j < k1; j += kLanes) {
+    PrefetchBatch(W, W.xn[from], j + kLanes, k1);
+    B->Load(W, W.xn[from], W.walk.data() + j, static_cast<int>(std::min<int64_t>(kLanes, k1 - j)));
+    CubicSlopeNormals(W, *B, W.xn[1 - from]);
+  }
+}
+
 __attribute__((target_clones("arch=x86-64-v4", "avx2", "default"))) void HessiansRange(const Work& W, int from,
                                                                                         int64_t k0, int64_t k1) {
   std::unique_ptr<Batch> B(new Batch);
@@ -398,7 +531,7 @@ __attribute__((target_clones("arch=x86-64-v4", "avx2", "default"))) void Hessian
     for (int l = 0; l < n; ++l) {
       const int64_t k = B->slot[l];
       double* out = W.xn[1 - from] + kRec * k;
-      for (int c = 0; c < 3; ++c) out[c] = hess[c][l], out[4 + c] = B->m[c][l];
+      for (int c = 0; c < 3; ++c) out[c] = hess[c][l], out[4 + c] = B->xn[kRec * k + 3 + c];
       out[3] = ok[l];
       out[kFitted] = B->xn[kRec * k + kFitted];
     }
@@ -415,7 +548,7 @@ absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighbor
   Work W;
   W.nv = nv;
   W.cos_cut = cos_cut;
-  W.own_radius = passes == 0;
+  W.own_radius = num_coefficients >= 10;  // degree 3: no kRadius2 from the normal passes
   // Stencils as slots: the neighbourhoods' own in the topology's locality order (built
   // with them, else here), or their CSR in vertex order.
   const bool local = static_cast<int>(topo.locality_order.size()) == nv;
@@ -437,7 +570,7 @@ absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighbor
   // slots at random: one line a vertex instead of three).
   const int32_t* rank = os ? os->rank.data() : nullptr;
   auto slot_of = [&](int64_t v) -> int64_t { return rank ? rank[v] : v; };
-  std::unique_ptr<double[]> centre(W.own_radius ? new double[kCentre * static_cast<size_t>(nv)] : nullptr);
+  std::unique_ptr<double[]> centre(num_coefficients >= 10 ? new double[kCentre * static_cast<size_t>(nv)] : nullptr);
   W.centre = centre.get();
   ParallelFor(nv, threads, [&](int64_t v) {
     if (v + 16 < nv) __builtin_prefetch(W.xn[0] + kRec * slot_of(v + 16), 1);
@@ -465,7 +598,12 @@ absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighbor
   int from = 0;
   for (int pass = 0; pass < passes; ++pass, from = 1 - from)
     GF_RETURN_IF_ERROR(ParallelFor(
-        chunks, ctx, [&](int64_t c) { NormalsRange(W, from, c * kGrain, std::min<int64_t>(nv, (c + 1) * kGrain)); }, 1));
+        chunks, ctx,
+        [&](int64_t c) {
+          const int64_t k0 = c * kGrain, k1 = std::min<int64_t>(nv, (c + 1) * kGrain);
+          W.centre ? CubicNormalsRange(W, from, k0, k1) : NormalsRange(W, from, k0, k1);
+        },
+        1));
   GF_RETURN_IF_ERROR(ParallelFor(
       chunks, ctx, [&](int64_t c) { HessiansRange(W, from, c * kGrain, std::min<int64_t>(nv, (c + 1) * kGrain)); },
       1));
@@ -477,8 +615,12 @@ absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighbor
     const double* x = refined + kRec * slot_of(v);
     if (x[kFitted] == 0) return;
     double* c = coefficients + v * num_coefficients;
-    if (W.centre) {  // the fit's frame, tangent plane and cubic terms kept
+    if (W.centre) {  // the fit's frame and cubic terms kept; the refined normal as its gradient
       if (x[3] > 0) c[TaylorIndex(2, 0)] = x[0], c[TaylorIndex(1, 1)] = x[1], c[TaylorIndex(0, 2)] = x[2];
+      const LocalFrame& fr = frames[v];
+      const Eigen::Vector3d n(x[4], x[5], x[6]);
+      const double nm = n.dot(fr.normal);
+      if (passes > 0 && nm > 0) c[TaylorIndex(1, 0)] = -n.dot(fr.t1) / nm, c[TaylorIndex(0, 1)] = -n.dot(fr.t2) / nm;
       return;
     }
     frames[v] = FrameFromNormal(Eigen::Vector3d(mesh.positions(v, 0), mesh.positions(v, 1), mesh.positions(v, 2)),

@@ -70,12 +70,12 @@ paste out.tsv sr.tsv | awk -F'\t' 'NR > 1 && $1 != $17 { d++ } END { exit !(d > 
   fail "--slope-refinement 1 left every normal unchanged"
 pass
 expect_error 2 "slope_refinement" curvature --local t.obj --degree 2 --slope-refinement 4
-# Degree 3's Hermite curvatures (on by default): --plain-cubic keeps the plain fit's
-# Hessian, so the same normals and other mean curvatures.
+# Degree 3's slope refinement and Hermite curvatures (on by default): --plain-cubic keeps
+# the plain fit's normals and Hessian, so other normals and mean curvatures.
 run_ok curvature --local t.obj --degree 3 --output c3.tsv
 run_ok curvature --local t.obj --degree 3 --plain-cubic --output p3.tsv
-paste c3.tsv p3.tsv | awk -F'\t' 'NR > 1 && ($1 != $17 || $2 != $18 || $3 != $19) { exit 1 }' ||
-  fail "--plain-cubic changed the degree-3 normals"
+paste c3.tsv p3.tsv | awk -F'\t' 'NR > 1 && ($1 != $17 || $2 != $18 || $3 != $19) { d++ } END { exit !(d > 0) }' ||
+  fail "--plain-cubic left every degree-3 normal unchanged"
 paste c3.tsv p3.tsv | awk -F'\t' 'NR > 1 && $4 != $20 { d++ } END { exit !(d > 0) }' ||
   fail "--plain-cubic left every degree-3 mean curvature unchanged"
 pass

@@ -215,8 +215,9 @@ void AddCurvatureOptions(ArgParser* p, CurvatureArgs* a) {
            "~3x a plain fit, the best clean-mesh accuracy at degree 2; 1: up to 0.48x on "
            "marching-cubes meshes, ~2.5x); 0 = off")
       .Flag("plain-cubic", &a->plain_cubic,
-            "degree 3: keep the plain fit's curvatures (by default they are refitted with the "
-            "neighbours' fitted normals: H, K ~0.5x CGAL's or better, ~1.6x the CPU time)")
+            "degree 3: keep the plain fit's normals and curvatures (by default both are refined "
+            "with the neighbours' fitted normals: normals ~0.3x, H, K ~0.5x CGAL's or better, "
+            "~1.7x the CPU time)")
       .String("solver", &a->solver, "least-squares solver: qr (the default) or svd", "qr|svd")
       .Flag("two-pass", &f.two_pass, "refit in frames from the first pass's fitted normals")
       .Flag("interpolate", &a->interpolate, "the fit passes through the vertex (the default)")

@@ -579,7 +579,8 @@ class Client:
         of normals and curvatures from the neighbours' degree-2 normals on the same stencils
         (no degree-3 pre-fit; ~3x a plain fit): the best clean-mesh accuracy at degree 2 (one
         pass, ~2.5x, reaches 0.48x CGAL's max-norm errors on marching-cubes meshes). cubic_hermite=False
-        (degree 3): the plain fit's curvatures instead of the Hermite refit (on by default). method: "lhf", "lop", or the
+        (degree 3): the plain fit's normals and curvatures instead of the slope refinement and
+        Hermite refit (on by default). method: "lhf", "lop", or the
         comparison methods "xu", "lscm".
         `progress`: callable(phase, done, total) or True (geomfit.progress), called with the
         server's phases of the fit ("noise test", "smooth 1/2", "smooth 2/2", "frames",
