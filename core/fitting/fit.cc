@@ -359,7 +359,7 @@ class SurfaceFitter {
       // Reported as a phase where it decides (auto); with kOn it only sets the schedule.
       GF_ASSIGN_OR_RETURN(const NoiseEstimate est,
                           EstimateNoise(mesh, topo, *frame_normals, o.noise == NoiseMode::kAuto ? ctx : ctx.WithProgress(nullptr)));
-      if (o.noise == NoiseMode::kAuto) eff.noise = est.noisy ? NoiseMode::kOn : NoiseMode::kOff;
+      if (o.noise == NoiseMode::kAuto) eff.noise = NoisyAt(est, o.degree) ? NoiseMode::kOn : NoiseMode::kOff;
       schedule = NoiseScheduleFor(o.degree, est.residual_ratio);
       noise_over_h = est.noise_over_h;
     }

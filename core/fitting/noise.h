@@ -308,6 +308,19 @@ struct NoiseEstimate {
 };
 inline constexpr double kNoisyResidualRatio = 0.2;
 inline constexpr double kNoisySexticRatio = 0.5;
+/// NoiseMode::kAuto at degree >= 3 (fit.cc) calls noisy from this sextic ratio on: there the
+/// smoothing-bias check (SmoothingBiasDominates) sends the meshes whose smoothing fits' bias
+/// would cost back to the default fit (the coarse bump 0.1 h^3 n = 32, sextic ratio 0.454,
+/// for which auto3 kept 0.5), and the 0.45-0.5 band holds lightly perturbed meshes where the
+/// noise mode wins at degrees 3-6 (gmsh torus 0.1 h^3, h = 0.0275: 0.494, d4 max error 3.85
+/// -> 0.66x the best CGAL, d3 0.77 -> 0.37x). Not 0.4: a coarse gmsh ellipsoid at 0.1 h^3
+/// (0.409) loses with the noise mode at d3 / d5 (0.88 -> 1.87x); clean meshes stay below
+/// 0.24 (bench/README.md, `noise8`).
+inline constexpr double kNoisySexticRatioHighDegree = 0.45;
+/// Whether NoiseMode::kAuto fits a mesh with this estimate at `degree` in the noise mode.
+inline bool NoisyAt(const NoiseEstimate& est, int degree) {
+  return est.noisy || (degree >= 3 && est.sextic_ratio > kNoisySexticRatioHighDegree);
+}
 
 /// The noise test's stencils: 2.5 rings, grown to 40 points, at most 80.
 RingSpec NoiseStencilSpec();

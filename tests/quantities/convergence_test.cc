@@ -605,6 +605,39 @@ TEST(NoiseAwareTest, AutoSeesLightNoiseBelowTheQuadraticsTruncation) {
   EXPECT_LT(a.normal.l2, b.normal.l2);
 }
 
+// Issue 16 (noise8): light O(h^3) noise whose sextic ratio lies in the 0.45-0.5 band (torus
+// 0.1 h^3 at n = 56: 0.478; the gmsh torus of bench/hidden_audit.py at 0.494) is below
+// kNoisySexticRatio, so the degree-independent test calls it clean and auto3's auto ran the
+// default fit (d4: 2.45x the best CGAL, the noise mode 0.54x). At degree >= 3 auto now runs the
+// noise mode there (bitwise `on`; K L2 6.6e-3 -> 1.25e-3); at degree 2 it stays off.
+TEST(NoiseAwareTest, AutoTakesTheSexticBandAtHighDegree) {
+  auto torus = MakeTorus();
+  GeneratorOptions g;
+  g.n = 56;
+  const Mesh clean = GenerateTorusMesh(g), mesh = PerturbAlongNormals(clean, *torus, 0.1, 3);
+  const Topology topo = BuildTopology(mesh).value();
+  const NoiseEstimate est =
+      EstimateNoise(mesh, topo, ApproximateVertexNormals(mesh, topo, NormalWeighting::kArea)).value();
+  EXPECT_GT(est.sextic_ratio, kNoisySexticRatioHighDegree);
+  EXPECT_LT(est.sextic_ratio, kNoisySexticRatio);
+  EXPECT_FALSE(est.noisy);
+  EXPECT_FALSE(NoisyAt(est, 2));
+  for (int d : {3, 4, 5, 6}) EXPECT_TRUE(NoisyAt(est, d)) << d;
+  FitOptions off, on, automatic;
+  off.degree = on.degree = automatic.degree = 4;
+  on.noise = NoiseMode::kOn;
+  automatic.noise = NoiseMode::kAuto;
+  const Differentials a = ComputeDifferentials(mesh, automatic).value();
+  const Differentials b = ComputeDifferentials(mesh, on).value();
+  EXPECT_EQ(0, std::memcmp(a.gaussian.data(), b.gaussian.data(), a.gaussian.size() * 8));
+  EXPECT_EQ(0, std::memcmp(a.normals.data(), b.normals.data(), a.normals.size() * 8));
+  const DifferentialErrors ea = MeasureErrors(clean, *torus, a);
+  const DifferentialErrors ed = MeasureErrors(clean, *torus, ComputeDifferentials(mesh, off).value());
+  EXPECT_LT(ea.gaussian.l2, 0.3 * ed.gaussian.l2);
+  EXPECT_LT(ea.mean.l2, 0.3 * ed.mean.l2);
+  EXPECT_LT(ea.normal.l2, 0.5 * ed.normal.l2);
+}
+
 // The coarse open bump under light noise (0.2 h^3, n = 32: residual ratio 0.025, sextic 0.70,
 // noisy): the noise mode's smoothing moves a tail of vertices (the strongly curved centre and
 // the one-sided boundary stencils) by 8x the noise level at the 90th percentile, its bias,
@@ -724,6 +757,7 @@ TEST(NoiseAwareTest, AutoKeepsCleanMeshesClean) {
     std::printf("%-20s ratio %.4f sextic %.4f samples %d\n", c.name.c_str(), est.residual_ratio, est.sextic_ratio,
                 est.samples);
     EXPECT_FALSE(est.noisy) << c.name << " ratio " << est.residual_ratio << " sextic " << est.sextic_ratio;
+    for (int d = 2; d <= 6; ++d) EXPECT_FALSE(NoisyAt(est, d)) << c.name << " d" << d;
     EXPECT_LT(est.sextic_ratio, 0.3) << c.name;
     largest_ratio = std::max(largest_ratio, est.residual_ratio);
   }
