@@ -114,6 +114,14 @@ struct FitOptions {
   /// term through the stencil's even moments: H and K 0.55-0.96x CGAL's with it off
   /// (bench/README.md, `clean4`). Ignored by the GFD operators (FitRequest::stencils).
   bool cubic_hermite = true;
+  /// Hermite jets of degree-4 and -5 fits (interpolating LHF fits with the QR solver, noise
+  /// off): after the fit, its Hessian and gradient are refitted to the rows
+  /// (a h_j - p_j.G_j) / r_j^2 of the stencil points with the neighbours' fitted slopes G_j,
+  /// a = degree + 1, in which the fit's leading bias term (degree + 1) cancels (Euler's
+  /// identity; slopes.h), with the fit's terms of degrees 3..degree as ridged unknowns. In
+  /// the fit's frame; the fit's terms of degree >= 3 are kept. Off: the plain fit
+  /// (bench/README.md, `d45k`). Ignored by the GFD operators (FitRequest::stencils).
+  bool jet_hermite = true;
 
   /// Whether the Hermite curvatures apply (see hermite_hessian).
   bool HermiteHessian() const {
@@ -131,6 +139,11 @@ struct FitOptions {
   bool CubicHermite() const {
     return cubic_hermite && degree == 3 && method == FitMethod::kLHF && solver == WlsSolver::kQR && Interpolates() &&
            noise == NoiseMode::kOff && NormalDegree() == degree;
+  }
+  /// Whether the degree-4/5 Hermite jets run (see jet_hermite).
+  bool JetHermite() const {
+    return jet_hermite && (degree == 4 || degree == 5) && method == FitMethod::kLHF && solver == WlsSolver::kQR &&
+           Interpolates() && noise == NoiseMode::kOff && NormalDegree() == degree;
   }
   /// The normal pre-fit's degree actually used; equal to `degree` when there is none
   /// (the noise mode at degree 2 always refines its normals with a cubic, noise.h).
@@ -169,7 +182,7 @@ std::string FitOptionsKey(const FitOptions& options);
 /// as exact bit patterns: two option sets give identical fits iff their bits are equal.
 /// Cache keys are built from these, never from formatted text (`%g` aliases 1.5 and
 /// 1.5000001).
-using FitOptionsBits = std::array<uint64_t, 21 + kMaxDegree>;
+using FitOptionsBits = std::array<uint64_t, 22 + kMaxDegree>;
 FitOptionsBits FitOptionsIdentity(const FitOptions& options);
 
 const char* FitMethodName(FitMethod m);

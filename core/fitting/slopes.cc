@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
 #include <memory>
 #include <vector>
 
@@ -23,7 +24,9 @@ constexpr int kLanes = 8;
 // failed); kFitted: 1 for a degree-2 fit to refine, else 0. After the Hessian pass the
 // other copy holds per slot (c20, c11, c02, ok, the refined normal, kFitted).
 constexpr int kRec = 8, kRadius2 = 6, kFitted = 7;
-constexpr int kCentre = 7;  // Work::centre's doubles per slot: normal, f30 f21 f12 f03
+// Work::centre's doubles per slot: the frame normal, then the fit's derivatives of degree 3..5
+// in Taylor order (f30 f21 f12 f03, f40 .. f04, f50 .. f05; those above the fit's degree absent).
+constexpr int kMaxJet = 15;
 using Lanes = double[kLanes];
 
 // Solves kLanes symmetric positive definite N x N systems (upper triangles of `a` used,
@@ -83,7 +86,9 @@ struct Work {
   double cos_cut = 0;
   bool own_radius = false;           // no normal pass: the Hessian pass measures the stencils' radii
   const double* centre = nullptr;    // with own_radius: per slot the fit's frame normal (the Hessians
-                                     //   stay in the fits' frames) and cubic derivatives, kCentre doubles
+                                     //   stay in the fits' frames) and derivatives of degree 3..`degree`
+  int degree = 2;                    // the fits' degree (centre_stride = 3 + its derivatives of degree >= 3)
+  int centre_stride = 0;
   int Vertex(int64_t k) const { return order ? order[k] : static_cast<int>(k); }
   int Size(int64_t k) const { return std::min(offsets[k + 1] - offsets[k], kMaxStencil); }
 };
@@ -111,7 +116,7 @@ struct alignas(64) Batch {
   int32_t slot[kLanes];
   alignas(64) Lanes x, y, z, m[3], t1[3], t2[3];  // aligned: loaded as vectors
   alignas(64) Lanes g1, g2;  // the fitted gradient (c10, c01) in the frame (0 without Work::centre)
-  alignas(64) Lanes f3[4];   // the fit's cubic derivatives f30 f21 f12 f03 (0 without Work::centre)
+  alignas(64) Lanes f3[kMaxJet];  // the fit's derivatives of degree 3.. (f30 f21 f12 f03 ...; 0 without Work::centre)
   int32_t idx[kMaxStencil][kLanes];
   alignas(64) Lanes dx[kMaxStencil], dy[kMaxStencil], dz[kMaxStencil], nx[kMaxStencil], ny[kMaxStencil], nz[kMaxStencil],
       live[kMaxStencil];
@@ -121,8 +126,9 @@ struct alignas(64) Batch {
     for (int l = 0; l < kLanes; ++l) {
       const int64_t k = slot[l] = slots[l < n ? l : 0];
       const double* self = xn + kRec * k;
-      const double* frame = W.centre ? W.centre + kCentre * k : self + 3;
-      for (int c = 0; c < 4; ++c) f3[c][l] = W.centre ? frame[3 + c] : 0.0;
+      const double* frame = W.centre ? W.centre + W.centre_stride * k : self + 3;
+      for (int c = 0; c < W.centre_stride - 3; ++c) f3[c][l] = frame[3 + c];
+      for (int c = std::max(0, W.centre_stride - 3); c < 4; ++c) f3[c][l] = 0.0;
       x[l] = self[0], y[l] = self[1], z[l] = self[2], m[0][l] = frame[0], m[1][l] = frame[1], m[2][l] = frame[2];
       if (l < n) rows = std::max(rows, W.Size(k) - 1);
     }
@@ -249,22 +255,11 @@ __attribute__((always_inline)) inline void SlopeNormals(const Work& W, const Bat
   }
 }
 
-// Pass 2 on a batch: each lane's Hessian (c20, c11, c02) in its frame (the refined
-// normal's), fitted to the Hermite rows (hermite.h) together with the cubic form C of
-// their remainder C r / 6 (four more unknowns; the rows' value is
-// e^T Hess e + C(p) / (6 r^2) + O(r^3)), so the cubic term no longer enters through the
-// stencil's odd moments. The cubic unknowns get a ridge of 1% of the Hessian block's
-// trace: on stencils whose directions barely determine them (marching-cubes meshes, points
-// at 1% of h) the fit falls back smoothly towards the three-unknown one. `hess` gets 3
-// values per lane; ok[l] = 0 where the lane keeps its plain Hessian.
-__attribute__((always_inline)) inline void HermiteHessians(const Work& W, const Batch& B, double (&hess)[3][kLanes], Lanes& ok) {
-  (void)W;
-  // Row weights s / (s + 0.3)^2.5 (hermite.h; FitOptions::hermite_hessian uses 0.1): with the
-  // cubic unknowns the near rows, whose normals' error over r is largest, are weighed less.
-  // Degree 3 (Work::centre): s / (s + 0.5)^2.5 and the ridge 0.3% towards the fit's cubic
-  // (scanned on gmsh, marching-cubes and generated meshes: bench/README.md, `clean4`).
-  const double kEps = W.centre ? 0.5 : 0.3, kRidge = W.centre ? 0.003 : 0.01;
-  alignas(64) Lanes radius2, inv_radius2, inv_radius, r2max = {};
+// The stencils' squared radii of a batch (the normal pass's, or with Work::own_radius those
+// of the rows kept), their inverses, and ok[l] = 1 for the lanes to refit.
+__attribute__((always_inline)) inline void StencilRadii(const Work& W, const Batch& B, Lanes& radius2, Lanes& inv_radius2,
+                                                        Lanes& inv_radius, Lanes& ok) {
+  alignas(64) Lanes r2max = {};
   const double cos_cut = W.cos_cut;
   if (W.own_radius)  // the squared radius of the rows kept, as the normal pass measures it
     for (int i = 0; i < B.rows; ++i)
@@ -286,6 +281,26 @@ __attribute__((always_inline)) inline void HermiteHessians(const Work& W, const 
     inv_radius2[l] = 1 / radius2[l];
     inv_radius[l] = std::sqrt(inv_radius2[l]);
   }
+}
+
+// Pass 2 on a batch: each lane's Hessian (c20, c11, c02) in its frame (the refined
+// normal's), fitted to the Hermite rows (hermite.h) together with the cubic form C of
+// their remainder C r / 6 (four more unknowns; the rows' value is
+// e^T Hess e + C(p) / (6 r^2) + O(r^3)), so the cubic term no longer enters through the
+// stencil's odd moments. The cubic unknowns get a ridge of 1% of the Hessian block's
+// trace: on stencils whose directions barely determine them (marching-cubes meshes, points
+// at 1% of h) the fit falls back smoothly towards the three-unknown one. `hess` gets 3
+// values per lane; ok[l] = 0 where the lane keeps its plain Hessian.
+__attribute__((always_inline)) inline void HermiteHessians(const Work& W, const Batch& B, double (&hess)[3][kLanes], Lanes& ok) {
+  (void)W;
+  // Row weights s / (s + 0.3)^2.5 (hermite.h; FitOptions::hermite_hessian uses 0.1): with the
+  // cubic unknowns the near rows, whose normals' error over r is largest, are weighed less.
+  // Degree 3 (Work::centre): s / (s + 0.5)^2.5 and the ridge 0.3% towards the fit's cubic
+  // (scanned on gmsh, marching-cubes and generated meshes: bench/README.md, `clean4`).
+  const double kEps = W.centre ? 0.5 : 0.3, kRidge = W.centre ? 0.003 : 0.01;
+  alignas(64) Lanes radius2, inv_radius2, inv_radius;
+  const double cos_cut = W.cos_cut;
+  StencilRadii(W, B, radius2, inv_radius2, inv_radius, ok);
   // Moments of (u, w) / radius: weights wt / r^4 at degrees 4-6 (the normal matrix), wt v / r^2
   // at degrees 2-3 (the right-hand side).
   enum { m40, m31, m22, m13, m04, m50, m41, m32, m23, m14, m05, m60, m51, m42, m33, m24, m15, m06,
@@ -352,6 +367,100 @@ __attribute__((always_inline)) inline void HermiteHessians(const Work& W, const 
     for (int l = 0; l < kLanes; ++l) hess[c][l] = b[c][l];
 }
 
+// Experiment knobs (removed before merge).
+struct JetKnobs {
+  double a, eps, ridge, mu, grad_ridge;
+};
+inline const JetKnobs& Knobs(int d) {
+  static const JetKnobs k4 = [] {
+    auto env = [](const char* n, double v) { const char* e = std::getenv(n); return e ? std::atof(e) : v; };
+    return JetKnobs{env("GF_JA4", 5), env("GF_JEPS", 0.5), env("GF_JRIDGE", 0.003), env("GF_JMU", -1), env("GF_JGR", 0)};
+  }();
+  static const JetKnobs k5 = [] {
+    auto env = [](const char* n, double v) { const char* e = std::getenv(n); return e ? std::atof(e) : v; };
+    return JetKnobs{env("GF_JA5", 6), env("GF_JEPS", 0.5), env("GF_JRIDGE", 0.003), env("GF_JMU", -1), env("GF_JGR", 0)};
+  }();
+  return d == 4 ? k4 : k5;
+}
+
+// The Hermite pass of degree-D fits (D = 4, 5; FitOptions::jet_hermite, slopes.h). Along the
+// ray to stencil point p (height h, the neighbour's fitted slopes G), Euler's identity
+// p.grad T_k = k T_k for the fit's homogeneous Taylor terms T_k gives
+// a h - p.G = sum_k (a - k) T_k(p): with a = D + 1 the term T_{D+1}, the leading bias of a
+// degree-D fit, cancels (hermite.h is a = 4). The rows (a h - p.G) 2 / ((a - 2) r^2) less the
+// fit's own terms of degrees 1 and 3..D are fitted with the monomials of degrees 1..D / r^2:
+// the Hessian (degree 2) directly, the others as corrections of the fit's (a ridge towards
+// it on degrees >= 3). out: c20 c11 c02, then the gradient's correction (c10, c01).
+template <int D>
+__attribute__((always_inline)) inline void HermiteJets(const Work& W, const Batch& B, double (&out)[5][kLanes],
+                                                      Lanes& ok) {
+  constexpr int kN = NumCoefficients(D) - 1;        // unknowns: the monomials of degrees 1..D
+  constexpr int kM = NumCoefficients(2 * D) - 3;    // moments of degrees 2..2D
+  const JetKnobs& kn = Knobs(D);
+  const double a = kn.a, norm = 2 / (a - 2);
+  alignas(64) Lanes radius2, inv_radius2, inv_radius;
+  const double cos_cut = W.cos_cut;
+  StencilRadii(W, B, radius2, inv_radius2, inv_radius, ok);
+  // The fit's term weights (a - k) / (p! q!) of its derivatives f_pq, degrees 3..D.
+  double fac[kMaxJet];
+  for (int k = 3, c = 0; k <= D; ++k)
+    for (int q = 0; q <= k; ++q, ++c) fac[c] = (a - k) / (std::tgamma(k - q + 1) * std::tgamma(q + 1));
+  alignas(64) double acc[kM][kLanes] = {}, rhs[kN][kLanes] = {};
+  for (int i = 0; i < B.rows; ++i) {
+#pragma omp simd
+    for (int l = 0; l < B.lanes; ++l) {
+      double pu, pw, ph, nm, nt1, nt2, value, c0, c1, c2, inv_r2, weight;
+      Project(B, i, l, pu, pw, ph, nm, nt1, nt2);
+      const double gamma = (nm >= cos_cut ? nm : 0.0) * B.live[i][l];
+      HermiteRowOf(pu, pw, ph, nt1, nt2, nm, gamma, inv_radius2[l], kn.eps, value, c0, c1, c2, inv_r2, weight);
+      double up[2 * D + 1], wp[2 * D + 1];
+      up[0] = wp[0] = 1;
+      for (int k = 1; k <= D; ++k) up[k] = up[k - 1] * pu, wp[k] = wp[k - 1] * pw;
+      double known = (a - 1) * (B.g1[l] * pu + B.g2[l] * pw);
+      for (int k = 3, c = 0; k <= D; ++k)
+        for (int q = 0; q <= k; ++q, ++c) known += fac[c] * B.f3[c][l] * up[k - q] * wp[q];
+      value = norm * (value + ((a - 4) * ph - known) * inv_r2);
+      const double u = pu * inv_radius[l], w = pw * inv_radius[l];
+      for (int k = 1; k <= 2 * D; ++k) up[k] = up[k - 1] * u, wp[k] = wp[k - 1] * w;
+      const double s = inv_r2 * radius2[l];
+      const double wm = weight * s * s, wv = weight * value * s;
+      for (int k = 2, c = 0; k <= 2 * D; ++k)
+        for (int q = 0; q <= k; ++q, ++c) acc[c][l] += wm * up[k - q] * wp[q];
+      for (int k = 1, c = 0; k <= D; ++k)
+        for (int q = 0; q <= k; ++q, ++c) rhs[c][l] += wv * up[k - q] * wp[q];
+    }
+  }
+  // Unknown j is the monomial (p_j, q_j) of degree 1..D in Taylor order; entry (i, j) the moment
+  // of the summed exponents.
+  int P[kN], Q[kN];
+  for (int k = 1, c = 0; k <= D; ++k)
+    for (int q = 0; q <= k; ++q, ++c) P[c] = k - q, Q[c] = q;
+  alignas(64) double m[kN][kN][kLanes], b[kN][kLanes];
+  for (int i = 0; i < kN; ++i) {
+    for (int j = i; j < kN; ++j) {
+      const int k = TaylorIndex(P[i] + P[j], Q[i] + Q[j]) - 3;
+#pragma omp simd
+      for (int l = 0; l < kLanes; ++l) m[i][j][l] = acc[k][l];
+    }
+#pragma omp simd
+    for (int l = 0; l < kLanes; ++l) b[i][l] = rhs[i][l];
+  }
+#pragma omp simd
+  for (int l = 0; l < kLanes; ++l) {
+    const double trace = m[2][2][l] + 4 * m[3][3][l] + m[4][4][l];
+    for (int i = 5; i < kN; ++i) m[i][i][l] += kn.ridge * trace;
+    for (int i = 0; i < 2; ++i) m[i][i][l] += kn.grad_ridge * trace;
+  }
+  SolveSpdLanes<kN>(m, b, 1e-9, ok);
+  // The gradient's correction in real units: its columns are 2 (a - 1) / (a - 2) p / r^2.
+  const double mu = kn.mu >= 0 ? kn.mu : (a - 1) / a;
+  for (int l = 0; l < kLanes; ++l) {
+    const double radius = std::sqrt(radius2[l]), g = mu * radius * (a - 2) / (2 * (a - 1));
+    out[0][l] = b[2][l], out[1][l] = 0.5 * b[3][l], out[2][l] = b[4][l];
+    out[3][l] = g * b[0][l], out[4][l] = g * b[1][l];
+  }
+}
+
 // The slots [k0, k1) sorted by stencil size (a stable counting sort), so the lanes of a
 // batch (kLanes consecutive entries) differ little in size.
 // Written to walk[k0, k1); every pass visits the batches in this order.
@@ -391,14 +500,20 @@ __attribute__((target_clones("arch=x86-64-v4", "avx2", "default"))) void Hessian
     PrefetchBatch(W, W.xn[from], j + kLanes, k1);
     const int n = static_cast<int>(std::min<int64_t>(kLanes, k1 - j));
     B->Load(W, W.xn[from], W.walk.data() + j, n);
-    alignas(64) double hess[3][kLanes];
+    alignas(64) double hess[5][kLanes];
     alignas(64) Lanes ok;
-    HermiteHessians(W, *B, hess, ok);
-    // The results into the other copy (no pass reads it any more): one line per slot.
+    if (W.degree == 4)
+      HermiteJets<4>(W, *B, hess, ok);
+    else if (W.degree == 5)
+      HermiteJets<5>(W, *B, hess, ok);
+    else
+      HermiteHessians(W, *B, reinterpret_cast<double(&)[3][kLanes]>(hess), ok);
+    // The results into the other copy (no pass reads it any more): one line per slot (degrees
+    // 4-5: the gradient's correction in place of the frame normal).
     for (int l = 0; l < n; ++l) {
       const int64_t k = B->slot[l];
       double* out = W.xn[1 - from] + kRec * k;
-      for (int c = 0; c < 3; ++c) out[c] = hess[c][l], out[4 + c] = B->m[c][l];
+      for (int c = 0; c < 3; ++c) out[c] = hess[c][l], out[4 + c] = W.degree >= 4 ? (c < 2 ? hess[3 + c][l] : 0.0) : B->m[c][l];
       out[3] = ok[l];
       out[kFitted] = B->xn[kRec * k + kFitted];
     }
@@ -437,7 +552,9 @@ absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighbor
   // slots at random: one line a vertex instead of three).
   const int32_t* rank = os ? os->rank.data() : nullptr;
   auto slot_of = [&](int64_t v) -> int64_t { return rank ? rank[v] : v; };
-  std::unique_ptr<double[]> centre(W.own_radius ? new double[kCentre * static_cast<size_t>(nv)] : nullptr);
+  W.degree = passes == 0 ? (num_coefficients >= 21 ? 5 : num_coefficients >= 15 ? 4 : 3) : 2;
+  W.centre_stride = W.own_radius ? 3 + num_coefficients - 6 : 0;
+  std::unique_ptr<double[]> centre(W.own_radius ? new double[W.centre_stride * static_cast<size_t>(nv)] : nullptr);
   W.centre = centre.get();
   ParallelFor(nv, threads, [&](int64_t v) {
     if (v + 16 < nv) __builtin_prefetch(W.xn[0] + kRec * slot_of(v + 16), 1);
@@ -449,9 +566,9 @@ absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighbor
     for (int i = 0; i < 3; ++i) dst[i] = mesh.positions(v, i), dst[3 + i] = n[i];
     dst[kRadius2] = 0, dst[kFitted] = diagnostics[v].degree_used >= 2 ? 1.0 : 0.0;
     if (W.centre) {
-      double* to = centre.get() + kCentre * k;
+      double* to = centre.get() + W.centre_stride * k;
       for (int i = 0; i < 3; ++i) to[i] = fr.normal[i];
-      for (int j = 0; j < 4; ++j) to[3 + j] = num_coefficients >= 10 ? c[TaylorIndex(3 - j, j)] : 0.0;
+      for (int j = 6; j < num_coefficients; ++j) to[3 + j - 6] = c[j];
     }
   }, 4096);
   // Normal passes, from one copy of the normals into the other (every vertex reads its
@@ -479,6 +596,7 @@ absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighbor
     double* c = coefficients + v * num_coefficients;
     if (W.centre) {  // the fit's frame, tangent plane and cubic terms kept
       if (x[3] > 0) c[TaylorIndex(2, 0)] = x[0], c[TaylorIndex(1, 1)] = x[1], c[TaylorIndex(0, 2)] = x[2];
+      if (x[3] > 0 && W.degree >= 4) c[TaylorIndex(1, 0)] += x[4], c[TaylorIndex(0, 1)] += x[5];
       return;
     }
     frames[v] = FrameFromNormal(Eigen::Vector3d(mesh.positions(v, 0), mesh.positions(v, 1), mesh.positions(v, 2)),
