@@ -89,6 +89,7 @@ struct Work {
                                      //   stay in the fits' frames) and derivatives of degree 3..`degree`
   int degree = 2;                    // the fits' degree (centre_stride = 3 + its derivatives of degree >= 3)
   int centre_stride = 0;
+  const double* h2 = nullptr;  // experiment
   int Vertex(int64_t k) const { return order ? order[k] : static_cast<int>(k); }
   int Size(int64_t k) const { return std::min(offsets[k + 1] - offsets[k], kMaxStencil); }
 };
@@ -116,6 +117,7 @@ struct alignas(64) Batch {
   int32_t slot[kLanes];
   alignas(64) Lanes x, y, z, m[3], t1[3], t2[3];  // aligned: loaded as vectors
   alignas(64) Lanes g1, g2;  // the fitted gradient (c10, c01) in the frame (0 without Work::centre)
+  alignas(64) Lanes h2[3];  // experiment: the fit's Hessian
   alignas(64) Lanes f3[kMaxJet];  // the fit's derivatives of degree 3.. (f30 f21 f12 f03 ...; 0 without Work::centre)
   int32_t idx[kMaxStencil][kLanes];
   alignas(64) Lanes dx[kMaxStencil], dy[kMaxStencil], dz[kMaxStencil], nx[kMaxStencil], ny[kMaxStencil], nz[kMaxStencil],
@@ -128,6 +130,7 @@ struct alignas(64) Batch {
       const double* self = xn + kRec * k;
       const double* frame = W.centre ? W.centre + W.centre_stride * k : self + 3;
       for (int c = 0; c < W.centre_stride - 3; ++c) f3[c][l] = frame[3 + c];
+      for (int c = 0; c < 3; ++c) h2[c][l] = W.h2 ? W.h2[3 * k + c] : 0.0;
       for (int c = std::max(0, W.centre_stride - 3); c < 4; ++c) f3[c][l] = 0.0;
       x[l] = self[0], y[l] = self[1], z[l] = self[2], m[0][l] = frame[0], m[1][l] = frame[1], m[2][l] = frame[2];
       if (l < n) rows = std::max(rows, W.Size(k) - 1);
@@ -260,16 +263,21 @@ __attribute__((always_inline)) inline void SlopeNormals(const Work& W, const Bat
 __attribute__((always_inline)) inline void StencilRadii(const Work& W, const Batch& B, Lanes& radius2, Lanes& inv_radius2,
                                                         Lanes& inv_radius, Lanes& ok) {
   alignas(64) Lanes r2max = {};
-  const double cos_cut = W.cos_cut;
-  if (W.own_radius)  // the squared radius of the rows kept, as the normal pass measures it
-    for (int i = 0; i < B.rows; ++i)
-#pragma omp simd
-      for (int l = 0; l < B.lanes; ++l) {
-        double pu, pw, ph, nm, nt1, nt2;
-        Project(B, i, l, pu, pw, ph, nm, nt1, nt2);
-        const double keep = (nm >= cos_cut ? 1.0 : 0.0) * B.live[i][l];
-        r2max[l] = std::max(r2max[l], keep * (pu * pu + pw * pw));
-      }
+  if (W.own_radius) {  // the squared radius of the rows kept, as the normal pass measures it (in vector lanes)
+    auto ld = [](const Lanes& x) { return *reinterpret_cast<const V*>(x); };
+    const V m0 = ld(B.m[0]), m1 = ld(B.m[1]), m2 = ld(B.m[2]), t10 = ld(B.t1[0]), t11 = ld(B.t1[1]),
+            t12 = ld(B.t1[2]), t20 = ld(B.t2[0]), t21 = ld(B.t2[1]), t22 = ld(B.t2[2]);
+    const V zero = {};
+    V r2 = zero;
+    for (int i = 0; i < B.rows; ++i) {
+      const V dx = ld(B.dx[i]), dy = ld(B.dy[i]), dz = ld(B.dz[i]);
+      const V nm = ld(B.nx[i]) * m0 + ld(B.ny[i]) * m1 + ld(B.nz[i]) * m2;
+      const V pu = dx * t10 + dy * t11 + dz * t12, pw = dx * t20 + dy * t21 + dz * t22;
+      const V keep = (nm >= W.cos_cut ? zero + 1 : zero) * ld(B.live[i]), x = keep * (pu * pu + pw * pw);
+      r2 = r2 > x ? r2 : x;
+    }
+    *reinterpret_cast<V*>(r2max) = r2;
+  }
   for (int l = 0; l < kLanes; ++l) {
     const double* self = B.xn + kRec * static_cast<int64_t>(B.slot[l]);
     const double r2 = W.own_radius ? r2max[l] : self[kRadius2];
@@ -367,19 +375,23 @@ __attribute__((always_inline)) inline void HermiteHessians(const Work& W, const 
     for (int l = 0; l < kLanes; ++l) hess[c][l] = b[c][l];
 }
 
+#ifndef GF_JU4
+#define GF_JU4 4
+#endif
+#ifndef GF_JU5
+#define GF_JU5 5
+#endif
+constexpr int kJetUnknowns4 = GF_JU4, kJetUnknowns5 = GF_JU5;
 // Experiment knobs (removed before merge).
 struct JetKnobs {
-  double a, eps, ridge, mu, grad_ridge;
+  double a, eps, ridge, mu, grad_ridge, ridge4, blend;
 };
 inline const JetKnobs& Knobs(int d) {
-  static const JetKnobs k4 = [] {
-    auto env = [](const char* n, double v) { const char* e = std::getenv(n); return e ? std::atof(e) : v; };
-    return JetKnobs{env("GF_JA4", 5), env("GF_JEPS", 0.5), env("GF_JRIDGE", 0.003), env("GF_JMU", -1), env("GF_JGR", 0)};
-  }();
-  static const JetKnobs k5 = [] {
-    auto env = [](const char* n, double v) { const char* e = std::getenv(n); return e ? std::atof(e) : v; };
-    return JetKnobs{env("GF_JA5", 6), env("GF_JEPS", 0.5), env("GF_JRIDGE", 0.003), env("GF_JMU", -1), env("GF_JGR", 0)};
-  }();
+  auto env = [](const char* n, double v) { const char* e = std::getenv(n); return e ? std::atof(e) : v; };
+  static const JetKnobs k4 = JetKnobs{env("GF_JA4", 5), env("GF_JEPS4", 0.5), env("GF_JRIDGE", 0.003), env("GF_JMU", -1),
+                                      env("GF_JGR", 0), env("GF_JR4", -1), env("GF_JBL4", 1)};
+  static const JetKnobs k5 = JetKnobs{env("GF_JA5", 6), env("GF_JEPS5", 0.2), env("GF_JRIDGE", 0.003), env("GF_JMU", -1),
+                                      env("GF_JGR", 0), env("GF_JR4", -1), env("GF_JBL5", 0.6)};
   return d == 4 ? k4 : k5;
 }
 
@@ -391,49 +403,77 @@ inline const JetKnobs& Knobs(int d) {
 // fit's own terms of degrees 1 and 3..D are fitted with the monomials of degrees 1..D / r^2:
 // the Hessian (degree 2) directly, the others as corrections of the fit's (a ridge towards
 // it on degrees >= 3). out: c20 c11 c02, then the gradient's correction (c10, c01).
-template <int D>
+template <int D, int U>
 __attribute__((always_inline)) inline void HermiteJets(const Work& W, const Batch& B, double (&out)[5][kLanes],
                                                       Lanes& ok) {
-  constexpr int kN = NumCoefficients(D) - 1;        // unknowns: the monomials of degrees 1..D
-  constexpr int kM = NumCoefficients(2 * D) - 3;    // moments of degrees 2..2D
+  constexpr int kN = NumCoefficients(U) - 1;      // unknowns: the monomials of degrees 1..U
+  constexpr int kM = NumCoefficients(2 * U) - 3;  // moments of degrees 2..2U
   const JetKnobs& kn = Knobs(D);
-  const double a = kn.a, norm = 2 / (a - 2);
+  const double a = kn.a, norm = 2 / (a - 2), eps = kn.eps;
   alignas(64) Lanes radius2, inv_radius2, inv_radius;
   const double cos_cut = W.cos_cut;
   StencilRadii(W, B, radius2, inv_radius2, inv_radius, ok);
-  // The fit's term weights (a - k) / (p! q!) of its derivatives f_pq, degrees 3..D.
-  double fac[kMaxJet];
+  // The fit's terms of degrees 3..D in the rows: (a - k) f_pq / (p! q!) per monomial u^p w^q.
+  V fit[kMaxJet];
   for (int k = 3, c = 0; k <= D; ++k)
-    for (int q = 0; q <= k; ++q, ++c) fac[c] = (a - k) / (std::tgamma(k - q + 1) * std::tgamma(q + 1));
-  alignas(64) double acc[kM][kLanes] = {}, rhs[kN][kLanes] = {};
+    for (int q = 0; q <= k; ++q, ++c) {
+      static constexpr double kFactorial[6] = {1, 1, 2, 6, 24, 120};
+      const double f = (a - k) / (kFactorial[k - q] * kFactorial[q]);
+      for (int l = 0; l < kLanes; ++l) fit[c][l] = f * B.f3[c][l];
+    }
+  const V big_r = *reinterpret_cast<const V*>(radius2), inv_big_r = *reinterpret_cast<const V*>(inv_radius);
+  V acc[kM] = {}, rhs[kN] = {};
+  auto ld = [](const Lanes& x) { return *reinterpret_cast<const V*>(x); };
+  const V m0 = ld(B.m[0]), m1 = ld(B.m[1]), m2 = ld(B.m[2]), t10 = ld(B.t1[0]), t11 = ld(B.t1[1]), t12 = ld(B.t1[2]),
+          t20 = ld(B.t2[0]), t21 = ld(B.t2[1]), t22 = ld(B.t2[2]), g1 = ld(B.g1), g2 = ld(B.g2), ir = ld(inv_radius2);
+  const V zero = {}, one = zero + 1;
   for (int i = 0; i < B.rows; ++i) {
+    // The row in vector lanes (Project and hermite.h's HermiteRowOf): (a h - p.G - (a - 1) g.p) / r^2,
+    // 1 / r^2 and the weight gamma s / (s + eps)^2.5.
+    const V dx = ld(B.dx[i]), dy = ld(B.dy[i]), dz = ld(B.dz[i]), nx = ld(B.nx[i]), ny = ld(B.ny[i]), nz = ld(B.nz[i]);
+    const V u0 = dx * t10 + dy * t11 + dz * t12, w0 = dx * t20 + dy * t21 + dz * t22, ph = dx * m0 + dy * m1 + dz * m2;
+    const V nm = nx * m0 + ny * m1 + nz * m2, nt1 = nx * t10 + ny * t11 + nz * t12, nt2 = nx * t20 + ny * t21 + nz * t22;
+    const V gamma = (nm >= cos_cut ? nm : zero) * ld(B.live[i]);
+    const V r2 = u0 * u0 + w0 * w0;
+    const V g = r2 > 0 ? gamma : zero;
+    const V inv = one / (g > 0 ? nm * r2 : one);
+    const V inv_r2 = g > 0 ? nm * inv : zero;
+    const V sr = r2 * ir;
+    alignas(64) Lanes root;
+    const V se = sr + eps;
 #pragma omp simd
-    for (int l = 0; l < B.lanes; ++l) {
-      double pu, pw, ph, nm, nt1, nt2, value, c0, c1, c2, inv_r2, weight;
-      Project(B, i, l, pu, pw, ph, nm, nt1, nt2);
-      const double gamma = (nm >= cos_cut ? nm : 0.0) * B.live[i][l];
-      HermiteRowOf(pu, pw, ph, nt1, nt2, nm, gamma, inv_radius2[l], kn.eps, value, c0, c1, c2, inv_r2, weight);
-      double up[2 * D + 1], wp[2 * D + 1];
-      up[0] = wp[0] = 1;
-      for (int k = 1; k <= D; ++k) up[k] = up[k - 1] * pu, wp[k] = wp[k - 1] * pw;
-      double known = (a - 1) * (B.g1[l] * pu + B.g2[l] * pw);
-      for (int k = 3, c = 0; k <= D; ++k)
-        for (int q = 0; q <= k; ++q, ++c) known += fac[c] * B.f3[c][l] * up[k - q] * wp[q];
-      value = norm * (value + ((a - 4) * ph - known) * inv_r2);
-      const double u = pu * inv_radius[l], w = pw * inv_radius[l];
-      for (int k = 1; k <= 2 * D; ++k) up[k] = up[k - 1] * u, wp[k] = wp[k - 1] * w;
-      const double s = inv_r2 * radius2[l];
-      const double wm = weight * s * s, wv = weight * value * s;
-      for (int k = 2, c = 0; k <= 2 * D; ++k)
-        for (int q = 0; q <= k; ++q, ++c) acc[c][l] += wm * up[k - q] * wp[q];
-      for (int k = 1, c = 0; k <= D; ++k)
-        for (int q = 0; q <= k; ++q, ++c) rhs[c][l] += wv * up[k - q] * wp[q];
+    for (int l = 0; l < kLanes; ++l) root[l] = std::sqrt(se[l]);
+    const V rt = ld(root), weight = g * sr / (rt * rt * rt * rt * rt);
+    const V row = (a * ph * nm + (nt1 * u0 + nt2 * w0)) * inv - (a - 1) * (g1 * u0 + g2 * w0) * inv_r2;
+    V up[2 * U + 1 > D + 1 ? 2 * U + 1 : D + 1], wp[2 * U + 1 > D + 1 ? 2 * U + 1 : D + 1];
+    up[0] = u0 * 0 + 1, wp[0] = up[0];
+#pragma GCC unroll 16
+    for (int k = 1; k <= D; ++k) up[k] = up[k - 1] * u0, wp[k] = wp[k - 1] * w0;
+    V known = u0 * 0;
+#pragma GCC unroll 32
+    for (int k = 3, c = 0; k <= D; ++k)
+#pragma GCC unroll 8
+      for (int q = 0; q <= k; ++q, ++c) known += fit[c] * up[k - q] * wp[q];
+    const V value = norm * (row - known * inv_r2);
+    const V u = u0 * inv_big_r, w = w0 * inv_big_r, s = inv_r2 * big_r;
+    const V wm = weight * s * s, wv = weight * value * s;
+#pragma GCC unroll 16
+    for (int k = 1; k <= 2 * U; ++k) up[k] = up[k - 1] * u, wp[k] = wp[k - 1] * w;
+#pragma GCC unroll 16
+    for (int p = 0; p <= 2 * U; ++p) {
+      const V t = wm * up[p];
+#pragma GCC unroll 16
+      for (int q = std::max(0, 2 - p); p + q <= 2 * U; ++q) acc[TaylorIndex(p, q) - 3] += t * wp[q];
+      if (p > U) continue;
+      const V r = wv * up[p];
+#pragma GCC unroll 16
+      for (int q = std::max(0, 1 - p); p + q <= U; ++q) rhs[TaylorIndex(p, q) - 1] += r * wp[q];
     }
   }
   // Unknown j is the monomial (p_j, q_j) of degree 1..D in Taylor order; entry (i, j) the moment
   // of the summed exponents.
   int P[kN], Q[kN];
-  for (int k = 1, c = 0; k <= D; ++k)
+  for (int k = 1, c = 0; k <= U; ++k)
     for (int q = 0; q <= k; ++q, ++c) P[c] = k - q, Q[c] = q;
   alignas(64) double m[kN][kN][kLanes], b[kN][kLanes];
   for (int i = 0; i < kN; ++i) {
@@ -442,13 +482,12 @@ __attribute__((always_inline)) inline void HermiteJets(const Work& W, const Batc
 #pragma omp simd
       for (int l = 0; l < kLanes; ++l) m[i][j][l] = acc[k][l];
     }
-#pragma omp simd
     for (int l = 0; l < kLanes; ++l) b[i][l] = rhs[i][l];
   }
 #pragma omp simd
   for (int l = 0; l < kLanes; ++l) {
     const double trace = m[2][2][l] + 4 * m[3][3][l] + m[4][4][l];
-    for (int i = 5; i < kN; ++i) m[i][i][l] += kn.ridge * trace;
+    for (int i = 5; i < kN; ++i) m[i][i][l] += (i >= 9 && kn.ridge4 >= 0 ? kn.ridge4 : kn.ridge) * trace;
     for (int i = 0; i < 2; ++i) m[i][i][l] += kn.grad_ridge * trace;
   }
   SolveSpdLanes<kN>(m, b, 1e-9, ok);
@@ -456,7 +495,9 @@ __attribute__((always_inline)) inline void HermiteJets(const Work& W, const Batc
   const double mu = kn.mu >= 0 ? kn.mu : (a - 1) / a;
   for (int l = 0; l < kLanes; ++l) {
     const double radius = std::sqrt(radius2[l]), g = mu * radius * (a - 2) / (2 * (a - 1));
-    out[0][l] = b[2][l], out[1][l] = 0.5 * b[3][l], out[2][l] = b[4][l];
+    const double bl = kn.blend, keep = 1 - bl;
+    out[0][l] = bl * b[2][l] + keep * B.h2[0][l], out[1][l] = bl * 0.5 * b[3][l] + keep * B.h2[1][l],
+    out[2][l] = bl * b[4][l] + keep * B.h2[2][l];
     out[3][l] = g * b[0][l], out[4][l] = g * b[1][l];
   }
 }
@@ -503,9 +544,9 @@ __attribute__((target_clones("arch=x86-64-v4", "avx2", "default"))) void Hessian
     alignas(64) double hess[5][kLanes];
     alignas(64) Lanes ok;
     if (W.degree == 4)
-      HermiteJets<4>(W, *B, hess, ok);
+      HermiteJets<4, kJetUnknowns4>(W, *B, hess, ok);
     else if (W.degree == 5)
-      HermiteJets<5>(W, *B, hess, ok);
+      HermiteJets<5, kJetUnknowns5>(W, *B, hess, ok);
     else
       HermiteHessians(W, *B, reinterpret_cast<double(&)[3][kLanes]>(hess), ok);
     // The results into the other copy (no pass reads it any more): one line per slot (degrees
@@ -556,6 +597,8 @@ absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighbor
   W.centre_stride = W.own_radius ? 3 + num_coefficients - 6 : 0;
   std::unique_ptr<double[]> centre(W.own_radius ? new double[W.centre_stride * static_cast<size_t>(nv)] : nullptr);
   W.centre = centre.get();
+  std::unique_ptr<double[]> h2(W.degree >= 4 ? new double[3 * static_cast<size_t>(nv)] : nullptr);
+  W.h2 = h2.get();
   ParallelFor(nv, threads, [&](int64_t v) {
     if (v + 16 < nv) __builtin_prefetch(W.xn[0] + kRec * slot_of(v + 16), 1);
     const int64_t k = slot_of(v);
@@ -569,6 +612,7 @@ absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighbor
       double* to = centre.get() + W.centre_stride * k;
       for (int i = 0; i < 3; ++i) to[i] = fr.normal[i];
       for (int j = 6; j < num_coefficients; ++j) to[3 + j - 6] = c[j];
+      if (W.h2) for (int j = 0; j < 3; ++j) h2[3 * k + j] = c[3 + j];
     }
   }, 4096);
   // Normal passes, from one copy of the normals into the other (every vertex reads its
