@@ -105,7 +105,7 @@ std::string FitOptionsKey(const FitOptions& o) {
                         WlsSolverName(o.solver), o.NormalDegree(), o.HermiteHessian());
   if (o.SlopePasses() > 0) absl::StrAppendFormat(&key, " sr%d", o.SlopePasses());
   if (o.degree == 3 && !o.CubicHermite()) absl::StrAppend(&key, " ch0");
-  if ((o.degree == 4 || o.degree == 5) && !o.JetHermite()) absl::StrAppend(&key, " jh0");
+  if (o.JetHermite()) absl::StrAppend(&key, " jh1");
   return key;
 }
 

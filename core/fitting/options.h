@@ -115,13 +115,16 @@ struct FitOptions {
   /// (bench/README.md, `clean4`). Ignored by the GFD operators (FitRequest::stencils).
   bool cubic_hermite = true;
   /// Hermite jets of degree-4 and -5 fits (interpolating LHF fits with the QR solver, noise
-  /// off): after the fit, its Hessian and gradient are refitted to the rows
+  /// off; opt-in): after the fit, its Hessian and gradient are refitted to the rows
   /// (a h_j - p_j.G_j) / r_j^2 of the stencil points with the neighbours' fitted slopes G_j,
-  /// a = degree + 1, in which the fit's leading bias term (degree + 1) cancels (Euler's
-  /// identity; slopes.h), with the fit's terms of degrees 3..degree as ridged unknowns. In
-  /// the fit's frame; the fit's terms of degree >= 3 are kept. Off: the plain fit
-  /// (bench/README.md, `d45k`). Ignored by the GFD operators (FitRequest::stencils).
-  bool jet_hermite = true;
+  /// a = degree + 1, in which the fit's leading bias term (of degree + 1) cancels (Euler's
+  /// identity; slopes.h), the fit's terms of degrees 3..degree as unknowns ridged towards the
+  /// fit's. In the fit's frame; frames and terms of degree >= 3 stay the fit's. On the clean
+  /// meshes of bench/README.md (`d45k`): normals 0.03-0.39x, H 0.06-0.46x, K 0.07-0.55x CGAL
+  /// Jet_fitting_3's at degrees 4-5 (0.14-0.70x without). Costs ~0.85x a plain degree-4 fit
+  /// (one more pass over the stencils with a 14- or 20-unknown solve per vertex), hence off
+  /// by default. Ignored by the GFD operators (FitRequest::stencils).
+  bool jet_hermite = false;
 
   /// Whether the Hermite curvatures apply (see hermite_hessian).
   bool HermiteHessian() const {
