@@ -509,7 +509,8 @@ class SurfaceFitter {
       }
       fits = std::make_shared<SurfaceFits>();
       // Slope refinement (slopes.h) after the final fit: its blocks are reported once refined.
-      const bool slopes = last && (pass_options.SlopePasses() > 0 || pass_options.CubicHermite()) && !req.stencils;
+      const bool slopes = last && (pass_options.SlopePasses() > 0 || pass_options.CubicHermite() || pass_options.JetHermite()) &&
+                          !req.stencils;
       // The noise schedule's final fit from two stencil sets (noise.h).
       const bool blend = last && eff.noise == NoiseMode::kOn && schedule.two_scale_final && !req.stencils &&
                          pass_options.method == FitMethod::kLHF && (clean_tangent ? tangent_nb : smoothing_nb);
@@ -572,7 +573,7 @@ class SurfaceFitter {
   // (is_boundary aside).
   static bool PlainFit(const FitOptions& o) {
     return o.noise == NoiseMode::kOff && o.SmoothingPasses() == 0 && !o.two_pass && o.NormalDegree() <= o.degree &&
-           o.SlopePasses() == 0 && !o.CubicHermite() && (o.method == FitMethod::kLHF || o.method == FitMethod::kLOP);
+           o.SlopePasses() == 0 && !o.CubicHermite() && !o.JetHermite() && (o.method == FitMethod::kLHF || o.method == FitMethod::kLOP);
   }
 
  private:

@@ -36,6 +36,13 @@ enum class NoiseMode {
   kAuto,  ///< kOn where the mesh looks noisy (EstimateNoise), else kOff
 };
 
+/// The Hermite jets of degree-4/5 fits (FitOptions::jet_hermite).
+enum class JetHermiteMode {
+  kAuto,  ///< on at degree 5, off at degree 4 (the default)
+  kOn,    ///< on at degrees 4 and 5
+  kOff,   ///< off
+};
+
 /// Largest supported fitting degree (28 Taylor coefficients).
 inline constexpr int kMaxDegree = 6;
 /// Largest number of points in one stencil (fixed-capacity work arrays).
@@ -117,6 +124,19 @@ struct FitOptions {
   /// torus) and H, K 0.55-0.96x CGAL Jet_fitting_3's; on, normals 0.03-0.32x, H, K <= 0.54x
   /// (bench/README.md, `clean4`, `d3nrm`). Ignored by the GFD operators (FitRequest::stencils).
   bool cubic_hermite = true;
+  /// Hermite jets of degree-4 and -5 fits (interpolating LHF fits with the QR solver, noise
+  /// off): after the fit, its Hessian and gradient are refitted to the rows
+  /// (a h_j - p_j.G_j) / r_j^2 of the stencil points with the neighbours' fitted slopes G_j,
+  /// a = degree + 1, in which the fit's leading bias term (of degree + 1) cancels (Euler's
+  /// identity; slopes.h), the fit's terms of degrees 3..degree as unknowns ridged towards the
+  /// fit's. In the fit's frame; frames and terms of degree >= 3 stay the fit's. On the clean
+  /// meshes of bench/README.md (`d45k`): normals 0.03-0.39x, H 0.06-0.46x, K 0.07-0.55x CGAL
+  /// Jet_fitting_3's at degrees 4-5 (0.14-0.70x without). Costs ~0.85x a plain degree-4 fit
+  /// (one more pass over the stencils with a 14- or 20-unknown solve per vertex); kAuto (the
+  /// default) runs it at degree 5 only: at degree 4 it is opt-in (kOn), its cost being over the
+  /// whole-process degree-4 budget (bench/README.md, `d45m`). Results stream after the whole
+  /// fit. Ignored by the GFD operators (FitRequest::stencils).
+  JetHermiteMode jet_hermite = JetHermiteMode::kAuto;
 
   /// Whether the Hermite curvatures apply (see hermite_hessian).
   bool HermiteHessian() const {
@@ -134,6 +154,14 @@ struct FitOptions {
   bool CubicHermite() const {
     return cubic_hermite && degree == 3 && method == FitMethod::kLHF && solver == WlsSolver::kQR && Interpolates() &&
            noise == NoiseMode::kOff && NormalDegree() == degree;
+  }
+  /// Whether the degree-4/5 Hermite jets run (see jet_hermite).
+  bool JetHermite() const {
+    const bool on = jet_hermite == JetHermiteMode::kOn ? degree == 4 || degree == 5
+                    : jet_hermite == JetHermiteMode::kAuto ? degree == 5
+                                                           : false;
+    return on && method == FitMethod::kLHF && solver == WlsSolver::kQR &&
+           Interpolates() && noise == NoiseMode::kOff && NormalDegree() == degree;
   }
   /// The normal pre-fit's degree actually used; equal to `degree` when there is none
   /// (the noise mode at degree 2 always refines its normals with a cubic, noise.h).
@@ -172,7 +200,7 @@ std::string FitOptionsKey(const FitOptions& options);
 /// as exact bit patterns: two option sets give identical fits iff their bits are equal.
 /// Cache keys are built from these, never from formatted text (`%g` aliases 1.5 and
 /// 1.5000001).
-using FitOptionsBits = std::array<uint64_t, 21 + kMaxDegree>;
+using FitOptionsBits = std::array<uint64_t, 22 + kMaxDegree>;
 FitOptionsBits FitOptionsIdentity(const FitOptions& options);
 
 const char* FitMethodName(FitMethod m);

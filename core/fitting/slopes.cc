@@ -23,7 +23,9 @@ constexpr int kLanes = 8;
 // failed); kFitted: 1 for a degree-2 fit to refine, else 0. After the Hessian pass the
 // other copy holds per slot (c20, c11, c02, ok, the refined normal, kFitted).
 constexpr int kRec = 8, kRadius2 = 6, kFitted = 7;
-constexpr int kCentre = 7;  // Work::centre's doubles per slot: normal, f30 f21 f12 f03
+// Work::centre's doubles per slot: the frame normal, then the fit's derivatives of degree 3..5
+// in Taylor order (f30 f21 f12 f03, f40 .. f04, f50 .. f05; those above the fit's degree absent).
+constexpr int kMaxJet = 15;
 using Lanes = double[kLanes];
 
 // Solves kLanes symmetric positive definite N x N systems (upper triangles of `a` used,
@@ -83,8 +85,11 @@ struct Work {
   double cos_cut = 0;
   bool own_radius = false;           // no normal pass: the Hessian pass measures the stencils' radii
   double* centre = nullptr;          // with own_radius: per slot the fit's frame normal (the Hessians
-                                     //   stay in the fits' frames) and cubic derivatives (the fit's, then
-                                     //   each normal pass's), kCentre doubles
+                                     //   stay in the fits' frames) and derivatives of degree 3..`degree`
+                                     //   (degree 3: the fit's cubic, then each normal pass's)
+  int degree = 2;                    // the fits' degree (centre_stride = 3 + its derivatives of degree >= 3)
+  int centre_stride = 0;
+  const double* h2 = nullptr;        // degree 5: per slot the fit's Hessian c20 c11 c02 (kJet's share)
   int Vertex(int64_t k) const { return order ? order[k] : static_cast<int>(k); }
   int Size(int64_t k) const { return std::min(offsets[k + 1] - offsets[k], kMaxStencil); }
 };
@@ -112,7 +117,8 @@ struct alignas(64) Batch {
   int32_t slot[kLanes];
   alignas(64) Lanes x, y, z, m[3], t1[3], t2[3];  // aligned: loaded as vectors
   alignas(64) Lanes g1, g2;  // the fitted gradient (c10, c01) in the frame (0 without Work::centre)
-  alignas(64) Lanes f3[4];   // the fit's cubic derivatives f30 f21 f12 f03 (0 without Work::centre)
+  alignas(64) Lanes h2[3];   // the fit's Hessian (c20, c11, c02) with Work::h2, else 0
+  alignas(64) Lanes f3[kMaxJet];  // the fit's derivatives of degree 3.. (f30 f21 f12 f03 ...; 0 without Work::centre)
   int32_t idx[kMaxStencil][kLanes];
   alignas(64) Lanes dx[kMaxStencil], dy[kMaxStencil], dz[kMaxStencil], nx[kMaxStencil], ny[kMaxStencil], nz[kMaxStencil],
       live[kMaxStencil];
@@ -122,8 +128,10 @@ struct alignas(64) Batch {
     for (int l = 0; l < kLanes; ++l) {
       const int64_t k = slot[l] = slots[l < n ? l : 0];
       const double* self = xn + kRec * k;
-      const double* frame = W.centre ? W.centre + kCentre * k : self + 3;
-      for (int c = 0; c < 4; ++c) f3[c][l] = W.centre ? frame[3 + c] : 0.0;
+      const double* frame = W.centre ? W.centre + W.centre_stride * k : self + 3;
+      for (int c = 0; c < W.centre_stride - 3; ++c) f3[c][l] = frame[3 + c];
+      for (int c = 0; c < 3; ++c) h2[c][l] = W.h2 ? W.h2[3 * k + c] : 0.0;
+      for (int c = std::max(0, W.centre_stride - 3); c < 4; ++c) f3[c][l] = 0.0;
       x[l] = self[0], y[l] = self[1], z[l] = self[2], m[0][l] = frame[0], m[1][l] = frame[1], m[2][l] = frame[2];
       if (l < n) rows = std::max(rows, W.Size(k) - 1);
     }
@@ -363,11 +371,44 @@ __attribute__((always_inline)) inline void CubicSlopeNormals(const Work& W, cons
     dst[kRadius2] = 0.0;
     dst[kFitted] = self[kFitted];
     if (refined) {  // the cubic with it: the unknowns are (C - C_0) / 24 in monomials, radius units
-      double* f3 = W.centre + kCentre * k + 3;
+      double* f3 = W.centre + W.centre_stride * k + 3;
       const double s2 = scale[l] * scale[l];
       f3[0] += 24 * b[5][l] * jacobi[5][l] * s2, f3[1] += 8 * b[6][l] * jacobi[6][l] * s2;
       f3[2] += 8 * b[7][l] * jacobi[7][l] * s2, f3[3] += 24 * b[8][l] * jacobi[8][l] * s2;
     }
+  }
+}
+
+// The stencils' squared radii of a batch (the normal pass's, or with Work::own_radius those
+// of the rows kept), their inverses, and ok[l] = 1 for the lanes to refit.
+__attribute__((always_inline)) inline void StencilRadii(const Work& W, const Batch& B, Lanes& radius2, Lanes& inv_radius2,
+                                                        Lanes& inv_radius, Lanes& ok) {
+  alignas(64) Lanes r2max = {};
+  if (W.own_radius) {  // the squared radius of the rows kept, as the normal pass measures it (in vector lanes)
+    auto ld = [](const Lanes& x) { return *reinterpret_cast<const V*>(x); };
+    const V m0 = ld(B.m[0]), m1 = ld(B.m[1]), m2 = ld(B.m[2]), t10 = ld(B.t1[0]), t11 = ld(B.t1[1]),
+            t12 = ld(B.t1[2]), t20 = ld(B.t2[0]), t21 = ld(B.t2[1]), t22 = ld(B.t2[2]);
+    const V zero = {};
+    V r2 = zero;
+    for (int i = 0; i < B.rows; ++i) {
+      const V dx = ld(B.dx[i]), dy = ld(B.dy[i]), dz = ld(B.dz[i]);
+      const V nm = ld(B.nx[i]) * m0 + ld(B.ny[i]) * m1 + ld(B.nz[i]) * m2;
+      const V pu = dx * t10 + dy * t11 + dz * t12, pw = dx * t20 + dy * t21 + dz * t22;
+      const V keep = (nm >= W.cos_cut ? zero + 1 : zero) * ld(B.live[i]), x = keep * (pu * pu + pw * pw);
+      r2 = r2 > x ? r2 : x;
+    }
+    *reinterpret_cast<V*>(r2max) = r2;
+  }
+  for (int l = 0; l < kLanes; ++l) {
+    const double* self = B.xn + kRec * static_cast<int64_t>(B.slot[l]);
+    const double r2 = W.own_radius ? r2max[l] : self[kRadius2];
+    ok[l] = l < B.count && r2 > 0 && self[kFitted] != 0 ? 1.0 : 0.0;
+    radius2[l] = r2 > 0 ? r2 : 1.0;
+  }
+#pragma omp simd
+  for (int l = 0; l < kLanes; ++l) {
+    inv_radius2[l] = 1 / radius2[l];
+    inv_radius[l] = std::sqrt(inv_radius2[l]);
   }
 }
 
@@ -386,28 +427,9 @@ __attribute__((always_inline)) inline void HermiteHessians(const Work& W, const 
   // Degree 3 (Work::centre): s / (s + 0.5)^2.5 and the ridge 0.3% towards the fit's cubic
   // (scanned on gmsh, marching-cubes and generated meshes: bench/README.md, `clean4`).
   const double kEps = W.centre ? 0.5 : 0.3, kRidge = W.centre ? 0.003 : 0.01;
-  alignas(64) Lanes radius2, inv_radius2, inv_radius, r2max = {};
+  alignas(64) Lanes radius2, inv_radius2, inv_radius;
   const double cos_cut = W.cos_cut;
-  if (W.own_radius)  // the squared radius of the rows kept, as the normal pass measures it
-    for (int i = 0; i < B.rows; ++i)
-#pragma omp simd
-      for (int l = 0; l < B.lanes; ++l) {
-        double pu, pw, ph, nm, nt1, nt2;
-        Project(B, i, l, pu, pw, ph, nm, nt1, nt2);
-        const double keep = (nm >= cos_cut ? 1.0 : 0.0) * B.live[i][l];
-        r2max[l] = std::max(r2max[l], keep * (pu * pu + pw * pw));
-      }
-  for (int l = 0; l < kLanes; ++l) {
-    const double* self = B.xn + kRec * static_cast<int64_t>(B.slot[l]);
-    const double r2 = W.own_radius ? r2max[l] : self[kRadius2];
-    ok[l] = l < B.count && r2 > 0 && self[kFitted] != 0 ? 1.0 : 0.0;
-    radius2[l] = r2 > 0 ? r2 : 1.0;
-  }
-#pragma omp simd
-  for (int l = 0; l < kLanes; ++l) {
-    inv_radius2[l] = 1 / radius2[l];
-    inv_radius[l] = std::sqrt(inv_radius2[l]);
-  }
+  StencilRadii(W, B, radius2, inv_radius2, inv_radius, ok);
   // Moments of (u, w) / radius: weights wt / r^4 at degrees 4-6 (the normal matrix), wt v / r^2
   // at degrees 2-3 (the right-hand side).
   enum { m40, m31, m22, m13, m04, m50, m41, m32, m23, m14, m05, m60, m51, m42, m33, m24, m15, m06,
@@ -474,6 +496,124 @@ __attribute__((always_inline)) inline void HermiteHessians(const Work& W, const 
     for (int l = 0; l < kLanes; ++l) hess[c][l] = b[c][l];
 }
 
+// The Hermite jets' constants per degree (scanned on the clean meshes of bench/README.md, `d45k`):
+// the combination a (a = D + 1 cancels the fit's leading bias T_{D+1}), the row weights'
+// eps (hermite.h: s / (s + eps)^2.5), and the share of the Hermite Hessian in the one
+// reported (degree 5: 0.6, the rest the fit's own; on marching-cubes meshes the two errors
+// partly cancel). The unknowns of degrees 3..D get a ridge of 0.3% of the Hessian block's
+// trace towards the fit's terms, as at degree 3.
+struct JetConstants {
+  double a, eps, share;
+};
+constexpr JetConstants kJet[2] = {{5, 0.5, 1.0}, {6, 0.2, 0.6}};
+constexpr double kJetRidge = 0.003;
+
+// The Hermite pass of degree-D fits (D = 4, 5; FitOptions::jet_hermite, slopes.h). Along the
+// ray to stencil point p (height h, the neighbour's fitted slopes G), Euler's identity
+// p.grad T_k = k T_k for the fit's homogeneous Taylor terms T_k gives
+// a h - p.G = sum_k (a - k) T_k(p): with a = D + 1 the term T_{D+1}, the leading bias of a
+// degree-D fit, cancels (hermite.h is a = 4). The rows (a h - p.G) 2 / ((a - 2) r^2) less the
+// fit's own terms of degrees 1 and 3..D are fitted with the monomials of degrees 1..D / r^2:
+// the Hessian (degree 2) directly, the others as corrections of the fit's (a ridge towards
+// it on degrees >= 3). out: c20 c11 c02, then the gradient's correction (c10, c01).
+template <int D>
+__attribute__((always_inline)) inline void HermiteJets(const Work& W, const Batch& B, double (&out)[5][kLanes],
+                                                      Lanes& ok) {
+  constexpr int kN = NumCoefficients(D) - 1;      // unknowns: the monomials of degrees 1..D
+  constexpr int kM = NumCoefficients(2 * D) - 3;  // moments of degrees 2..2D
+  constexpr JetConstants kc = kJet[D - 4];
+  constexpr double a = kc.a, norm = 2 / (a - 2), eps = kc.eps;
+  alignas(64) Lanes radius2, inv_radius2, inv_radius;
+  const double cos_cut = W.cos_cut;
+  StencilRadii(W, B, radius2, inv_radius2, inv_radius, ok);
+  // The fit's terms of degrees 3..D in the rows: (a - k) f_pq / (p! q!) per monomial u^p w^q.
+  V fit[kMaxJet];
+  for (int k = 3, c = 0; k <= D; ++k)
+    for (int q = 0; q <= k; ++q, ++c) {
+      static constexpr double kFactorial[6] = {1, 1, 2, 6, 24, 120};
+      const double f = (a - k) / (kFactorial[k - q] * kFactorial[q]);
+      for (int l = 0; l < kLanes; ++l) fit[c][l] = f * B.f3[c][l];
+    }
+  const V big_r = *reinterpret_cast<const V*>(radius2), inv_big_r = *reinterpret_cast<const V*>(inv_radius);
+  V acc[kM] = {}, rhs[kN] = {};
+  auto ld = [](const Lanes& x) { return *reinterpret_cast<const V*>(x); };
+  const V m0 = ld(B.m[0]), m1 = ld(B.m[1]), m2 = ld(B.m[2]), t10 = ld(B.t1[0]), t11 = ld(B.t1[1]), t12 = ld(B.t1[2]),
+          t20 = ld(B.t2[0]), t21 = ld(B.t2[1]), t22 = ld(B.t2[2]), g1 = ld(B.g1), g2 = ld(B.g2), ir = ld(inv_radius2);
+  const V zero = {}, one = zero + 1;
+  for (int i = 0; i < B.rows; ++i) {
+    // The row in vector lanes (Project and hermite.h's HermiteRowOf): (a h - p.G - (a - 1) g.p) / r^2,
+    // 1 / r^2 and the weight gamma s / (s + eps)^2.5.
+    const V dx = ld(B.dx[i]), dy = ld(B.dy[i]), dz = ld(B.dz[i]), nx = ld(B.nx[i]), ny = ld(B.ny[i]), nz = ld(B.nz[i]);
+    const V u0 = dx * t10 + dy * t11 + dz * t12, w0 = dx * t20 + dy * t21 + dz * t22, ph = dx * m0 + dy * m1 + dz * m2;
+    const V nm = nx * m0 + ny * m1 + nz * m2, nt1 = nx * t10 + ny * t11 + nz * t12, nt2 = nx * t20 + ny * t21 + nz * t22;
+    const V gamma = (nm >= cos_cut ? nm : zero) * ld(B.live[i]);
+    const V r2 = u0 * u0 + w0 * w0;
+    const V g = r2 > 0 ? gamma : zero;
+    const V inv = one / (g > 0 ? nm * r2 : one);
+    const V inv_r2 = g > 0 ? nm * inv : zero;
+    const V sr = r2 * ir;
+    alignas(64) Lanes root;
+    const V se = sr + eps;
+#pragma omp simd
+    for (int l = 0; l < kLanes; ++l) root[l] = std::sqrt(se[l]);
+    const V rt = ld(root), weight = g * sr / (rt * rt * rt * rt * rt);
+    const V row = (a * ph * nm + (nt1 * u0 + nt2 * w0)) * inv - (a - 1) * (g1 * u0 + g2 * w0) * inv_r2;
+    V up[2 * D + 1], wp[2 * D + 1];
+    up[0] = u0 * 0 + 1, wp[0] = up[0];
+#pragma GCC unroll 16
+    for (int k = 1; k <= D; ++k) up[k] = up[k - 1] * u0, wp[k] = wp[k - 1] * w0;
+    V known = u0 * 0;
+#pragma GCC unroll 32
+    for (int k = 3, c = 0; k <= D; ++k)
+#pragma GCC unroll 8
+      for (int q = 0; q <= k; ++q, ++c) known += fit[c] * up[k - q] * wp[q];
+    const V value = norm * (row - known * inv_r2);
+    const V u = u0 * inv_big_r, w = w0 * inv_big_r, s = inv_r2 * big_r;
+    const V wm = weight * s * s, wv = weight * value * s;
+#pragma GCC unroll 16
+    for (int k = 1; k <= 2 * D; ++k) up[k] = up[k - 1] * u, wp[k] = wp[k - 1] * w;
+#pragma GCC unroll 16
+    for (int p = 0; p <= 2 * D; ++p) {
+      const V t = wm * up[p];
+#pragma GCC unroll 16
+      for (int q = std::max(0, 2 - p); p + q <= 2 * D; ++q) acc[TaylorIndex(p, q) - 3] += t * wp[q];
+      if (p > D) continue;
+      const V r = wv * up[p];
+#pragma GCC unroll 16
+      for (int q = std::max(0, 1 - p); p + q <= D; ++q) rhs[TaylorIndex(p, q) - 1] += r * wp[q];
+    }
+  }
+  // Unknown j is the monomial (p_j, q_j) of degree 1..D in Taylor order; entry (i, j) the moment
+  // of the summed exponents.
+  int P[kN], Q[kN];
+  for (int k = 1, c = 0; k <= D; ++k)
+    for (int q = 0; q <= k; ++q, ++c) P[c] = k - q, Q[c] = q;
+  alignas(64) double m[kN][kN][kLanes], b[kN][kLanes];
+  for (int i = 0; i < kN; ++i) {
+    for (int j = i; j < kN; ++j) {
+      const int k = TaylorIndex(P[i] + P[j], Q[i] + Q[j]) - 3;
+#pragma omp simd
+      for (int l = 0; l < kLanes; ++l) m[i][j][l] = acc[k][l];
+    }
+    for (int l = 0; l < kLanes; ++l) b[i][l] = rhs[i][l];
+  }
+#pragma omp simd
+  for (int l = 0; l < kLanes; ++l) {
+    const double trace = m[2][2][l] + 4 * m[3][3][l] + m[4][4][l];
+    for (int i = 5; i < kN; ++i) m[i][i][l] += kJetRidge * trace;
+  }
+  SolveSpdLanes<kN>(m, b, 1e-9, ok);
+  // The gradient's correction in real units: its columns are 2 (a - 1) / (a - 2) p / r^2.
+  constexpr double mu = (a - 1) / a;
+  for (int l = 0; l < kLanes; ++l) {
+    const double radius = std::sqrt(radius2[l]), g = mu * radius * (a - 2) / (2 * (a - 1));
+    out[0][l] = b[2][l], out[1][l] = 0.5 * b[3][l], out[2][l] = b[4][l];
+    if (kc.share < 1)
+      for (int c = 0; c < 3; ++c) out[c][l] = kc.share * out[c][l] + (1 - kc.share) * B.h2[c][l];
+    out[3][l] = g * b[0][l], out[4][l] = g * b[1][l];
+  }
+}
+
 // The slots [k0, k1) sorted by stencil size (a stable counting sort), so the lanes of a
 // batch (kLanes consecutive entries) differ little in size.
 // Written to walk[k0, k1); every pass visits the batches in this order.
@@ -524,14 +664,21 @@ __attribute__((target_clones("arch=x86-64-v4", "avx2", "default"))) void Hessian
     PrefetchBatch(W, W.xn[from], j + kLanes, k1);
     const int n = static_cast<int>(std::min<int64_t>(kLanes, k1 - j));
     B->Load(W, W.xn[from], W.walk.data() + j, n);
-    alignas(64) double hess[3][kLanes];
+    alignas(64) double hess[5][kLanes];
     alignas(64) Lanes ok;
-    HermiteHessians(W, *B, hess, ok);
-    // The results into the other copy (no pass reads it any more): one line per slot.
+    if (W.degree == 4)
+      HermiteJets<4>(W, *B, hess, ok);
+    else if (W.degree == 5)
+      HermiteJets<5>(W, *B, hess, ok);
+    else
+      HermiteHessians(W, *B, reinterpret_cast<double(&)[3][kLanes]>(hess), ok);
+    // The results into the other copy (no pass reads it any more): one line per slot (degrees
+    // 4-5: the gradient's correction in place of the frame normal).
     for (int l = 0; l < n; ++l) {
       const int64_t k = B->slot[l];
       double* out = W.xn[1 - from] + kRec * k;
-      for (int c = 0; c < 3; ++c) out[c] = hess[c][l], out[4 + c] = B->xn[kRec * k + 3 + c];
+      for (int c = 0; c < 3; ++c)
+        out[c] = hess[c][l], out[4 + c] = W.degree >= 4 ? (c < 2 ? hess[3 + c][l] : 0.0) : B->xn[kRec * k + 3 + c];
       out[3] = ok[l];
       out[kFitted] = B->xn[kRec * k + kFitted];
     }
@@ -570,8 +717,12 @@ absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighbor
   // slots at random: one line a vertex instead of three).
   const int32_t* rank = os ? os->rank.data() : nullptr;
   auto slot_of = [&](int64_t v) -> int64_t { return rank ? rank[v] : v; };
-  std::unique_ptr<double[]> centre(num_coefficients >= 10 ? new double[kCentre * static_cast<size_t>(nv)] : nullptr);
+  W.degree = num_coefficients >= 21 ? 5 : num_coefficients >= 15 ? 4 : num_coefficients >= 10 ? 3 : 2;
+  W.centre_stride = W.own_radius ? 3 + num_coefficients - 6 : 0;
+  std::unique_ptr<double[]> centre(W.own_radius ? new double[W.centre_stride * static_cast<size_t>(nv)] : nullptr);
   W.centre = centre.get();
+  std::unique_ptr<double[]> h2(W.degree == 5 ? new double[3 * static_cast<size_t>(nv)] : nullptr);
+  W.h2 = h2.get();
   ParallelFor(nv, threads, [&](int64_t v) {
     if (v + 16 < nv) __builtin_prefetch(W.xn[0] + kRec * slot_of(v + 16), 1);
     const int64_t k = slot_of(v);
@@ -582,9 +733,10 @@ absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighbor
     for (int i = 0; i < 3; ++i) dst[i] = mesh.positions(v, i), dst[3 + i] = n[i];
     dst[kRadius2] = 0, dst[kFitted] = diagnostics[v].degree_used >= 2 ? 1.0 : 0.0;
     if (W.centre) {
-      double* to = centre.get() + kCentre * k;
+      double* to = centre.get() + W.centre_stride * k;
       for (int i = 0; i < 3; ++i) to[i] = fr.normal[i];
-      for (int j = 0; j < 4; ++j) to[3 + j] = num_coefficients >= 10 ? c[TaylorIndex(3 - j, j)] : 0.0;
+      for (int j = 6; j < num_coefficients; ++j) to[3 + j - 6] = c[j];
+      if (W.h2) for (int j = 0; j < 3; ++j) h2[3 * k + j] = c[3 + j];
     }
   }, 4096);
   // Normal passes, from one copy of the normals into the other (every vertex reads its
@@ -621,6 +773,7 @@ absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighbor
       const Eigen::Vector3d n(x[4], x[5], x[6]);
       const double nm = n.dot(fr.normal);
       if (passes > 0 && nm > 0) c[TaylorIndex(1, 0)] = -n.dot(fr.t1) / nm, c[TaylorIndex(0, 1)] = -n.dot(fr.t2) / nm;
+      if (x[3] > 0 && W.degree >= 4) c[TaylorIndex(1, 0)] += x[4], c[TaylorIndex(0, 1)] += x[5];
       return;
     }
     frames[v] = FrameFromNormal(Eigen::Vector3d(mesh.positions(v, 0), mesh.positions(v, 1), mesh.positions(v, 2)),

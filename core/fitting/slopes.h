@@ -60,6 +60,19 @@ constexpr int kCubicSlopePasses = 2;
 /// C(p) / 6 + O(p^5) in a tilted frame), the four cubic unknowns correct the cubic (ridge
 /// 0.3%, weights s / (s + 0.5)^2.5). The fits get the refined normal as their gradient
 /// (c10, c01) and the new Hessian (c20, c11, c02); frames and cubic terms stay the fit's.
+///
+/// Degrees 4 and 5 (FitOptions::jet_hermite: `num_coefficients` 15 / 21, passes = 0): the
+/// Hermite jets. For the homogeneous Taylor terms T_k of the height over the fit's frame,
+/// Euler's identity p.grad T_k = k T_k gives a h_j - p_j.G_j = sum_k (a - k) T_k(p_j) along the
+/// ray to p_j (G_j: the neighbour's fitted slopes), so a = degree + 1 cancels T_{degree+1},
+/// the leading bias of the fit's Hessian and gradient (hermite.h is a = 4). The rows
+/// 2 (a h_j - p_j.G_j) / ((a - 2) r_j^2) less the fit's terms of degrees 1 and 3..degree are
+/// fitted with all monomials of degrees 1..degree / r_j^2 (weights (2.2.1)'s gamma times
+/// s / (s + eps)^2.5; degrees >= 3 ridged 0.3% towards the fit's): the Hessian replaces the
+/// fit's (degree 5: 0.6 of it, 0.4 the fit's own), and (a - 1) / a of the gradient's
+/// correction is added to c10, c01 (the neighbours' normal bias e enters it as -e / (a - 1),
+/// the fit's own as e: the weights cancel the smooth part, as the degree-2 normal pass's 1/3,
+/// 2/3). Frames and terms of degree >= 3 stay the fit's.
 absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighborhoods& nb, double cos_cut, int passes,
                           const RunContext& ctx, const VertexDiagnostics* diagnostics, LocalFrame* frames,
                           double* coefficients, int num_coefficients = 6);

@@ -323,6 +323,32 @@ TEST_F(HandlersTest, AFreshFitStreamsChunksWhileItRuns) {
   EXPECT_TRUE(again.chunks.back().summary().quantities_cache_hit());
 }
 
+// Degree 5: the Hermite jets (on by default, FitOptions::jet_hermite) refit the whole mesh
+// after the fit, then its blocks are reported, as at degree 3: every chunk once, the values
+// the in-process ones.
+TEST_F(HandlersTest, AStreamedDegreeFiveFitReportsAfterItsHermiteJets) {
+  const Mesh mesh = TestTorus(40);
+  auto info = Upload(mesh);
+  ASSERT_TRUE(info.ok());
+  v1::ComputeDifferentialsRequest request = StreamedRequest(info->mesh_id());
+  request.mutable_options()->set_degree(5);
+  RecordingSink sink;
+  CancellationToken token;
+  ASSERT_TRUE(handlers_.ComputeDifferentials(request, token, &sink).ok());
+  ASSERT_EQ(sink.chunks.size(), static_cast<size_t>((mesh.NumVertices() + 511) / 512));
+  EXPECT_EQ(std::count(sink.last.begin(), sink.last.end(), true), 1);
+  v1::FitSummary summary;
+  auto d = sink.Assemble(&summary);
+  ASSERT_TRUE(d.ok()) << d.status();
+  ExpectSameAsInProcess(*d, mesh, 5);
+  FitOptions plain;
+  plain.degree = 5;
+  plain.jet_hermite = JetHermiteMode::kOff;
+  auto p = ComputeDifferentials(mesh, plain, kAllQuantities, RunContext(nullptr, 1));
+  ASSERT_TRUE(p.ok());
+  EXPECT_NE(d->mean, p->mean) << "the Hermite jets did not run at degree 5";
+}
+
 TEST(HandlersStreamTest, FittingThreadsStreamEveryChunkOnceInOrder) {
   auto store = NewMemoryStore();
   Cache cache(64 << 20);
@@ -398,8 +424,9 @@ TEST_F(HandlersTest, TheOwnerSendsAFollowersLastChunkAsSoonAsItEnds) {
   const int64_t last_start = (n - 1) / kRows * kRows;
   ASSERT_GT(n - last_start, 2 * 512) << "the last chunk should span several fitted blocks";
   v1::ComputeDifferentialsRequest request = StreamedRequest(info->mesh_id());  // a chunk per fitted block
-  // Degree 4: degree 3's fits are reported once their Hermite curvatures are refitted, in one
-  // block (FitOptions::cubic_hermite, as the degree-2 slope refinement's).
+  // Degree 4: degree 3's (and 5's) fits are reported once their Hermite curvatures are
+  // refitted, in one block (FitOptions::cubic_hermite, jet_hermite, as the degree-2 slope
+  // refinement's); degree 4's Hermite jets are off by default.
   request.mutable_options()->set_degree(4);
   v1::ComputeDifferentialsRequest follower_request = request;
   follower_request.set_chunk_rows(kRows);

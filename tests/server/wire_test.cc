@@ -22,12 +22,17 @@ TEST(WireTest, FitOptionsRoundTripAndUnsetMeansDefault) {
   o.hermite_hessian = true;
   o.slope_refinement = 2;
   o.cubic_hermite = false;
+  o.jet_hermite = JetHermiteMode::kOn;
   auto back = FromProto(ToProto(o));
   ASSERT_TRUE(back.ok()) << back.status();
   EXPECT_EQ(back->normal_degree, 5);
   EXPECT_TRUE(back->hermite_hessian);
   EXPECT_EQ(back->slope_refinement, 2);
   EXPECT_FALSE(back->cubic_hermite);
+  EXPECT_EQ(back->jet_hermite, JetHermiteMode::kOn);
+  o.jet_hermite = JetHermiteMode::kOff;
+  EXPECT_EQ(FromProto(ToProto(o))->jet_hermite, JetHermiteMode::kOff);
+  EXPECT_FALSE(ToProto(FitOptions()).has_jet_hermite());  // auto stays unset
   EXPECT_EQ(FitOptionsKey(*back), FitOptionsKey(o));
   EXPECT_EQ(FitOptionsIdentity(*back), FitOptionsIdentity(o));
   for (FitMethod m : {FitMethod::kLHF, FitMethod::kLOP, FitMethod::kXu, FitMethod::kLSCM}) {
@@ -41,6 +46,7 @@ TEST(WireTest, FitOptionsRoundTripAndUnsetMeansDefault) {
   EXPECT_FALSE(defaults->hermite_hessian);
   EXPECT_EQ(defaults->slope_refinement, 0);
   EXPECT_TRUE(defaults->cubic_hermite);
+  EXPECT_EQ(defaults->jet_hermite, JetHermiteMode::kAuto);
   v1::FitOptions bad;
   bad.set_degree(7);
   EXPECT_EQ(FromProto(bad).status().code(), absl::StatusCode::kInvalidArgument);

@@ -218,6 +218,11 @@ void AddCurvatureOptions(ArgParser* p, CurvatureArgs* a) {
             "degree 3: keep the plain fit's normals and curvatures (by default both are refined "
             "with the neighbours' fitted normals: normals ~0.3x, H, K ~0.5x CGAL's or better, "
             "~1.7x the CPU time)")
+      .Flag("hermite-jets", &a->hermite_jets,
+            "degrees 4-5: refit the Hessian and gradient with the neighbours' fitted slopes "
+            "(H, K ~0.5x CGAL's or better; on by default at degree 5, ~0.85x a plain degree-4 "
+            "fit more)")
+      .Flag("plain-jets", &a->plain_jets, "degrees 4-5: keep the plain fit's normals and curvatures")
       .String("solver", &a->solver, "least-squares solver: qr (the default) or svd", "qr|svd")
       .Flag("two-pass", &f.two_pass, "refit in frames from the first pass's fitted normals")
       .Flag("interpolate", &a->interpolate, "the fit passes through the vertex (the default)")
@@ -282,6 +287,9 @@ absl::Status ParseCurvatureArgs(const std::vector<std::string>& argv, CurvatureA
     return UsageError("--interpolate and --approximate exclude each other");
   a->fit.interpolate = !a->approximate;
   if (a->plain_cubic) a->fit.cubic_hermite = false;
+  if (a->hermite_jets && a->plain_jets) return UsageError("--hermite-jets and --plain-jets exclude each other");
+  if (a->hermite_jets) a->fit.jet_hermite = JetHermiteMode::kOn;
+  if (a->plain_jets) a->fit.jet_hermite = JetHermiteMode::kOff;
   if (a->fit.rings > a->fit.max_rings) a->fit.max_rings = std::min(a->fit.rings, 10.0);
   s = ValidateFitOptions(a->fit);
   if (!s.ok()) return UsageError(s.message());

@@ -580,7 +580,9 @@ class Client:
         (no degree-3 pre-fit; ~3x a plain fit): the best clean-mesh accuracy at degree 2 (one
         pass, ~2.5x, reaches 0.48x CGAL's max-norm errors on marching-cubes meshes). cubic_hermite=False
         (degree 3): the plain fit's normals and curvatures instead of the slope refinement and
-        Hermite refit (on by default). method: "lhf", "lop", or the
+        Hermite refit (on by default). jet_hermite=True / False (degrees 4-5): the Hessian and
+        gradient refitted with the neighbours' fitted slopes (H, K ~0.5x CGAL's or better) or the
+        plain fit's (unset: on at degree 5, off at degree 4). method: "lhf", "lop", or the
         comparison methods "xu", "lscm".
         `progress`: callable(phase, done, total) or True (geomfit.progress), called with the
         server's phases of the fit ("noise test", "smooth 1/2", "smooth 2/2", "frames",
