@@ -632,18 +632,32 @@ TEST(NoiseAwareTest, AutoChoosesByTheResidualTest) {
             0.1);
 }
 
+// A generated torus of n cells, its copy moved along the normals by alpha h^3 (clipped
+// Gaussian), and the noise test's estimate of the copy (the auto tests' setup).
+struct PerturbedTorus {
+  Mesh clean, mesh;
+  NoiseEstimate estimate;
+};
+PerturbedTorus PerturbTorus(const AnalyticSurface& torus, int n, double alpha) {
+  GeneratorOptions g;
+  g.n = n;
+  PerturbedTorus t;
+  t.clean = GenerateTorusMesh(g);
+  t.mesh = PerturbAlongNormals(t.clean, torus, alpha, 3);
+  const Topology topo = BuildTopology(t.mesh).value();
+  t.estimate = EstimateNoise(t.mesh, topo, ApproximateVertexNormals(t.mesh, topo, NormalWeighting::kArea)).value();
+  return t;
+}
+
 // Issue 16: light O(h^3) noise on a fine torus sits below the quadratic's truncation error
 // (residual ratio 0.024: main's test called it clean) but above the quartic's, whose fits
 // then carry it into K (L2 4.2x CGAL's). The sextic ratio sees it: auto turns the noise mode
 // on, and its K error is far below the default fit's.
 TEST(NoiseAwareTest, AutoSeesLightNoiseBelowTheQuadraticsTruncation) {
   auto torus = MakeTorus();
-  GeneratorOptions g;
-  g.n = 64;
-  const Mesh clean = GenerateTorusMesh(g), mesh = PerturbAlongNormals(clean, *torus, 0.2, 3);
-  const Topology topo = BuildTopology(mesh).value();
-  const NoiseEstimate est =
-      EstimateNoise(mesh, topo, ApproximateVertexNormals(mesh, topo, NormalWeighting::kArea)).value();
+  const PerturbedTorus t = PerturbTorus(*torus, 64, 0.2);
+  const Mesh &clean = t.clean, &mesh = t.mesh;
+  const NoiseEstimate& est = t.estimate;
   EXPECT_LT(est.residual_ratio, 0.05);
   EXPECT_GT(est.sextic_ratio, 0.7);
   EXPECT_TRUE(est.noisy);
@@ -663,12 +677,9 @@ TEST(NoiseAwareTest, AutoSeesLightNoiseBelowTheQuadraticsTruncation) {
 // noise mode there (bitwise `on`; K L2 6.6e-3 -> 1.25e-3); at degree 2 it stays off.
 TEST(NoiseAwareTest, AutoTakesTheSexticBandAtHighDegree) {
   auto torus = MakeTorus();
-  GeneratorOptions g;
-  g.n = 56;
-  const Mesh clean = GenerateTorusMesh(g), mesh = PerturbAlongNormals(clean, *torus, 0.1, 3);
-  const Topology topo = BuildTopology(mesh).value();
-  const NoiseEstimate est =
-      EstimateNoise(mesh, topo, ApproximateVertexNormals(mesh, topo, NormalWeighting::kArea)).value();
+  const PerturbedTorus t = PerturbTorus(*torus, 56, 0.1);
+  const Mesh &clean = t.clean, &mesh = t.mesh;
+  const NoiseEstimate& est = t.estimate;
   EXPECT_GT(est.sextic_ratio, kNoisySexticRatioHighDegree);
   EXPECT_LT(est.sextic_ratio, kNoisySexticRatio);
   EXPECT_FALSE(est.noisy);
