@@ -40,6 +40,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import external_meshes as em  # noqa: E402
+from safeguard_external import read_tsv  # noqa: E402
 
 ELL = np.array([1.0, 0.8, 0.6])
 FAMILIES = {  # name: (surface, levels, pattern)
@@ -429,13 +430,7 @@ def report(outdir, out):
         probe = path.endswith("extra_safeguard_coarse.tsv")
         if not os.path.exists(path):
             continue
-        rows = {}
-        with open(path) as f:
-            head = f.readline().rstrip("\n").split("\t")
-            for line in f:
-                r = dict(zip(head, line.rstrip("\n").split("\t")))
-                if len(r) == len(head):
-                    rows[(r["mesh"], r["method"], int(r["degree"]))] = r
+        rows = read_tsv(path)
         for mesh in dict.fromkeys(k[0] for k in rows):
             for method in ("walf", "cmf"):
                 nv = next((r["vertices"] for k, r in rows.items() if k[0] == mesh), "?")

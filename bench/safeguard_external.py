@@ -63,6 +63,7 @@ def make_meshes(outdir):
 
 
 def read_tsv(path):
+    """safeguard_study's TSV: {(mesh, method, degree): row as a dict of its columns}."""
     rows = {}
     with open(path) as f:
         head = f.readline().rstrip("\n").split("\t")
