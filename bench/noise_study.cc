@@ -157,8 +157,8 @@ int main(int argc, char** argv) {
           if (std::getenv("NOISE_ESTIMATE_ONLY")) {
             const NoiseEstimate est =
                 EstimateNoise(mesh, topo, ApproximateVertexNormals(mesh, topo, NormalWeighting::kArea)).value();
-            std::printf("%s O(h^%d) a=%g n=%s nv=%d: ratio %.4f sextic %.3f level/h %.2e -> %s\n", name.c_str(), k,
-                        alpha, n.c_str(), mesh.NumVertices(), est.residual_ratio, est.sextic_ratio, est.noise_over_h,
+            std::printf("%s O(h^%d) a=%g n=%s nv=%d: ratio %.4f sextic %.3f cubic %.3f level/h %.2e -> %s\n", name.c_str(), k,
+                        alpha, n.c_str(), mesh.NumVertices(), est.residual_ratio, est.sextic_ratio, est.cubic_ratio, est.noise_over_h,
                         est.noisy ? "noisy" : "clean");
             continue;
           }

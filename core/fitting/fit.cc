@@ -360,7 +360,7 @@ class SurfaceFitter {
       GF_ASSIGN_OR_RETURN(const NoiseEstimate est,
                           EstimateNoise(mesh, topo, *frame_normals, o.noise == NoiseMode::kAuto ? ctx : ctx.WithProgress(nullptr)));
       if (o.noise == NoiseMode::kAuto) eff.noise = NoisyAt(est, o.degree) ? NoiseMode::kOn : NoiseMode::kOff;
-      schedule = NoiseScheduleFor(o.degree, est.residual_ratio);
+      schedule = NoiseScheduleFor(o.degree, est.residual_ratio, est.cubic_ratio);
       noise_over_h = est.noise_over_h;
     }
     // The final fit's stencils (the clean ones under light noise, when not set explicitly).

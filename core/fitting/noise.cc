@@ -34,7 +34,10 @@ bool SmoothingBiasDominates(const Positions& before, const Positions& after, con
   return *q90 > kSmoothingBiasQuantile90 * noise && *q90 > kSmoothingBiasSpread * *q50;
 }
 
-NoiseSchedule NoiseScheduleFor(int degree, double residual_ratio) {
+NoiseSchedule NoiseScheduleFor(int degree, double residual_ratio, double cubic_ratio) {
+  // Degree 2: noise below the cubic fits' truncation (a sphere's) gets the slope tier (noise.h).
+  const bool symmetric = degree == 2 && residual_ratio >= kModerateNoiseResidualRatio && cubic_ratio < kHeavyNoiseCubicRatio;
+  if (symmetric) residual_ratio = 0;
   NoiseSchedule s;
   if (residual_ratio >= kHeavyNoiseResidualRatio) {
     s.smoothing_degree = 3;
@@ -53,7 +56,8 @@ NoiseSchedule NoiseScheduleFor(int degree, double residual_ratio) {
   if (degree == 2 && residual_ratio >= kModerateNoiseResidualRatio) s.normal_points_factor = kHeavyNoiseNormalPointsFactor;
   if (degree == 3 && residual_ratio >= kModerateNoiseResidualRatio)  // noise.h, TwoScaleFinalFit
     s.final_clean_stencils = s.two_scale_final = s.curvature_steps = true, s.smoothing_passes = 2,
-    s.local_passes = kCurvatureLocalPasses;
+    s.local_passes = residual_ratio >= kVeryHeavyNoiseResidualRatio ? kVeryHeavyCurvatureLocalPasses
+                                                                    : kCurvatureLocalPasses;
   if (degree >= 4 && residual_ratio >= kModerateNoiseResidualRatio)  // noise.h, kCurvatureLocalPasses
     s.curvature_steps = true, s.local_passes = kCurvatureLocalPasses;
   if (degree == 3 && s.final_rings > 0) s.two_scale_final = true;  // light: noise.h, TwoScaleFinalFit
@@ -70,6 +74,7 @@ NoiseSchedule NoiseScheduleFor(int degree, double residual_ratio) {
   }
   if (degree == 2 && residual_ratio < kSlopeRefinementResidualRatio)  // noise.h, slope_passes
     s.smoothing_degree = 5, s.slope_passes = kNoiseSlopePasses;
+  if (symmetric) s.smoothing_passes = kSymmetricSmoothingPasses;
   return s;
 }
 
@@ -302,7 +307,7 @@ absl::StatusOr<NoiseEstimate> EstimateNoise(const Mesh& mesh, const Topology& to
   // The sample's stencils alone (row i: sample[i]'s), or row v of every vertex's.
   const Neighborhoods own =
       all_stencils ? Neighborhoods{} : BuildNeighborhoodsOf(topo, mesh, NoiseStencilSpec(), sample, ctx.threads());
-  std::vector<double> ratio(samples, -1), level(samples, -1), sextic(samples, -1);
+  std::vector<double> ratio(samples, -1), level(samples, -1), sextic(samples, -1), cubic(samples, -1);
   const double h = AverageEdgeLength(mesh);
   absl::Status s = ParallelFor(samples, ctx, [&](int64_t i) {
     const int v = sample[i];
@@ -325,6 +330,8 @@ absl::StatusOr<NoiseEstimate> EstimateNoise(const Mesh& mesh, const Topology& to
     if (P.rows < 30) return;
     const double r2 = ResidualRms(P, 2), r4 = ResidualRms(P, 4);
     if (r2 > 0) ratio[i] = r4 / r2, level[i] = r4 / h;
+    const double r3 = ResidualRms(P, 3);
+    if (r3 > 0) cubic[i] = r4 / r3;
     // The sextic's residual against the quartic's, both per remaining degree of freedom.
     constexpr int c4 = NumCoefficients(4), c6 = NumCoefficients(6);
     const double r6 = r4 > 0 && P.rows > c6 ? ResidualRms(P, 6) : 0;
@@ -342,6 +349,7 @@ absl::StatusOr<NoiseEstimate> EstimateNoise(const Mesh& mesh, const Topology& to
   est.residual_ratio = median(ratio);
   est.noise_over_h = median(level);
   est.sextic_ratio = median(sextic);
+  est.cubic_ratio = median(cubic);
   est.noisy = est.residual_ratio > kNoisyResidualRatio || est.sextic_ratio > kNoisySexticRatio;
   return est;
 }

@@ -99,6 +99,25 @@ inline constexpr double kNearlyCleanTangentEpsilon = 0.01;
 /// the interpolated centre keeps too much noise (bench/README.md, seventh round).
 inline constexpr double kSlopeRefinementResidualRatio = 0.095;
 inline constexpr int kNoiseSlopePasses = 2;
+/// The heavy tier at degree 2 (cubic smoothing, cubic normal pre-fits on large stencils) relies
+/// on the noise being above the cubic fits' truncation error (the quartic terms): the quartic
+/// fit's residual against the cubic's (NoiseEstimate::cubic_ratio) near 1 (0.86-0.95 on the
+/// meshes it wins on: O(h^2) noise, raw marching cubes). The residual ratio compares the noise
+/// with the quadratic's truncation, the cubic terms, which a sphere lacks: there 0.1 h^3 of
+/// noise, far below the quartic terms, reads "heavy" (gmsh sphere h = 0.03: residual ratio 0.53,
+/// cubic ratio 0.54), and the cubic fits' bias sets the normals (Linf 1.48x the best CGAL).
+/// Below kHeavyNoiseCubicRatio the degree-2 schedule is the slope tier's, with
+/// kSymmetricSmoothingPasses quintic passes (bias O(h^6)) to average the noise the residual
+/// ratio says is large against the quadratic's truncation: generated sphere 0.1 h^3 n = 32 / 64,
+/// 0.3 h^3 n = 16 (cubic ratio 0.45-0.68) max error 2.3-3.3 -> 0.40-0.55x the best CGAL. Raw
+/// marching-cubes tori (0.86-0.90, sextic ratio 0.7) lose with the interpolating final fit
+/// (N = 56: 0.70 -> 1.6x); 0.75 keeps margins of 0.2 to the gmsh sphere and 0.1 to the lowest of
+/// them (0.865). Between 0.75 and 0.8 the switch still wins (sphere 0.3 h^3 n = 32, 0.79: 1.71
+/// -> 0.58x; torus 0.5 h^2 n = 32, 0.80: 0.91 -> 0.58x) but by the 0.8 tried first the torus
+/// series of QuadraticNormalsUnderHeavyNoiseOnAFineMesh changed tier between levels
+/// (bench/README.md, `noise9`).
+inline constexpr double kHeavyNoiseCubicRatio = 0.75;
+inline constexpr int kSymmetricSmoothingPasses = 8;
 /// LocalSmoothingSteps: the top-degree part's scale against the noise level.
 inline constexpr double kLocalSmoothingSignal = 0.3;
 /// Light noise from this residual ratio on (O(h^3), alpha 0.5: 0.040-0.048 at n = 64)
@@ -146,7 +165,10 @@ inline constexpr double kModerateNoiseResidualRatio = 0.35;
 /// the slope refinement; degree 3 under light noise and degree 4 under moderate noise: the
 /// two-scale final fit (TwoScaleFinalFit); degree >= 3 from kModerateNoiseResidualRatio:
 /// the unshrink passes (UnshrinkSteps).
-NoiseSchedule NoiseScheduleFor(int degree, double residual_ratio);
+/// Ninth round: degree 2 from kModerateNoiseResidualRatio with cubic_ratio (NoiseEstimate)
+/// below kHeavyNoiseCubicRatio: kSymmetricSmoothingPasses quintic passes and the slope
+/// refinement (kSlopeRefinementResidualRatio's tier).
+NoiseSchedule NoiseScheduleFor(int degree, double residual_ratio, double cubic_ratio = 1);
 /// The options of a smoothing pass's fits: approximating, flat weights, the schedule's
 /// degree on the noise mode's own stencils (`options`' rings and factor are the final fit's).
 FitOptions NoiseSmoothingOptions(const FitOptions& options, const NoiseSchedule& schedule);
@@ -219,6 +241,14 @@ inline constexpr double kTwoScaleSpread = 2;
 /// and torus at alpha 0.2 / 0.5 h^2 and the gmsh torus at 0.1 h^2 improve too
 /// (bench/README.md, eighth round).
 inline constexpr int kCurvatureLocalPasses = 3;
+/// Degree 3 from kVeryHeavyNoiseResidualRatio (ninth round): more of those passes. Raw
+/// marching-cubes tori keep their largest K errors at isolated vertices in mildly curved parts,
+/// which the passes keep averaging while their steps spare the strongly curved ones: marching
+/// cubes N = 112 (residual ratio 0.66) K L2 / Linf 0.73 / 0.72 -> 0.54 / 0.54x the best CGAL,
+/// N = 56 (0.56: below, unchanged); torus / ellipsoid / sphere at 0.1-0.5 h^2, n = 32-64:
+/// max of six norms 0.39-0.41 -> 0.27-0.29x; bump 0.5 / 1 h^2 n = 64: 0.66 / 0.71 -> 0.68 /
+/// 0.68x (bench/README.md, `noise9`).
+inline constexpr int kVeryHeavyCurvatureLocalPasses = 8;
 /// The same fit on two stencil sets elsewhere (bench/README.md, seventh round): at degree 3
 /// under light noise the 1.5-ring final fit (own) with the fit on the clean 2 rings whose
 /// tangent plane it keeps (other; the mean over those): its noise at the torus's inner
@@ -301,6 +331,7 @@ struct NoiseEstimate {
   double residual_ratio = 0;   ///< median over the sample of rms(res_4) / rms(res_2)
   double noise_over_h = 0;     ///< median rms(res_4) / h (the noise level, relative)
   double sextic_ratio = 0;     ///< median rms(res_6) / rms(res_4) x sqrt((rows - 15) / (rows - 28))
+  double cubic_ratio = 0;      ///< median rms(res_4) / rms(res_3) (kHeavyNoiseCubicRatio)
   int samples = 0;
   /// residual_ratio > kNoisyResidualRatio (clean meshes: < 0.18) or sextic_ratio >
   /// kNoisySexticRatio (clean meshes: <= 0.24).
@@ -317,9 +348,25 @@ inline constexpr double kNoisySexticRatio = 0.5;
 /// (0.409) loses with the noise mode at d3 / d5 (0.88 -> 1.87x); clean meshes stay below
 /// 0.24 (bench/README.md, `noise8`).
 inline constexpr double kNoisySexticRatioHighDegree = 0.45;
+/// NoiseMode::kAuto at degree 2 calls noisy from this sextic ratio on where the noise mode's
+/// schedule is the nearly clean slope tier (residual ratio below kSlopeRefinementResidualRatio:
+/// quintic smoothing, then the interpolating fit with the slope refinement). Band audit
+/// (bench/README.md, `noise9`): clean meshes (generated n = 8-128, gmsh, marching cubes) read
+/// <= 0.22 (noise8's set: <= 0.234); perturbed O(h^2) / O(h^3) meshes at 0.30-0.50 in the slope
+/// tier: the noise mode wins at 11 of 14 (torus 0.1 h^3 n = 56, 0.478: 0.77 -> 0.24x the best
+/// CGAL; bump 0.05 h^3 n = 48, 0.492: 0.81 -> 0.40x; the held-out gmsh torus 0.1 h^3 at
+/// h = 0.0275, 0.494: 0.80 -> 0.15x) and loses at the very coarse bump n = 16 (289 vertices,
+/// 0.2 / 0.3 h^3: 1.24 -> 1.72x) and sphere n = 8 (386: 0.81 -> 1.18x). The bias check of degree
+/// >= 3 would send the bump n = 24-48 back to the default fit (0.40 -> 0.81x), so degree 2 runs
+/// without it (as noise7 found). Above the slope tier (residual ratio >= 0.095: coarse meshes,
+/// n <= 24) the light tier's approximating final fit loses to the default fit (torus 0.3 h^3
+/// n = 24: 0.87 -> 1.10x), so auto keeps the default fit there.
+inline constexpr double kNoisySexticRatioDegree2 = 0.3;
 /// Whether NoiseMode::kAuto fits a mesh with this estimate at `degree` in the noise mode.
 inline bool NoisyAt(const NoiseEstimate& est, int degree) {
-  return est.noisy || (degree >= 3 && est.sextic_ratio > kNoisySexticRatioHighDegree);
+  return est.noisy || (degree >= 3 && est.sextic_ratio > kNoisySexticRatioHighDegree) ||
+         (degree == 2 && est.sextic_ratio > kNoisySexticRatioDegree2 &&
+          est.residual_ratio < kSlopeRefinementResidualRatio);
 }
 
 /// The noise test's stencils: 2.5 rings, grown to 40 points, at most 80.

@@ -581,7 +581,7 @@ TEST(NoiseAwareTest, ScheduleFollowsTheResidualRatio) {
   EXPECT_EQ(NoiseScheduleFor(3, 0.5).smoothing_passes, 2);
   EXPECT_TRUE(NoiseScheduleFor(3, 0.7).two_scale_final);
   EXPECT_EQ(NoiseScheduleFor(3, 0.7).smoothing_passes, 2);
-  EXPECT_EQ(NoiseScheduleFor(3, 0.7).local_passes, 3);
+  EXPECT_EQ(NoiseScheduleFor(3, 0.7).local_passes, kVeryHeavyCurvatureLocalPasses);  // noise9
   EXPECT_FALSE(NoiseScheduleFor(3, 0.3).two_scale_final);
   for (double r : {0.05, 0.3}) EXPECT_FALSE(NoiseScheduleFor(3, r).curvature_steps) << r;
   EXPECT_FALSE(NoiseScheduleFor(2, 0.5).two_scale_final || NoiseScheduleFor(2, 0.5).curvature_steps);
@@ -674,7 +674,8 @@ TEST(NoiseAwareTest, AutoSeesLightNoiseBelowTheQuadraticsTruncation) {
 // 0.1 h^3 at n = 56: 0.478; the gmsh torus of bench/hidden_audit.py at 0.494) is below
 // kNoisySexticRatio, so the degree-independent test calls it clean and auto3's auto ran the
 // default fit (d4: 2.45x the best CGAL, the noise mode 0.54x). At degree >= 3 auto now runs the
-// noise mode there (bitwise `on`; K L2 6.6e-3 -> 1.25e-3); at degree 2 it stays off.
+// noise mode there (bitwise `on`; K L2 6.6e-3 -> 1.25e-3); at degree 2 too since noise9 (the
+// slope tier: residual ratio 0.022; below).
 TEST(NoiseAwareTest, AutoTakesTheSexticBandAtHighDegree) {
   auto torus = MakeTorus();
   const PerturbedTorus t = PerturbTorus(*torus, 56, 0.1);
@@ -683,8 +684,7 @@ TEST(NoiseAwareTest, AutoTakesTheSexticBandAtHighDegree) {
   EXPECT_GT(est.sextic_ratio, kNoisySexticRatioHighDegree);
   EXPECT_LT(est.sextic_ratio, kNoisySexticRatio);
   EXPECT_FALSE(est.noisy);
-  EXPECT_FALSE(NoisyAt(est, 2));
-  for (int d : {3, 4, 5, 6}) EXPECT_TRUE(NoisyAt(est, d)) << d;
+  for (int d : {2, 3, 4, 5, 6}) EXPECT_TRUE(NoisyAt(est, d)) << d;
   FitOptions off, on, automatic;
   off.degree = on.degree = automatic.degree = 4;
   on.noise = NoiseMode::kOn;
@@ -698,6 +698,74 @@ TEST(NoiseAwareTest, AutoTakesTheSexticBandAtHighDegree) {
   EXPECT_LT(ea.gaussian.l2, 0.3 * ed.gaussian.l2);
   EXPECT_LT(ea.mean.l2, 0.3 * ed.mean.l2);
   EXPECT_LT(ea.normal.l2, 0.5 * ed.normal.l2);
+}
+
+// Issue 16 (noise9): at degree 2 auto calls the sextic band from kNoisySexticRatioDegree2 (0.3)
+// noisy where the noise mode's schedule is the slope tier (residual ratio < 0.095). Torus 0.1
+// h^3 at n = 56 (sextic 0.478, residual ratio 0.022): before, auto ran the default fit there
+// (0.77x the best CGAL, the noise mode 0.24x; the held-out gmsh torus 0.80 vs 0.15x). Auto is
+// now `on` bitwise, far below the default fit; a mesh of the band above the slope tier (torus
+// 0.3 h^3 n = 24: residual ratio 0.11, where the noise mode loses) stays on the default fit.
+TEST(NoiseAwareTest, AutoTakesTheSlopeTierOfTheSexticBandAtDegreeTwo) {
+  auto torus = MakeTorus();
+  const PerturbedTorus t = PerturbTorus(*torus, 56, 0.1);
+  EXPECT_GT(t.estimate.sextic_ratio, kNoisySexticRatioDegree2);
+  EXPECT_LT(t.estimate.residual_ratio, kSlopeRefinementResidualRatio);
+  FitOptions off, on, automatic;
+  on.noise = NoiseMode::kOn;
+  automatic.noise = NoiseMode::kAuto;
+  const Differentials a = ComputeDifferentials(t.mesh, automatic).value();
+  const Differentials b = ComputeDifferentials(t.mesh, on).value();
+  EXPECT_EQ(0, std::memcmp(a.gaussian.data(), b.gaussian.data(), a.gaussian.size() * 8));
+  EXPECT_EQ(0, std::memcmp(a.normals.data(), b.normals.data(), a.normals.size() * 8));
+  const DifferentialErrors ea = MeasureErrors(t.clean, *torus, a);
+  const DifferentialErrors ed = MeasureErrors(t.clean, *torus, ComputeDifferentials(t.mesh, off).value());
+  std::printf("d2 auto / default: normal %.3g / %.3g (Linf %.3g / %.3g) K %.3g / %.3g\n", ea.normal.l2, ed.normal.l2,
+              ea.normal.linf, ed.normal.linf, ea.gaussian.l2, ed.gaussian.l2);
+  EXPECT_LT(ea.normal.l2, 0.3 * ed.normal.l2);
+  EXPECT_LT(ea.normal.linf, 0.3 * ed.normal.linf);
+  EXPECT_LT(ea.gaussian.l2, 0.5 * ed.gaussian.l2);
+  const PerturbedTorus coarse = PerturbTorus(*torus, 24, 0.3);
+  EXPECT_GT(coarse.estimate.sextic_ratio, 0.25);
+  EXPECT_GE(coarse.estimate.residual_ratio, kSlopeRefinementResidualRatio);
+  EXPECT_FALSE(NoisyAt(coarse.estimate, 2));
+}
+
+// Issue 16 (noise9): a sphere has no cubic terms, so 0.1 h^3 of noise, far below its quartic
+// terms, reads "heavy" by the residual ratio (n = 32: 0.40) and the degree-2 heavy tier's cubic
+// fits' bias set the normals (main: normal L2 / Linf 3.3 / 2.5x the best CGAL, 7.09e-5 /
+// 2.34e-4 from bench/noise_study). The cubic ratio (0.45 < kHeavyNoiseCubicRatio) sends it to
+// the slope tier with kSymmetricSmoothingPasses quintic passes: 0.40 / 0.34x.
+TEST(NoiseAwareTest, QuadraticOnThePerturbedSphereTakesTheSlopeTier) {
+  const NoiseSchedule sym = NoiseScheduleFor(2, 0.5, 0.5), heavy = NoiseScheduleFor(2, 0.5, 0.95);
+  EXPECT_EQ(sym.slope_passes, kNoiseSlopePasses);
+  EXPECT_EQ(sym.smoothing_passes, kSymmetricSmoothingPasses);
+  EXPECT_EQ(sym.smoothing_degree, 5);
+  EXPECT_EQ(heavy.slope_passes, 0);
+  EXPECT_EQ(heavy.smoothing_degree, 3);
+  EXPECT_EQ(NoiseScheduleFor(3, 0.5, 0.5).slope_passes, 0);  // degree 2 only
+  FitOptions o;
+  o.noise = NoiseMode::kOn;
+  const Study s = RunStudy("sphere", {32}, o, 0.1, 3);
+  std::printf("sphere d2 normal L2 %.3g Linf %.3g\n", s.nrm_l2.back(), s.nrm_linf.back());
+  EXPECT_LT(s.nrm_l2.back(), 0.6 * 7.09e-5);    // 0.40x (main 3.28x)
+  EXPECT_LT(s.nrm_linf.back(), 0.6 * 2.34e-4);  // 0.34x (main 2.51x)
+}
+
+// Issue 16 (noise9): degree 3 from kVeryHeavyNoiseResidualRatio gets
+// kVeryHeavyCurvatureLocalPasses curvature-weighted local passes (raw marching cubes N = 112:
+// K 0.73 -> 0.54x the best CGAL). Ellipsoid 0.3 h^2 at n = 32 (residual ratio 0.83): H / K L2
+// 0.39 / 0.41x the best CGAL (2.38e-2 / 4.31e-2, bench/noise_study) -> 0.28 / 0.28x.
+TEST(NoiseAwareTest, CubicUnderVeryHeavyNoiseTakesMoreLocalPasses) {
+  EXPECT_EQ(NoiseScheduleFor(3, 0.7).local_passes, kVeryHeavyCurvatureLocalPasses);
+  EXPECT_EQ(NoiseScheduleFor(3, 0.5).local_passes, kCurvatureLocalPasses);
+  FitOptions o;
+  o.noise = NoiseMode::kOn;
+  o.degree = 3;
+  const Study s = RunStudy("ellipsoid", {32}, o, 0.3, 2);
+  std::printf("ellipsoid d3 H L2 %.3g K L2 %.3g\n", s.h_l2.back(), s.k_l2.back());
+  EXPECT_LT(s.h_l2.back(), 0.34 * 2.38e-2);  // 0.28x (main 0.39x)
+  EXPECT_LT(s.k_l2.back(), 0.34 * 4.31e-2);  // 0.28x (main 0.41x)
 }
 
 // The coarse open bump under light noise (0.2 h^3, n = 32: residual ratio 0.025, sextic 0.70,
