@@ -153,26 +153,31 @@ class MarkTable {
 // `mclinf`). gmsh and generated meshes have none (edge ratios >= 0.17): stencils unchanged.
 constexpr double kNearDuplicate = 0.1;
 
-// The vertex face `row` flags, or -1.
-int32_t FlaggedEnd(const double* P, const int32_t* row) {
+// The vertex face `row` flags, or -1. The test first, branch-free (it rarely holds), then
+// which edge: the pass costs about the zero-area test's (ValidateGeometry).
+inline int32_t FlaggedEnd(const double* P, const int32_t* row) {
   if (row[3] >= 0) return -1;  // triangles only
-  double e2[3];
-  for (int c = 0; c < 3; ++c) {
-    const double* a = P + 3 * static_cast<int64_t>(row[c]);
-    const double* q = P + 3 * static_cast<int64_t>(row[c == 2 ? 0 : c + 1]);
-    e2[c] = (a[0] - q[0]) * (a[0] - q[0]) + (a[1] - q[1]) * (a[1] - q[1]) + (a[2] - q[2]) * (a[2] - q[2]);
-  }
-  const int s = e2[0] <= e2[1] ? (e2[0] <= e2[2] ? 0 : 2) : (e2[1] <= e2[2] ? 1 : 2);
-  static const double tau = getenv("GF_DUPTAU") ? atof(getenv("GF_DUPTAU")) : kNearDuplicate;  // EXPERIMENT
-  return e2[s] < tau * tau * std::max({e2[0], e2[1], e2[2]}) ? std::max(row[s], row[s == 2 ? 0 : s + 1]) : -1;
+  const double* p0 = P + 3 * static_cast<int64_t>(row[0]);
+  const double* p1 = P + 3 * static_cast<int64_t>(row[1]);
+  const double* p2 = P + 3 * static_cast<int64_t>(row[2]);
+  const double a0 = p1[0] - p0[0], a1 = p1[1] - p0[1], a2 = p1[2] - p0[2];
+  const double b0 = p2[0] - p1[0], b1 = p2[1] - p1[1], b2 = p2[2] - p1[2];
+  const double c0 = p0[0] - p2[0], c1 = p0[1] - p2[1], c2 = p0[2] - p2[2];
+  const double e2[3] = {a0 * a0 + a1 * a1 + a2 * a2, b0 * b0 + b1 * b1 + b2 * b2, c0 * c0 + c1 * c1 + c2 * c2};
+  if (!(std::min({e2[0], e2[1], e2[2]}) < kNearDuplicate * kNearDuplicate * std::max({e2[0], e2[1], e2[2]})))
+    return -1;
+  const int s = e2[0] <= e2[1] ? (e2[0] <= e2[2] ? 0 : 2) : (e2[1] <= e2[2] ? 1 : 2);  // edge (row[s], row[s + 1])
+  return std::max(row[s], row[s == 2 ? 0 : s + 1]);
 }
 
 // Every vertex's flag; empty when none is flagged.
 std::vector<uint8_t> NearDuplicates(const Mesh& m, int threads) {
   std::vector<std::vector<int32_t>> found(threads);
+  const double* P = m.positions.data();
+  const int32_t* rows = m.faces.data();
   ParallelForBlocks(m.NumFaces(), threads, [&](int64_t begin, int64_t end, int b) {
     for (int64_t f = begin; f < end; ++f)
-      if (const int32_t x = FlaggedEnd(m.positions.data(), m.faces.data() + 4 * f); x >= 0) found[b].push_back(x);
+      if (const int32_t x = FlaggedEnd(P, rows + 4 * f); x >= 0) found[b].push_back(x);
   });
   std::vector<uint8_t> flags;
   for (const auto& list : found)
