@@ -8,7 +8,7 @@
 //
 // Usage: worst_vertices DMIN DMAX 'torus@/dir/mc%d_proj.obj' 40,60,80 [top=5]
 // ('sphere@delaunay' 368,1450,5762: the unstructured Delaunay spheres of so many vertices.)
-// Options of the fit by the environment as cgal_compare's: GF_RINGS, GF_MPF, GF_EPS.
+// Options of the fit by the environment as cgal_compare's: GF_RINGS, GF_MPF, GF_EPS, GF_NEARDUP.
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
@@ -111,7 +111,9 @@ int main(int argc, char** argv) {
       if (const char* e = std::getenv("GF_RINGS")) o.rings = std::atof(e);
       if (const char* e = std::getenv("GF_MPF")) o.min_points_factor = std::atof(e);
       if (const char* e = std::getenv("GF_EPS")) o.weight_epsilon = std::atof(e);
-      auto nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, mesh, RingSpecFor(o)));
+      RingSpec spec = RingSpecFor(o);
+      spec.count_near_duplicates = std::getenv("GF_NEARDUP") != nullptr;
+      auto nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, mesh, spec));
       auto fits = FitSurface(mesh, topo, o, nb).value();
       Differentials df = ComputeDifferentials(*fits);
       const double h = AverageEdgeLength(mesh);

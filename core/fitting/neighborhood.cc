@@ -148,9 +148,9 @@ class MarkTable {
 // Near-duplicate points (marching-cubes meshes: a surface passing close to a grid node
 // puts the vertices on its edges within a fraction of h of each other). Of a triangle whose
 // shortest edge is below kNearDuplicate x its longest, the higher-numbered end of that edge
-// is flagged; the stencil growth (2.1) does not count flagged points towards min_points, so
-// a stencil holding such pairs grows until it has enough distinct points (bench/README.md,
-// `mclinf`). gmsh and generated meshes have none (edge ratios >= 0.17): stencils unchanged.
+// is flagged; with RingSpec::count_near_duplicates the growth (2.1) does not count flagged
+// points towards min_points (bench/README.md, `mclinf`). gmsh and generated meshes have
+// none (edge ratios >= 0.17).
 constexpr double kNearDuplicate = 0.1;
 
 // The vertex face `row` flags, or -1. The test first, branch-free (it rarely holds), then
@@ -194,13 +194,13 @@ std::vector<uint8_t> NearDuplicates(const Mesh& m, int threads) {
 template <bool kFans>
 class RingGrower {
  public:
-  // `near_duplicates`: NearDuplicates' flags, or null to test each point's faces as met
-  // (a few stencils: BuildNeighborhoodsOf).
+  // `near_duplicates`: NearDuplicates' flags (when spec.count_near_duplicates), or null to
+  // test each point's faces as met (a few stencils: BuildNeighborhoodsOf).
   RingGrower(const Topology& t, const Mesh& m, const Spans* spans, const RingSpec& spec,
              const std::vector<uint8_t>* near_duplicates)
       : t_(t), m_(m), spans_(spans), spec_(spec),
         near_(near_duplicates && !near_duplicates->empty() ? near_duplicates->data() : nullptr),
-        test_(!near_duplicates),
+        test_(!near_duplicates && spec.count_near_duplicates),
         marks_(t.num_vertices),
         fans_(kFans && t.fan_rows && !t.has_quads),
         start_(static_cast<int>(std::lround(2 * spec.rings))),
@@ -460,7 +460,8 @@ Neighborhoods BuildNeighborhoods(const Topology& topo, const Mesh& mesh, const R
   // Stencils are grown in GrowthOrder (each is independent of the order) and then
   // copied to vertex order.
   const std::vector<int32_t> order = GrowthOrder(topo);
-  const std::vector<uint8_t> near_duplicates = NearDuplicates(mesh, threads);
+  const std::vector<uint8_t> near_duplicates =
+      spec.count_near_duplicates ? NearDuplicates(mesh, threads) : std::vector<uint8_t>();
   // FanSteps on rows in fan order where stencils start at 1.5 rings (most stop there,
   // with no spans: the rest fill theirs as they go). Stencils starting further out use
   // the spans throughout (FanSteps there as fast as the general steps: their spans are

@@ -291,12 +291,12 @@ std::vector<uint8_t> NearDuplicateFlags(const Mesh& m) {
   return flags;
 }
 
-// `near`: NearDuplicateFlags(m).
+// `near`: NearDuplicateFlags(m), read with spec.count_near_duplicates.
 std::vector<int32_t> PlainStencil(const Topology& t, const Mesh& m, int v, const RingSpec& spec,
                                   const std::vector<uint8_t>& near, float* ring) {
   const auto distinct = [&](const std::vector<int32_t>& s) {
     size_t n = 0;
-    for (int32_t x : s) n += !near[x];
+    for (int32_t x : s) n += !(spec.count_near_duplicates && near[x]);
     return n;
   };
   std::vector<int32_t> out{v};
@@ -551,6 +551,7 @@ TEST(NeighborhoodTest, FanStepsEqualThePlainRingRuleWhereverTheyApplyOrNot) {
   s = specs[1];
   s.adaptive = false;
   for (double rings : {1.0, 1.5, 2.0}) s.rings = s.max_rings = rings, specs.push_back(s);
+  for (int d : {1, 3}) s = specs[d], s.count_near_duplicates = true, specs.push_back(s);  // degrees 2, 4
   int checked = 0, mesh_index = 0;
   for (const Mesh& plain : FanTestMeshes()) {
     const Mesh source = testing_util::ShuffleVertices(plain, 11 + mesh_index++);
@@ -587,6 +588,9 @@ TEST(NeighborhoodTest, FanStepsEqualThePlainRingRuleWhereverTheyApplyOrNot) {
 TEST(NeighborhoodTest, StencilsOfAFewVerticesEqualTheirRowsOfAllStencils) {
   std::vector<RingSpec> specs = DefaultSpecsOfDegrees1To6();
   specs.push_back(NoiseStencilSpec());
+  RingSpec near = specs[1];
+  near.count_near_duplicates = true;  // flags tested as met (the glued spheres have some)
+  specs.push_back(near);
   int checked = 0, fan_meshes = 0, mesh_index = 0;
   for (const Mesh& plain : FanTestMeshes()) {
     const Mesh source = testing_util::ShuffleVertices(plain, 23 + mesh_index++);
@@ -619,10 +623,11 @@ TEST(NeighborhoodTest, StencilsOfAFewVerticesEqualTheirRowsOfAllStencils) {
   EXPECT_GT(checked, 20000);
 }
 
-// Near-duplicate points (marching-cubes meshes): of a triangle whose shortest edge is below
-// 0.1 x its longest, the higher-numbered end of that edge is not counted towards min_points,
-// so stencils holding such pairs grow until they have enough distinct points; a mesh without
-// them keeps the plain stencils, and BuildNeighborhoodsOf gives the same rows.
+// RingSpec::count_near_duplicates (marching-cubes meshes): of a triangle whose shortest edge
+// is below 0.1 x its longest, the higher-numbered end of that edge is not counted towards
+// min_points, so stencils holding such pairs grow until they have enough distinct points;
+// off (the default), or without such points, the plain stencils; BuildNeighborhoodsOf gives
+// the same rows.
 TEST(NeighborhoodTest, NearDuplicatePointsDoNotCountTowardsTheMinimum) {
   const int n = 12;
   const Mesh plain = PlanarGrid(n, false);
@@ -639,8 +644,11 @@ TEST(NeighborhoodTest, NearDuplicatePointsDoNotCountTowardsTheMinimum) {
   for (int d : {2, 4}) {
     FitOptions o;
     o.degree = d;
-    const RingSpec spec = RingSpecFor(o);
-    const Neighborhoods nb = BuildNeighborhoods(t, m, spec, 1), np = BuildNeighborhoods(tp, plain, spec, 1);
+    RingSpec spec = RingSpecFor(o);
+    const Neighborhoods np = BuildNeighborhoods(tp, plain, spec, 1), off = BuildNeighborhoods(t, m, spec, 1);
+    EXPECT_EQ(off.indices, np.indices) << "degree " << d;  // off: the plain grid's stencils
+    spec.count_near_duplicates = true;
+    const Neighborhoods nb = BuildNeighborhoods(t, m, spec, 1);
     int grown = 0;
     std::vector<int32_t> all;
     for (int v = 0; v < m.NumVertices(); ++v) {
