@@ -14,7 +14,7 @@
 // Environment overrides of our fit only: GF_RINGS, GF_MPF, GF_EPS, GF_ND (normal_degree),
 // GF_HERM (hermite_hessian), GF_SLOPES (slope_refinement),
 // GF_CH (cubic_hermite: 0 = off), GF_JH (jet_hermite: 1 = on, 0 = off; unset = on at degree 5 only), GF_TWO (two_pass); of CGAL's stencils only: GF_CGAL_RINGS, GF_CGAL_MPF; of both:
-// GF_NOISE (the noise mode's stencils).
+// GF_NOISE (the noise mode's stencils), GF_NEARDUP (RingSpec::count_near_duplicates).
 //
 // CGAL's results are converted to the project's conventions in bench/cgal_jet.h.
 #include <algorithm>
@@ -110,7 +110,12 @@ int main(int argc, char** argv) {
         FitOptions o;
         o.degree = d;
         if (std::getenv("GF_NOISE")) o.noise = NoiseMode::kOn;  // both: the noise mode's stencils
-        auto nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, mesh, RingSpecFor(o)));
+        const auto spec_for = [](const FitOptions& f) {  // GF_NEARDUP: both fits' stencils
+          RingSpec s = RingSpecFor(f);
+          s.count_near_duplicates = std::getenv("GF_NEARDUP") != nullptr;
+          return s;
+        };
+        auto nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, mesh, spec_for(o)));
         FitOptions ours_o = o;  // experiment overrides (CGAL keeps the default stencils)
         if (const char* e = std::getenv("GF_RINGS")) ours_o.rings = std::atof(e);
         if (const char* e = std::getenv("GF_MPF")) ours_o.min_points_factor = std::atof(e);
@@ -121,7 +126,7 @@ int main(int argc, char** argv) {
         if (const char* e = std::getenv("GF_CH")) ours_o.cubic_hermite = std::atoi(e) != 0;  // degree-3 Hermite
         if (const char* e = std::getenv("GF_JH")) ours_o.jet_hermite = std::atoi(e) != 0 ? JetHermiteMode::kOn : JetHermiteMode::kOff;  // degree-4/5 Hermite
         if (std::getenv("GF_TWO")) ours_o.two_pass = true;  // refit in the first pass's fitted normals
-        auto ours_nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, mesh, RingSpecFor(ours_o)));
+        auto ours_nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, mesh, spec_for(ours_o)));
         Row r;
         r.surface = name, r.n = n, r.degree = d, r.nv = mesh.NumVertices();
         r.stencil = double(nb->indices.size()) / mesh.NumVertices();
@@ -138,7 +143,7 @@ int main(int argc, char** argv) {
           FitOptions co = o;
           if (const char* e = std::getenv("GF_CGAL_RINGS")) co.rings = std::atof(e);
           if (const char* e = std::getenv("GF_CGAL_MPF")) co.min_points_factor = std::atof(e);
-          cgal_nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, mesh, RingSpecFor(co)));
+          cgal_nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, mesh, spec_for(co)));
         }
         Stopwatch tc;
         Differentials cgal = CgalDifferentials(mesh, *cgal_nb, d, ours.normals, &r.cgal_too_few);

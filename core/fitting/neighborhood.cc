@@ -145,14 +145,63 @@ class MarkTable {
   uint32_t stamp_ = 0;
 };
 
+// Near-duplicate points (marching-cubes meshes: a surface passing close to a grid node
+// puts the vertices on its edges within a fraction of h of each other). Of a triangle whose
+// shortest edge is below kNearDuplicate x its longest, the higher-numbered end of that edge
+// is flagged; with RingSpec::count_near_duplicates the growth (2.1) does not count flagged
+// points towards min_points (bench/README.md, `mclinf`). gmsh and generated meshes have
+// none (edge ratios >= 0.17).
+constexpr double kNearDuplicate = 0.1;
+
+// The vertex face `row` flags, or -1. The test first, branch-free (it rarely holds), then
+// which edge: the pass costs about the zero-area test's (ValidateGeometry).
+inline int32_t FlaggedEnd(const double* P, const int32_t* row) {
+  if (row[3] >= 0) return -1;  // triangles only
+  const double* p0 = P + 3 * static_cast<int64_t>(row[0]);
+  const double* p1 = P + 3 * static_cast<int64_t>(row[1]);
+  const double* p2 = P + 3 * static_cast<int64_t>(row[2]);
+  const double a0 = p1[0] - p0[0], a1 = p1[1] - p0[1], a2 = p1[2] - p0[2];
+  const double b0 = p2[0] - p1[0], b1 = p2[1] - p1[1], b2 = p2[2] - p1[2];
+  const double c0 = p0[0] - p2[0], c1 = p0[1] - p2[1], c2 = p0[2] - p2[2];
+  const double e2[3] = {a0 * a0 + a1 * a1 + a2 * a2, b0 * b0 + b1 * b1 + b2 * b2, c0 * c0 + c1 * c1 + c2 * c2};
+  if (!(std::min({e2[0], e2[1], e2[2]}) < kNearDuplicate * kNearDuplicate * std::max({e2[0], e2[1], e2[2]})))
+    return -1;
+  const int s = e2[0] <= e2[1] ? (e2[0] <= e2[2] ? 0 : 2) : (e2[1] <= e2[2] ? 1 : 2);  // edge (row[s], row[s + 1])
+  return std::max(row[s], row[s == 2 ? 0 : s + 1]);
+}
+
+// Every vertex's flag; empty when none is flagged.
+std::vector<uint8_t> NearDuplicates(const Mesh& m, int threads) {
+  std::vector<std::vector<int32_t>> found(threads);
+  const double* P = m.positions.data();
+  const int32_t* rows = m.faces.data();
+  ParallelForBlocks(m.NumFaces(), threads, [&](int64_t begin, int64_t end, int b) {
+    for (int64_t f = begin; f < end; ++f)
+      if (const int32_t x = FlaggedEnd(P, rows + 4 * f); x >= 0) found[b].push_back(x);
+  });
+  std::vector<uint8_t> flags;
+  for (const auto& list : found)
+    for (int32_t x : list) {
+      if (flags.empty()) flags.assign(m.NumVertices(), 0);
+      flags[x] = 1;
+    }
+  return flags;
+}
+
 // Grows one vertex's stencil ring by ring (2.1). One per thread, reused for every
 // vertex of its block. Reads the spans of `spans`, or with kFans (FanSteps take most
 // stencils whole; `spans` null) fills one at a time where needed.
 template <bool kFans>
 class RingGrower {
  public:
-  RingGrower(const Topology& t, const Mesh& m, const Spans* spans, const RingSpec& spec)
-      : t_(t), m_(m), spans_(spans), spec_(spec), marks_(t.num_vertices),
+  // `near_duplicates`: NearDuplicates' flags (when spec.count_near_duplicates), or null to
+  // test each point's faces as met (a few stencils: BuildNeighborhoodsOf).
+  RingGrower(const Topology& t, const Mesh& m, const Spans* spans, const RingSpec& spec,
+             const std::vector<uint8_t>* near_duplicates)
+      : t_(t), m_(m), spans_(spans), spec_(spec),
+        near_(near_duplicates && !near_duplicates->empty() ? near_duplicates->data() : nullptr),
+        test_(!near_duplicates && spec.count_near_duplicates),
+        marks_(t.num_vertices),
         fans_(kFans && t.fan_rows && !t.has_quads),
         start_(static_cast<int>(std::lround(2 * spec.rings))),
         max_steps_(std::max(start_, static_cast<int>(std::lround(2 * spec.max_rings)))) {}
@@ -180,7 +229,7 @@ class RingGrower {
     const size_t want = t_.is_boundary[v] ? spec.min_points_boundary : spec.min_points;
     while (half_steps_ < max_steps) {
       const bool required = half_steps_ < start;
-      if (!required && (!spec.adaptive || out.size() >= want)) break;
+      if (!required && (!spec.adaptive || Distinct(out, want) >= want)) break;
       const size_t before = out.size();
       Step();
       if (out.size() > static_cast<size_t>(spec.max_points)) {
@@ -198,6 +247,26 @@ class RingGrower {
   }
 
  private:
+  // Points counted towards min_points: all but the flagged near-duplicates.
+  size_t Distinct(const std::vector<int32_t>& out, size_t want) {
+    if ((!near_ && !test_) || out.size() < want) return out.size();
+    size_t n = out.size();
+    if (near_) {
+      for (int32_t x : out) n -= near_[x];
+      return n;
+    }
+    if (tested_.empty()) tested_.assign(t_.num_vertices, -1);
+    for (int32_t x : out) {
+      if (tested_[x] < 0) {
+        tested_[x] = 0;
+        for (int j = 0; j < t_.NumVertexFaces(x); ++j)
+          tested_[x] |= FlaggedEnd(m_.positions.data(), m_.faces.data() + 4 * int64_t{t_.VertexFaces(x)[j]}) == x;
+      }
+      n -= tested_[x];
+    }
+    return n;
+  }
+
   // Adds x to the stencil unless it is there already.
   void Add(int32_t x, int level) {
     if (!marks_.Insert(x, level)) return;
@@ -331,6 +400,9 @@ class RingGrower {
   const Mesh& m_;
   const Spans* spans_;
   const RingSpec spec_;
+  const uint8_t* near_;  // NearDuplicates' flags (null: none flagged, or test_)
+  const bool test_;      // flags tested as met, kept in tested_ (-1: untested)
+  std::vector<int8_t> tested_;
   MarkTable marks_;
   const bool fans_;  // FanSteps apply (rows in fan order, triangles)
   const int start_, max_steps_;  // half steps: required, at most
@@ -346,11 +418,12 @@ class RingGrower {
 // path by 2-3% at degree 6).
 template <bool kFans>
 void GrowStencils(const Topology& topo, const Mesh& mesh, const Spans* spans, const RingSpec& spec,
-                  const std::vector<int32_t>& order, int threads, std::vector<float>& rings,
+                  const std::vector<int32_t>& order, const std::vector<uint8_t>& near_duplicates,
+                  int threads, std::vector<float>& rings,
                   std::vector<std::vector<int32_t>>& block_indices, std::vector<int32_t>& sizes,
                   std::vector<int64_t>& start) {
   ParallelForBlocks(topo.num_vertices, threads, [&](int64_t begin, int64_t end, int b) {
-    RingGrower<kFans> grower(topo, mesh, spans, spec);
+    RingGrower<kFans> grower(topo, mesh, spans, spec, &near_duplicates);
     std::vector<int32_t> stencil;
     auto& idx = block_indices[b];
     if (kFans) {
@@ -387,6 +460,8 @@ Neighborhoods BuildNeighborhoods(const Topology& topo, const Mesh& mesh, const R
   // Stencils are grown in GrowthOrder (each is independent of the order) and then
   // copied to vertex order.
   const std::vector<int32_t> order = GrowthOrder(topo);
+  const std::vector<uint8_t> near_duplicates =
+      spec.count_near_duplicates ? NearDuplicates(mesh, threads) : std::vector<uint8_t>();
   // FanSteps on rows in fan order where stencils start at 1.5 rings (most stop there,
   // with no spans: the rest fill theirs as they go). Stencils starting further out use
   // the spans throughout (FanSteps there as fast as the general steps: their spans are
@@ -402,9 +477,9 @@ Neighborhoods BuildNeighborhoods(const Topology& topo, const Mesh& mesh, const R
   Neighborhoods nb;
   nb.rings.resize(nv);
   if (fans)
-    GrowStencils<true>(topo, mesh, nullptr, spec, order, threads, nb.rings, block_indices, sizes, start);
+    GrowStencils<true>(topo, mesh, nullptr, spec, order, near_duplicates, threads, nb.rings, block_indices, sizes, start);
   else
-    GrowStencils<false>(topo, mesh, spans.get(), spec, order, threads, nb.rings, block_indices, sizes, start);
+    GrowStencils<false>(topo, mesh, spans.get(), spec, order, near_duplicates, threads, nb.rings, block_indices, sizes, start);
   if (faces_read && fans) faces_read();
   spans.reset();  // its memory (~128 bytes a vertex) takes the stencils below
   nb.offsets.resize(nv + 1);
@@ -443,7 +518,7 @@ Neighborhoods BuildNeighborhoodsOf(const Topology& topo, const Mesh& mesh, const
   nb.rings.resize(n);
   // The grower that fills spans as it goes (no spans of the whole mesh for a few stencils).
   ParallelForBlocks(n, threads, [&](int64_t begin, int64_t end, int) {
-    RingGrower<true> grower(topo, mesh, nullptr, spec);
+    RingGrower<true> grower(topo, mesh, nullptr, spec, nullptr);
     for (int64_t i = begin; i < end; ++i) nb.rings[i] = grower.Grow(vertices[i], stencils[i]);
   });
   nb.offsets.resize(n + 1);

@@ -57,6 +57,12 @@ struct RingSpec {
   int min_points_boundary = 12;  ///< boundary vertices grow until this many points
   double max_rings = 8;
   int max_points = 120;
+  /// Near-duplicate points (the higher-numbered end of a triangle's shortest edge when it is
+  /// below 0.1 x the triangle's longest: marching-cubes meshes) do not count towards
+  /// min_points, so stencils holding them grow further. Opt-in (RingSpecFor leaves it off):
+  /// on marching-cubes meshes it raises the degree-2 max-norm orders but costs 5-10% of the
+  /// L2 errors and some degree-5 cells (bench/README.md, `mclinf`).
+  bool count_near_duplicates = false;
 };
 
 /// RingSpec for a fit: start at options.StartRings(), grow to factor x #coefficients.

@@ -273,8 +273,32 @@ TEST(NeighborhoodTest, OrderedStencilsAreTheStencilsRenumberedByTheOrder) {
 // and each face of a (topo.VertexFaces order), the face's corners in row order when
 // the corner after or before a in the row is in the k-ring; the k + 0.5 -> k + 1 step
 // adds the edge neighbours of layer k. Growth stops as BuildNeighborhoods documents.
+// The near-duplicate rule of the growth: of a triangle whose shortest edge is below 0.1 x
+// its longest, the higher-numbered end of that edge does not count towards min_points.
+std::vector<uint8_t> NearDuplicateFlags(const Mesh& m) {
+  std::vector<uint8_t> flags(m.NumVertices(), 0);
+  for (int f = 0; f < m.NumFaces(); ++f) {
+    if (m.FaceSize(f) != 3) continue;
+    int shortest = 0;
+    double e2[3];
+    for (int c = 0; c < 3; ++c) {
+      e2[c] = (m.positions.row(m.faces(f, (c + 1) % 3)) - m.positions.row(m.faces(f, c))).squaredNorm();
+      if (e2[c] < e2[shortest]) shortest = c;
+    }
+    if (e2[shortest] < 0.01 * std::max({e2[0], e2[1], e2[2]}))
+      flags[std::max(m.faces(f, shortest), m.faces(f, (shortest + 1) % 3))] = 1;
+  }
+  return flags;
+}
+
+// `near`: NearDuplicateFlags(m), read with spec.count_near_duplicates.
 std::vector<int32_t> PlainStencil(const Topology& t, const Mesh& m, int v, const RingSpec& spec,
-                                  float* ring) {
+                                  const std::vector<uint8_t>& near, float* ring) {
+  const auto distinct = [&](const std::vector<int32_t>& s) {
+    size_t n = 0;
+    for (int32_t x : s) n += !(spec.count_near_duplicates && near[x]);
+    return n;
+  };
   std::vector<int32_t> out{v};
   std::map<int32_t, int> level{{v, 0}};
   const auto add = [&](int32_t x, int l) {
@@ -288,7 +312,7 @@ std::vector<int32_t> PlainStencil(const Topology& t, const Mesh& m, int v, const
   const size_t want = t.is_boundary[v] ? spec.min_points_boundary : spec.min_points;
   while (steps < max_steps) {
     const bool required = steps < start;
-    if (!required && (!spec.adaptive || out.size() >= want)) break;
+    if (!required && (!spec.adaptive || distinct(out) >= want)) break;
     const size_t before = out.size();
     const int k2 = steps - steps % 2;
     if (steps % 2 == 0 && steps > 0) {
@@ -359,10 +383,11 @@ TEST(NeighborhoodTest, StencilsEqualThePlainRingRuleInOrderOnAMixedMesh) {
   specs.push_back(capped);
   for (size_t k = 0; k < specs.size(); ++k) {
     const Neighborhoods nb = BuildNeighborhoods(t, m, specs[k], 2);
+    const std::vector<uint8_t> near = NearDuplicateFlags(m);
     int mismatches = 0;
     for (int v = 0; v < m.NumVertices(); ++v) {
       float ring = 0;
-      const std::vector<int32_t> want = PlainStencil(t, m, v, specs[k], &ring);
+      const std::vector<int32_t> want = PlainStencil(t, m, v, specs[k], near, &ring);
       mismatches += std::vector<int32_t>(nb.Points(v), nb.Points(v) + nb.Size(v)) != want || nb.rings[v] != ring;
     }
     EXPECT_EQ(mismatches, 0) << "spec " << k;
@@ -392,10 +417,11 @@ TEST(NeighborhoodTest, RelabelledTopologyStencilsEqualThePlainRingRuleInOrder) {
         const RingSpec spec = RingSpecFor(o);
         for (int threads : {1, 2}) {
           const Neighborhoods nb = BuildNeighborhoods(t, r.mesh, spec, threads);
+          const std::vector<uint8_t> near = NearDuplicateFlags(r.mesh);
           int mismatches = 0;
           for (int v = 0; v < r.mesh.NumVertices(); ++v, ++checked) {
             float ring = 0;
-            const std::vector<int32_t> want = PlainStencil(t, r.mesh, v, spec, &ring);
+            const std::vector<int32_t> want = PlainStencil(t, r.mesh, v, spec, near, &ring);
             mismatches +=
                 std::vector<int32_t>(nb.Points(v), nb.Points(v) + nb.Size(v)) != want || nb.rings[v] != ring;
           }
@@ -525,6 +551,7 @@ TEST(NeighborhoodTest, FanStepsEqualThePlainRingRuleWhereverTheyApplyOrNot) {
   s = specs[1];
   s.adaptive = false;
   for (double rings : {1.0, 1.5, 2.0}) s.rings = s.max_rings = rings, specs.push_back(s);
+  for (int d : {1, 3}) s = specs[d], s.count_near_duplicates = true, specs.push_back(s);  // degrees 2, 4
   int checked = 0, mesh_index = 0;
   for (const Mesh& plain : FanTestMeshes()) {
     const Mesh source = testing_util::ShuffleVertices(plain, 11 + mesh_index++);
@@ -538,10 +565,11 @@ TEST(NeighborhoodTest, FanStepsEqualThePlainRingRuleWhereverTheyApplyOrNot) {
         // Two threads (slow to start on a busy machine) for degrees 2, 4 and 6 with rotational rows.
         const int threads = variant == 0 && k % 2 == 1 && k < 6 ? 2 : 1;
         const Neighborhoods one = BuildNeighborhoods(*t, m, specs[k], 1), two = BuildNeighborhoods(*t, m, specs[k], threads);
+        const std::vector<uint8_t> near = NearDuplicateFlags(m);
         int mismatches = 0;
         for (int v = 0; v < m.NumVertices(); ++v, ++checked) {
           float ring = 0;
-          const std::vector<int32_t> want = PlainStencil(*t, m, v, specs[k], &ring);
+          const std::vector<int32_t> want = PlainStencil(*t, m, v, specs[k], near, &ring);
           for (const Neighborhoods* nb : {&one, &two})
             mismatches += std::vector<int32_t>(nb->Points(v), nb->Points(v) + nb->Size(v)) != want || nb->rings[v] != ring;
         }
@@ -560,6 +588,9 @@ TEST(NeighborhoodTest, FanStepsEqualThePlainRingRuleWhereverTheyApplyOrNot) {
 TEST(NeighborhoodTest, StencilsOfAFewVerticesEqualTheirRowsOfAllStencils) {
   std::vector<RingSpec> specs = DefaultSpecsOfDegrees1To6();
   specs.push_back(NoiseStencilSpec());
+  RingSpec near = specs[1];
+  near.count_near_duplicates = true;  // flags tested as met (the glued spheres have some)
+  specs.push_back(near);
   int checked = 0, fan_meshes = 0, mesh_index = 0;
   for (const Mesh& plain : FanTestMeshes()) {
     const Mesh source = testing_util::ShuffleVertices(plain, 23 + mesh_index++);
@@ -590,6 +621,55 @@ TEST(NeighborhoodTest, StencilsOfAFewVerticesEqualTheirRowsOfAllStencils) {
   }
   EXPECT_GT(fan_meshes, 3);
   EXPECT_GT(checked, 20000);
+}
+
+// RingSpec::count_near_duplicates (marching-cubes meshes): of a triangle whose shortest edge
+// is below 0.1 x its longest, the higher-numbered end of that edge is not counted towards
+// min_points, so stencils holding such pairs grow until they have enough distinct points;
+// off (the default), or without such points, the plain stencils; BuildNeighborhoodsOf gives
+// the same rows.
+TEST(NeighborhoodTest, NearDuplicatePointsDoNotCountTowardsTheMinimum) {
+  const int n = 12;
+  const Mesh plain = PlanarGrid(n, false);
+  Mesh m = plain;
+  std::vector<uint8_t> flagged(m.NumVertices(), 0);
+  for (int j = 2; j < n - 1; j += 2)
+    for (int i = 2; i < n - 1; i += 2) {  // vertex a + 1 moves to 0.05 from a: edge ratio ~0.05
+      const int a = j * (n + 1) + i;
+      m.positions.row(a + 1) = m.positions.row(a) + Eigen::RowVector3d(0.05, 0, 0);
+      flagged[a + 1] = 1;
+    }
+  ASSERT_EQ(NearDuplicateFlags(m), flagged);
+  const Topology t = BuildTopology(m).value(), tp = BuildTopology(plain).value();
+  for (int d : {2, 4}) {
+    FitOptions o;
+    o.degree = d;
+    RingSpec spec = RingSpecFor(o);
+    const Neighborhoods np = BuildNeighborhoods(tp, plain, spec, 1), off = BuildNeighborhoods(t, m, spec, 1);
+    EXPECT_EQ(off.indices, np.indices) << "degree " << d;  // off: the plain grid's stencils
+    spec.count_near_duplicates = true;
+    const Neighborhoods nb = BuildNeighborhoods(t, m, spec, 1);
+    int grown = 0;
+    std::vector<int32_t> all;
+    for (int v = 0; v < m.NumVertices(); ++v) {
+      all.push_back(v);
+      int distinct = 0;
+      for (int k = 0; k < nb.Size(v); ++k) distinct += !flagged[nb.Points(v)[k]];
+      const bool has_flagged = distinct < nb.Size(v);
+      if (!t.is_boundary[v] && nb.rings[v] < spec.max_rings) ASSERT_GE(distinct, spec.min_points) << "vertex " << v;
+      // The plain grid's stencil where no flagged point joined; a larger one where one did.
+      if (!has_flagged) EXPECT_EQ(nb.Size(v), np.Size(v)) << "vertex " << v << " degree " << d;
+      grown += nb.Size(v) > np.Size(v);
+    }
+    EXPECT_GT(grown, 0) << "degree " << d;
+    for (int threads : {1, 2}) {
+      const Neighborhoods few = BuildNeighborhoodsOf(t, m, spec, all, threads);
+      for (int v = 0; v < m.NumVertices(); ++v)
+        ASSERT_EQ(std::vector<int32_t>(few.Points(v), few.Points(v) + few.Size(v)),
+                  std::vector<int32_t>(nb.Points(v), nb.Points(v) + nb.Size(v)))
+            << "vertex " << v << " degree " << d << " threads " << threads;
+    }
+  }
 }
 
 }  // namespace
