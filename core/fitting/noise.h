@@ -65,6 +65,9 @@ struct NoiseSchedule {
   /// Degree 3: the final fit is the default one on the smoothed mesh (interpolating, clean
   /// stencils, the Hermite curvatures of FitOptions::cubic_hermite).
   bool hermite_final = false;
+  /// The smoothing fits' stencils grow to this factor x the coefficients (0: the noise
+  /// mode's 3; NoiseSmoothingPointsFactor).
+  double smoothing_points_factor = 0;
 };
 /// Nearly clean meshes at degrees 3-4 (residual ratio below kLocalSmoothingResidualRatio:
 /// O(h^3) noise, alpha 0.1-0.2: 0.010-0.024 at n = 64; a gmsh torus at 0.1 h^3, h = 0.0126:
@@ -301,6 +304,7 @@ struct NoiseEstimate {
   double residual_ratio = 0;   ///< median over the sample of rms(res_4) / rms(res_2)
   double noise_over_h = 0;     ///< median rms(res_4) / h (the noise level, relative)
   double sextic_ratio = 0;     ///< median rms(res_6) / rms(res_4) x sqrt((rows - 15) / (rows - 28))
+  double curvature_h = 0;      ///< median |Hessian| of the quadratic fits x h (NoiseSmoothingPointsFactor)
   int samples = 0;
   /// residual_ratio > kNoisyResidualRatio (clean meshes: < 0.18) or sextic_ratio >
   /// kNoisySexticRatio (clean meshes: <= 0.24).
@@ -321,6 +325,10 @@ inline constexpr double kNoisySexticRatioHighDegree = 0.45;
 inline bool NoisyAt(const NoiseEstimate& est, int degree) {
   return est.noisy || (degree >= 3 && est.sextic_ratio > kNoisySexticRatioHighDegree);
 }
+
+/// TODO doc
+inline constexpr double kGrownSmoothingPointsScale = 7.5;
+double NoiseSmoothingPointsFactor(const NoiseEstimate& est, int degree, int smoothing_degree);
 
 /// The noise test's stencils: 2.5 rings, grown to 40 points, at most 80.
 RingSpec NoiseStencilSpec();
