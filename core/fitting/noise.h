@@ -343,7 +343,7 @@ inline bool NoisyAt(const NoiseEstimate& est, int degree) {
 /// noise mode's own fit wins. Generated sphere / ellipsoid / torus at 0.3 h^2, n = 16-128, H L2
 /// orders 0.16 / 0.29 / 1.29 -> 0.98 / 1.06 / 1.50 (bench/README.md, `noiseord`). Not at
 /// degrees 3-4: their unshrink and curvature-weighted local passes undo the standard stencils'
-/// bias only, and the bump's K Linf doubled (alpha 0.5 h^2 d3: 0.66 -> 2.6x CGAL's).
+/// bias only, and the bump's K Linf grew fourfold (alpha 0.5 h^2 d3: 0.66 -> 2.6x CGAL's).
 inline constexpr double kGrownSmoothingPointsScale = 7.5;
 /// The factor above (0: the noise mode's own stencils) for a fit of `degree` whose schedule
 /// smooths at `smoothing_degree`.
