@@ -204,8 +204,9 @@ int main(int argc, char** argv) {
           series.back().errors.push_back(MeasureErrors(clean, *surface, CgalDifferentials(mesh, nbd, d, def.normals, &few)));
           const Positions normals = ApproximateVertexNormals(mesh, topo, NormalWeighting::kArea);
           const NoiseEstimate est = EstimateNoise(mesh, topo, normals).value();
-          std::printf("%s O(h^%d) d=%d n=%s: noise estimate ratio %.3f sextic %.3f level/h %.2e -> %s; fit s", name.c_str(), k, d,
-                      n.c_str(), est.residual_ratio, est.sextic_ratio, est.noise_over_h, NoisyAt(est, d) ? "noisy" : "clean");
+          std::printf("%s O(h^%d) d=%d n=%s: noise estimate ratio %.3f sextic %.3f level/h %.2e curvature h %.3f grow %.1f -> %s; fit s",
+                      name.c_str(), k, d, n.c_str(), est.residual_ratio, est.sextic_ratio, est.noise_over_h, est.curvature_h,
+                      NoiseSmoothingPointsFactor(est, 2, 3), NoisyAt(est, d) ? "noisy" : "clean");
           for (double t : secs) std::printf(" %.2f", t);
           std::printf("\n");
         }

@@ -362,6 +362,7 @@ class SurfaceFitter {
       if (o.noise == NoiseMode::kAuto) eff.noise = NoisyAt(est, o.degree) ? NoiseMode::kOn : NoiseMode::kOff;
       schedule = NoiseScheduleFor(o.degree, est.residual_ratio, est.cubic_ratio);
       noise_over_h = est.noise_over_h;
+      schedule.smoothing_points_factor = NoiseSmoothingPointsFactor(est, o.degree, schedule.smoothing_degree);  // noise.h
     }
     // The final fit's stencils (the clean ones under light noise, when not set explicitly).
     FitOptions final_spec = eff;
@@ -404,6 +405,8 @@ class SurfaceFitter {
     std::shared_ptr<SurfaceFits> boundary_fits;  // cubic smoothing fits for the boundary vertices
     std::shared_ptr<SurfaceFits> high_fits;      // smoothing fits of smoothing_degree_high
     std::shared_ptr<const Neighborhoods> high_nb;
+    std::shared_ptr<SurfaceFits> grown_fits;  // smoothing fits on grown stencils (smoothing_points_factor)
+    std::shared_ptr<const Neighborhoods> grown_nb;
     const bool has_boundary = topo.num_boundary_edges > 0;
     for (int pass = 0; pass < passes; ++pass) {
       if (pass > 0) adopt_normals(*fits, nullptr);
@@ -416,9 +419,12 @@ class SurfaceFitter {
         if (high_fits)  // two smoothing degrees (noise.h, BlendFootPoints)
           smoothed.positions = BlendFootPoints(*fits, *high_fits, input->positions, mesh, noise_over_h,
                                                kFootPointBlendSpread, step, ctx.threads());
+        else if (grown_fits)  // grown stencils where they agree with the noise mode's own (noise.h)
+          smoothed.positions = BlendFootPoints(*grown_fits, *fits, input->positions, mesh, noise_over_h,
+                                               kFootPointBlendSpread, step, ctx.threads());
         else
           smoothed.positions = ProjectOntoFits(*fits, input->positions, ctx.threads(), step);
-        high_fits.reset();
+        high_fits.reset(), grown_fits.reset();
         // Auto at degree >= 3: the first pass moved the vertices by more than the noise
         // (its bias: the coarse bump), so the default fit is kept (noise.h).
         if (o.noise == NoiseMode::kAuto && o.degree >= 3 && pass == 1 &&
@@ -550,6 +556,16 @@ class SurfaceFitter {
         high_fits = std::make_shared<SurfaceFits>();
         GF_RETURN_IF_ERROR(FitAll(*input, topo, ho, high_nb, *frame_normals, FitRequest{}, ctx, nullptr, nullptr, phase,
                                   *high_fits));
+      }
+      // The same smoothing fits on grown stencils, blended with them per vertex (noise.h,
+      // NoiseSmoothingPointsFactor).
+      if (scheduled && pass < schedule.smoothing_passes + schedule.local_passes && schedule.smoothing_points_factor > 0) {
+        FitOptions go = NoiseSmoothingOptions(eff, schedule);
+        go.min_points_factor = schedule.smoothing_points_factor, go.max_points = kMaxStencil;
+        if (!grown_nb) grown_nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(topo, mesh, RingSpecFor(go), ctx.threads()));
+        grown_fits = std::make_shared<SurfaceFits>();
+        GF_RETURN_IF_ERROR(FitAll(*input, topo, go, grown_nb, *frame_normals, FitRequest{}, ctx, nullptr, nullptr, phase,
+                                  *grown_fits));
       }
       // Moderate noise: the smoothing fits above cubic extrapolate the one-sided stencils
       // of the boundary (normal Linf 1.3x there, bench/README.md third round); cubic ones.

@@ -78,6 +78,16 @@ NoiseSchedule NoiseScheduleFor(int degree, double residual_ratio, double cubic_r
   return s;
 }
 
+double NoiseSmoothingPointsFactor(const NoiseEstimate& est, int degree, int smoothing_degree) {
+  if (degree != 2 || smoothing_degree != 3 || !(est.curvature_h > 0) || !(est.noise_over_h > 0)) return 0;
+  const double q = est.noise_over_h / (est.curvature_h * est.curvature_h);  // (R / h)^4, up to a constant
+  const double f = std::min(kGrownSmoothingPointsScale * std::sqrt(q),
+                            static_cast<double>(kMaxStencil) / NumCoefficients(smoothing_degree));
+  FitOptions noise;
+  noise.noise = NoiseMode::kOn;
+  return f > noise.MinPointsFactor() ? f : 0;  // the noise mode's own factor (3) otherwise
+}
+
 FitOptions NoiseSmoothingOptions(const FitOptions& options, const NoiseSchedule& schedule) {
   FitOptions o = options;
   o.noise = NoiseMode::kOn;
@@ -260,8 +270,9 @@ void TwoScaleFinalFit(const SurfaceFits& own, const SurfaceFits& other, const Ne
 
 namespace {
 
-// rms of the residual of an approximating fit of `degree` (0 if it could not be solved).
-double ResidualRms(const WlsProblem& P, int degree) {
+// rms of the residual of an approximating fit of `degree` (0 if it could not be solved);
+// with `hessian`, also the fit's |Hessian|.
+double ResidualRms(const WlsProblem& P, int degree, double* hessian = nullptr) {
   WlsSettings S;
   S.degree = degree;
   S.interpolate = false;
@@ -271,6 +282,10 @@ double ResidualRms(const WlsProblem& P, int degree) {
   double c[kMaxCoefficients];
   const WlsSolution sol = SolveWls(P, S, c, nullptr);
   if (sol.degree_used != degree) return 0;
+  if (hessian) {
+    const double uu = c[TaylorIndex(2, 0)], uv = c[TaylorIndex(1, 1)], vv = c[TaylorIndex(0, 2)];
+    *hessian = std::sqrt(uu * uu + 2 * uv * uv + vv * vv);
+  }
   double sum = 0;
   for (int r = 0; r < P.rows; ++r) {
     double f;
@@ -307,7 +322,8 @@ absl::StatusOr<NoiseEstimate> EstimateNoise(const Mesh& mesh, const Topology& to
   // The sample's stencils alone (row i: sample[i]'s), or row v of every vertex's.
   const Neighborhoods own =
       all_stencils ? Neighborhoods{} : BuildNeighborhoodsOf(topo, mesh, NoiseStencilSpec(), sample, ctx.threads());
-  std::vector<double> ratio(samples, -1), level(samples, -1), sextic(samples, -1), cubic(samples, -1);
+  std::vector<double> ratio(samples, -1), level(samples, -1), sextic(samples, -1), cubic(samples, -1),
+      hess(samples, -1);
   const double h = AverageEdgeLength(mesh);
   absl::Status s = ParallelFor(samples, ctx, [&](int64_t i) {
     const int v = sample[i];
@@ -328,8 +344,9 @@ absl::StatusOr<NoiseEstimate> EstimateNoise(const Mesh& mesh, const Topology& to
       P.rhs[0][P.rows++] = d.dot(fr.normal);
     }
     if (P.rows < 30) return;
-    const double r2 = ResidualRms(P, 2), r4 = ResidualRms(P, 4);
-    if (r2 > 0) ratio[i] = r4 / r2, level[i] = r4 / h;
+    double hq = 0;
+    const double r2 = ResidualRms(P, 2, &hq), r4 = ResidualRms(P, 4);
+    if (r2 > 0) ratio[i] = r4 / r2, level[i] = r4 / h, hess[i] = hq * h;
     const double r3 = ResidualRms(P, 3);
     if (r3 > 0) cubic[i] = r4 / r3;
     // The sextic's residual against the quartic's, both per remaining degree of freedom.
@@ -350,6 +367,7 @@ absl::StatusOr<NoiseEstimate> EstimateNoise(const Mesh& mesh, const Topology& to
   est.noise_over_h = median(level);
   est.sextic_ratio = median(sextic);
   est.cubic_ratio = median(cubic);
+  est.curvature_h = median(hess);
   est.noisy = est.residual_ratio > kNoisyResidualRatio || est.sextic_ratio > kNoisySexticRatio;
   return est;
 }
