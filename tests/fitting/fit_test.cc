@@ -345,7 +345,7 @@ TEST(FitTest, FitsAreBitIdenticalForAnyThreadCount) {
   m.positions.bottomRows(2) << 3, 3, 3, 4, 4, 4;  // two isolated vertices
   const Topology t = BuildTopology(m).value();
   ASSERT_EQ(static_cast<int>(t.locality_order.size()), nv + 2);
-  for (int degree : {1, 2, 4}  // 1: its Hermite normals (plane_slopes.h)) {
+  for (int degree : {1, 2, 4}) {  // 1: its Hermite normals (plane_slopes.h)
     FitOptions o;
     o.degree = degree;
     const auto nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(t, m, RingSpecFor(o), 1));
