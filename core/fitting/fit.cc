@@ -14,6 +14,7 @@
 #include "core/fitting/hermite.h"
 #include "core/fitting/noise.h"
 #include "core/fitting/parametric.h"
+#include "core/fitting/plane_slopes.h"
 #include "core/fitting/slopes.h"
 #include "core/fitting/wls.h"
 #include "core/fitting/wls_batch.h"
@@ -517,13 +518,14 @@ class SurfaceFitter {
       // Slope refinement (slopes.h) after the final fit: its blocks are reported once refined.
       const bool slopes = last && (pass_options.SlopePasses() > 0 || pass_options.CubicHermite() || pass_options.JetHermite()) &&
                           !req.stencils;
+      const bool plane_slopes = last && pass_options.PlaneHermite() && !req.stencils;  // plane_slopes.h
       // The noise schedule's final fit from two stencil sets (noise.h).
       const bool blend = last && eff.noise == NoiseMode::kOn && schedule.two_scale_final && !req.stencils &&
                          pass_options.method == FitMethod::kLHF && (clean_tangent ? tangent_nb : smoothing_nb);
       // The cached point records while the geometry, normals and stencils are the cache's.
       const bool cached = input == &mesh && frame_normals == &inputs->normals && pass_nb.get() == cached_nb;
       if (absl::Status s = FitAll(*input, topo, pass_options, pass_nb, *frame_normals, req, ctx,
-                                  last && !slopes && !blend ? &on_fitted : nullptr,
+                                  last && !slopes && !plane_slopes && !blend ? &on_fitted : nullptr,
                                   fixed_tangent.empty() ? nullptr : fixed_tangent.data(), phase, *fits,
                                   cached ? &inputs->records : nullptr, consume ? &positions_read : nullptr,
                                   last ? windows : nullptr);
@@ -534,6 +536,12 @@ class SurfaceFitter {
                                         pass_options.CubicHermite() ? kCubicSlopePasses : pass_options.SlopePasses(),
                                         ctx, fits->diagnostics_.data(),
                                         fits->frames_.data(), fits->coefficients_.data(), fits->num_coefficients()));
+        if (on_fitted) on_fitted(*fits, 0, mesh.NumVertices());
+      }
+      if (plane_slopes) {
+        GF_RETURN_IF_ERROR(RefinePlaneNormals(*input, *pass_nb, std::cos(pass_options.safeguard_angle_deg * M_PI / 180.0),
+                                              pass_options.weight_epsilon, ctx, fits->diagnostics_.data(),
+                                              fits->frames_.data(), fits->coefficients_.data(), fits->num_coefficients()));
         if (on_fitted) on_fitted(*fits, 0, mesh.NumVertices());
       }
       if (blend) {
@@ -589,7 +597,7 @@ class SurfaceFitter {
   // (is_boundary aside).
   static bool PlainFit(const FitOptions& o) {
     return o.noise == NoiseMode::kOff && o.SmoothingPasses() == 0 && !o.two_pass && o.NormalDegree() <= o.degree &&
-           o.SlopePasses() == 0 && !o.CubicHermite() && !o.JetHermite() && (o.method == FitMethod::kLHF || o.method == FitMethod::kLOP);
+           o.SlopePasses() == 0 && !o.PlaneHermite() && !o.CubicHermite() && !o.JetHermite() && (o.method == FitMethod::kLHF || o.method == FitMethod::kLOP);
   }
 
  private:

@@ -91,6 +91,7 @@ FitOptionsBits FitOptionsIdentity(const FitOptions& o) {
   b[19 + kMaxDegree] = static_cast<uint64_t>(o.SlopePasses());
   b[20 + kMaxDegree] = o.CubicHermite();
   b[21 + kMaxDegree] = o.JetHermite();
+  b[22 + kMaxDegree] = o.PlaneHermite();
   return b;
 }
 
@@ -105,6 +106,7 @@ std::string FitOptionsKey(const FitOptions& o) {
                         WlsSolverName(o.solver), o.NormalDegree(), o.HermiteHessian());
   if (o.SlopePasses() > 0) absl::StrAppendFormat(&key, " sr%d", o.SlopePasses());
   if (o.degree == 3 && !o.CubicHermite()) absl::StrAppend(&key, " ch0");
+  if (o.degree == 1 && !o.PlaneHermite()) absl::StrAppend(&key, " ph0");
   // The Hermite jets when they differ from the default (on at degree 5, off at degree 4).
   if ((o.degree == 4 || o.degree == 5) && o.JetHermite() != (o.degree == 5))
     absl::StrAppendFormat(&key, " jh%d", o.JetHermite());

@@ -137,6 +137,15 @@ struct FitOptions {
   /// whole-process degree-4 budget (bench/README.md, `d45m`). Results stream after the whole
   /// fit. Ignored by the GFD operators (FitRequest::stencils).
   JetHermiteMode jet_hermite = JetHermiteMode::kAuto;
+  /// Hermite normals of degree-1 fits (interpolating LHF fits with the QR solver, noise off):
+  /// the plane's gradient error on an irregular stencil, O(h), is a known linear map B of the
+  /// Hessian (the quadratic term's projection onto the plane's columns); after the fit, the
+  /// Hessian is fitted to the neighbours' plain slopes (their own B included) and B H is
+  /// subtracted (core/fitting/plane_slopes.h): normals of order 2 instead of 1, 0.01-0.32x CGAL
+  /// Jet_fitting_3's degree-1 normals on the clean audit meshes (bench/README.md, `d1slope`),
+  /// for one more pass over the stencils. The fit's c10, c01 change; frames stay. Curvatures
+  /// stay zero. Ignored by the GFD operators (FitRequest::stencils).
+  bool plane_hermite = true;
 
   /// Whether the Hermite curvatures apply (see hermite_hessian).
   bool HermiteHessian() const {
@@ -162,6 +171,11 @@ struct FitOptions {
                                                            : false;
     return on && method == FitMethod::kLHF && solver == WlsSolver::kQR &&
            Interpolates() && noise == NoiseMode::kOff && NormalDegree() == degree;
+  }
+  /// Whether the degree-1 Hermite normals run (see plane_hermite).
+  bool PlaneHermite() const {
+    return plane_hermite && degree == 1 && method == FitMethod::kLHF && solver == WlsSolver::kQR && Interpolates() &&
+           noise == NoiseMode::kOff && NormalDegree() == degree;
   }
   /// The normal pre-fit's degree actually used; equal to `degree` when there is none
   /// (the noise mode at degree 2 always refines its normals with a cubic, noise.h).
@@ -200,7 +214,7 @@ std::string FitOptionsKey(const FitOptions& options);
 /// as exact bit patterns: two option sets give identical fits iff their bits are equal.
 /// Cache keys are built from these, never from formatted text (`%g` aliases 1.5 and
 /// 1.5000001).
-using FitOptionsBits = std::array<uint64_t, 22 + kMaxDegree>;
+using FitOptionsBits = std::array<uint64_t, 23 + kMaxDegree>;
 FitOptionsBits FitOptionsIdentity(const FitOptions& options);
 
 const char* FitMethodName(FitMethod m);

@@ -79,6 +79,12 @@ paste c3.tsv p3.tsv | awk -F'\t' 'NR > 1 && ($1 != $17 || $2 != $18 || $3 != $19
 paste c3.tsv p3.tsv | awk -F'\t' 'NR > 1 && $4 != $20 { d++ } END { exit !(d > 0) }' ||
   fail "--plain-cubic left every degree-3 mean curvature unchanged"
 pass
+# Degree 1's Hermite normals (on by default): --plain-plane keeps the plain plane fit's normals.
+run_ok curvature --local t.obj --degree 1 --output c1.tsv
+run_ok curvature --local t.obj --degree 1 --plain-plane --output p1.tsv
+paste c1.tsv p1.tsv | awk -F'\t' 'NR > 1 && ($1 != $17 || $2 != $18 || $3 != $19) { d++ } END { exit !(d > 0) }' ||
+  fail "--plain-plane left every degree-1 normal unchanged"
+pass
 # Degrees 4-5's Hermite jets (on by default at degree 5, opt-in at degree 4): --hermite-jets
 # changes the degree-4 mean curvatures; --plain-jets those of degree 5.
 run_ok curvature --local t.obj --degree 4 --output c4.tsv

@@ -345,7 +345,7 @@ TEST(FitTest, FitsAreBitIdenticalForAnyThreadCount) {
   m.positions.bottomRows(2) << 3, 3, 3, 4, 4, 4;  // two isolated vertices
   const Topology t = BuildTopology(m).value();
   ASSERT_EQ(static_cast<int>(t.locality_order.size()), nv + 2);
-  for (int degree : {2, 4}) {
+  for (int degree : {1, 2, 4}) {  // 1: its Hermite normals (plane_slopes.h)
     FitOptions o;
     o.degree = degree;
     const auto nb = std::make_shared<Neighborhoods>(BuildNeighborhoods(t, m, RingSpecFor(o), 1));
@@ -593,47 +593,53 @@ TEST(FitTest, CancellationStopsTheFit) {
             absl::StatusCode::kDeadlineExceeded);
 }
 
-// The slope refinement polls the RunContext: cancelled once the plain fit's last chunk is
-// done, it runs none of its own (no progress after the cancellation, where the same run
-// uncancelled reports the refinement's chunks), returns CANCELLED and streams no block;
-// a token cancelled before the start or past its deadline stops it as the plain fit.
+// The slope refinement (and degree 1's Hermite normals, plane_slopes.h) polls the
+// RunContext: cancelled once the plain fit's last chunk is done, it runs none of its own
+// (no progress after the cancellation, where the same run uncancelled reports the
+// refinement's chunks), returns CANCELLED and streams no block; a token cancelled before
+// the start or past its deadline stops it as the plain fit.
 TEST(FitTest, SlopeRefinementIsCancellable) {
   const Mesh m = Torus(40);
   const Topology t = BuildTopology(m).value();
-  FitOptions o;
-  o.slope_refinement = 2;
-  ASSERT_EQ(o.SlopePasses(), 2);
-  for (const bool cancel : {false, true}) {
-    CancellationToken token;
-    bool fit_done = false;
-    int after_fit = 0;  // progress reports after the fit phase's last one
-    const RunContext ctx(&token, 1, [&](const Progress& p) {
-      if (fit_done) {
-        ++after_fit;
-      } else if (p.phase == "fit" && p.done == p.total) {
-        fit_done = true;
-        if (cancel) token.Cancel();
+  FitOptions slopes, plane;
+  slopes.slope_refinement = 2;
+  ASSERT_EQ(slopes.SlopePasses(), 2);
+  plane.degree = 1;
+  ASSERT_TRUE(plane.PlaneHermite());
+  for (const FitOptions& o : {slopes, plane}) {
+    SCOPED_TRACE(o.degree);
+    for (const bool cancel : {false, true}) {
+      CancellationToken token;
+      bool fit_done = false;
+      int after_fit = 0;  // progress reports after the fit phase's last one
+      const RunContext ctx(&token, 1, [&](const Progress& p) {
+        if (fit_done) {
+          ++after_fit;
+        } else if (p.phase == "fit" && p.done == p.total) {
+          fit_done = true;
+          if (cancel) token.Cancel();
+        }
+      });
+      int blocks = 0;
+      const auto fits = FitSurface(m, t, o, nullptr, {}, ctx, [&](const SurfaceFits&, int64_t, int64_t) { ++blocks; });
+      EXPECT_TRUE(fit_done);
+      if (cancel) {
+        EXPECT_EQ(fits.status().code(), absl::StatusCode::kCancelled);
+        EXPECT_EQ(after_fit, 0);
+        EXPECT_EQ(blocks, 0);
+      } else {
+        ASSERT_TRUE(fits.ok()) << fits.status();
+        EXPECT_GT(after_fit, 0);  // the refinement's chunks
+        EXPECT_EQ(blocks, 1);
       }
-    });
-    int blocks = 0;
-    const auto fits = FitSurface(m, t, o, nullptr, {}, ctx, [&](const SurfaceFits&, int64_t, int64_t) { ++blocks; });
-    EXPECT_TRUE(fit_done);
-    if (cancel) {
-      EXPECT_EQ(fits.status().code(), absl::StatusCode::kCancelled);
-      EXPECT_EQ(after_fit, 0);
-      EXPECT_EQ(blocks, 0);
-    } else {
-      ASSERT_TRUE(fits.ok()) << fits.status();
-      EXPECT_GT(after_fit, 0);  // the refinement's chunks
-      EXPECT_EQ(blocks, 1);
     }
+    CancellationToken token;
+    token.Cancel();
+    EXPECT_EQ(FitSurface(m, t, o, nullptr, {}, RunContext(&token)).status().code(), absl::StatusCode::kCancelled);
+    CancellationToken expired(CancellationToken::Clock::now() - std::chrono::seconds(1));
+    EXPECT_EQ(FitSurface(m, t, o, nullptr, {}, RunContext(&expired)).status().code(),
+              absl::StatusCode::kDeadlineExceeded);
   }
-  CancellationToken token;
-  token.Cancel();
-  EXPECT_EQ(FitSurface(m, t, o, nullptr, {}, RunContext(&token)).status().code(), absl::StatusCode::kCancelled);
-  CancellationToken expired(CancellationToken::Clock::now() - std::chrono::seconds(1));
-  EXPECT_EQ(FitSurface(m, t, o, nullptr, {}, RunContext(&expired)).status().code(),
-            absl::StatusCode::kDeadlineExceeded);
 }
 
 TEST(FitTest, TwoPassRefitsInFittedFrames) {

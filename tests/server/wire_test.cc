@@ -23,12 +23,14 @@ TEST(WireTest, FitOptionsRoundTripAndUnsetMeansDefault) {
   o.slope_refinement = 2;
   o.cubic_hermite = false;
   o.jet_hermite = JetHermiteMode::kOn;
+  o.plane_hermite = false;
   auto back = FromProto(ToProto(o));
   ASSERT_TRUE(back.ok()) << back.status();
   EXPECT_EQ(back->normal_degree, 5);
   EXPECT_TRUE(back->hermite_hessian);
   EXPECT_EQ(back->slope_refinement, 2);
   EXPECT_FALSE(back->cubic_hermite);
+  EXPECT_FALSE(back->plane_hermite);
   EXPECT_EQ(back->jet_hermite, JetHermiteMode::kOn);
   o.jet_hermite = JetHermiteMode::kOff;
   EXPECT_EQ(FromProto(ToProto(o))->jet_hermite, JetHermiteMode::kOff);
@@ -46,6 +48,7 @@ TEST(WireTest, FitOptionsRoundTripAndUnsetMeansDefault) {
   EXPECT_FALSE(defaults->hermite_hessian);
   EXPECT_EQ(defaults->slope_refinement, 0);
   EXPECT_TRUE(defaults->cubic_hermite);
+  EXPECT_TRUE(defaults->plane_hermite);
   EXPECT_EQ(defaults->jet_hermite, JetHermiteMode::kAuto);
   v1::FitOptions bad;
   bad.set_degree(7);

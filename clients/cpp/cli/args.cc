@@ -218,6 +218,10 @@ void AddCurvatureOptions(ArgParser* p, CurvatureArgs* a) {
             "degree 3: keep the plain fit's normals and curvatures (by default both are refined "
             "with the neighbours' fitted normals: normals ~0.3x, H, K ~0.5x CGAL's or better, "
             "~1.7x the CPU time)")
+      .Flag("plain-plane", &a->plain_plane,
+            "degree 1: keep the plain plane fit's normals (by default their O(h) bias, a known "
+            "map of the Hessian, is removed with the neighbours' normals: order 2, ~0.3x CGAL's "
+            "or better)")
       .Flag("hermite-jets", &a->hermite_jets,
             "degrees 4-5: refit the Hessian and gradient with the neighbours' fitted slopes "
             "(H, K ~0.5x CGAL's or better; on by default at degree 5, ~0.85x a plain degree-4 "
@@ -287,6 +291,7 @@ absl::Status ParseCurvatureArgs(const std::vector<std::string>& argv, CurvatureA
     return UsageError("--interpolate and --approximate exclude each other");
   a->fit.interpolate = !a->approximate;
   if (a->plain_cubic) a->fit.cubic_hermite = false;
+  if (a->plain_plane) a->fit.plane_hermite = false;
   if (a->hermite_jets && a->plain_jets) return UsageError("--hermite-jets and --plain-jets exclude each other");
   if (a->hermite_jets) a->fit.jet_hermite = JetHermiteMode::kOn;
   if (a->plain_jets) a->fit.jet_hermite = JetHermiteMode::kOff;

@@ -103,6 +103,7 @@ struct CurvatureArgs {
   bool interpolate = false;  ///< --interpolate: explicit default
   bool approximate = false;  ///< --approximate: fit need not pass through the vertex
   bool plain_cubic = false;  ///< --plain-cubic: FitOptions::cubic_hermite off
+  bool plain_plane = false;  ///< --plain-plane: FitOptions::plane_hermite off
   bool hermite_jets = false;  ///< --hermite-jets: FitOptions::jet_hermite on (degrees 4-5)
   bool plain_jets = false;    ///< --plain-jets: FitOptions::jet_hermite off
   std::string noise = "off";  ///< --noise off|on|auto
