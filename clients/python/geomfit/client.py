@@ -582,7 +582,7 @@ class Client:
         (degree 3): the plain fit's normals and curvatures instead of the slope refinement and
         Hermite refit (on by default). jet_hermite=True / False (degrees 4-5): the Hessian and
         gradient refitted with the neighbours' fitted slopes (H, K ~0.5x CGAL's or better) or the
-        plain fit's (unset: on at degree 5, off at degree 4). method: "lhf", "lop", or the
+        plain fit's (unset: on at degrees 4 and 5). method: "lhf", "lop", or the
         comparison methods "xu", "lscm".
         `progress`: callable(phase, done, total) or True (geomfit.progress), called with the
         server's phases of the fit ("noise test", "smooth 1/2", "smooth 2/2", "frames",
