@@ -265,9 +265,11 @@ v1::ComputeDifferentialsRequest StreamedRequest(const std::string& id) {
   return request;
 }
 
-void ExpectSameAsInProcess(const Differentials& d, const Mesh& mesh, int degree = 3) {
+void ExpectSameAsInProcess(const Differentials& d, const Mesh& mesh, int degree = 3,
+                           JetHermiteMode jets = JetHermiteMode::kAuto) {
   FitOptions options;
   options.degree = degree;
+  options.jet_hermite = jets;
   auto local = ComputeDifferentials(mesh, options, kAllQuantities, RunContext(nullptr, 1));
   ASSERT_TRUE(local.ok());
   EXPECT_EQ(d.normals, local->normals);
@@ -490,7 +492,7 @@ TEST_F(HandlersTest, TheOwnerSendsAFollowersLastChunkAsSoonAsItEnds) {
   EXPECT_EQ(summary.joined_compute_ms(), owner_summary.fit_ms() + owner_summary.evaluate_ms())
       << "the follower reports the computation it joined";
   EXPECT_EQ(summary.vertices_by_degree(4), n);
-  ExpectSameAsInProcess(*d, mesh, 4);
+  ExpectSameAsInProcess(*d, mesh, 4, JetHermiteMode::kOff);
 }
 
 TEST_F(HandlersTest, ARequestDuringAPrefetchStreamsFromIt) {
