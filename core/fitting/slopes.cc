@@ -35,12 +35,15 @@ template <int N>
 __attribute__((always_inline)) inline void SolveSpdLanes(double (&a)[N][N][kLanes], double (&b)[N][kLanes],
                                                          double rel, Lanes& ok) {
   alignas(64) Lanes scale = {}, d, inv[N];  // inv: 1 / R_kk
+#pragma GCC unroll 16
   for (int i = 0; i < N; ++i)
 #pragma omp simd
     for (int l = 0; l < kLanes; ++l) scale[l] = std::max(scale[l], a[i][i][l]);
+#pragma GCC unroll 16
   for (int k = 0; k < N; ++k) {
 #pragma omp simd
     for (int l = 0; l < kLanes; ++l) d[l] = a[k][k][l];
+#pragma GCC unroll 16
     for (int p = 0; p < k; ++p)
 #pragma omp simd
       for (int l = 0; l < kLanes; ++l) d[l] -= a[p][k][l] * a[p][k][l];
@@ -50,7 +53,9 @@ __attribute__((always_inline)) inline void SolveSpdLanes(double (&a)[N][N][kLane
       ok[l] = good ? ok[l] : 0.0;
       inv[k][l] = 1 / std::sqrt(good ? d[l] : 1.0);
     }
+#pragma GCC unroll 16
     for (int j = k + 1; j < N; ++j) {
+#pragma GCC unroll 16
       for (int p = 0; p < k; ++p)
 #pragma omp simd
         for (int l = 0; l < kLanes; ++l) a[k][j][l] -= a[p][k][l] * a[p][j][l];
@@ -58,14 +63,18 @@ __attribute__((always_inline)) inline void SolveSpdLanes(double (&a)[N][N][kLane
       for (int l = 0; l < kLanes; ++l) a[k][j][l] *= inv[k][l];
     }
   }
+#pragma GCC unroll 16
   for (int k = 0; k < N; ++k) {  // R^T y = b
+#pragma GCC unroll 16
     for (int p = 0; p < k; ++p)
 #pragma omp simd
       for (int l = 0; l < kLanes; ++l) b[k][l] -= a[p][k][l] * b[p][l];
 #pragma omp simd
     for (int l = 0; l < kLanes; ++l) b[k][l] *= inv[k][l];
   }
+#pragma GCC unroll 16
   for (int k = N - 1; k >= 0; --k) {  // R x = y
+#pragma GCC unroll 16
     for (int p = k + 1; p < N; ++p)
 #pragma omp simd
       for (int l = 0; l < kLanes; ++l) b[k][l] -= a[k][p][l] * b[p][l];
@@ -89,7 +98,11 @@ struct Work {
                                      //   (degree 3: the fit's cubic, then each normal pass's)
   int degree = 2;                    // the fits' degree (centre_stride = 3 + its derivatives of degree >= 3)
   int centre_stride = 0;
-  const double* h2 = nullptr;        // degree 5: per slot the fit's Hessian c20 c11 c02 (kJet's share)
+  // Degrees 4-5 (the jets): the fits read in place (frame normal, Hessian, derivatives of degree
+  // 3..) instead of a copy in centre, and written in place by the Hessian pass (no second record copy).
+  const LocalFrame* frames = nullptr;
+  double* coefficients = nullptr;
+  int num_coefficients = 0;
   int Vertex(int64_t k) const { return order ? order[k] : static_cast<int>(k); }
   int Size(int64_t k) const { return std::min(offsets[k + 1] - offsets[k], kMaxStencil); }
 };
@@ -116,9 +129,9 @@ struct alignas(64) Batch {
   const double* xn = nullptr;
   int32_t slot[kLanes];
   alignas(64) Lanes x, y, z, m[3], t1[3], t2[3];  // aligned: loaded as vectors
-  alignas(64) Lanes g1, g2;  // the fitted gradient (c10, c01) in the frame (0 without Work::centre)
-  alignas(64) Lanes h2[3];   // the fit's Hessian (c20, c11, c02) with Work::h2, else 0
-  alignas(64) Lanes f3[kMaxJet];  // the fit's derivatives of degree 3.. (f30 f21 f12 f03 ...; 0 without Work::centre)
+  alignas(64) Lanes g1, g2;  // the fitted gradient (c10, c01) in the frame (0 below degree 3)
+  alignas(64) Lanes h2[3];   // the fit's Hessian (c20, c11, c02) with Work::coefficients, else 0
+  alignas(64) Lanes f3[kMaxJet];  // the fit's derivatives of degree 3.. (f30 f21 f12 f03 ...; 0 below degree 3)
   int32_t idx[kMaxStencil][kLanes];
   alignas(64) Lanes dx[kMaxStencil], dy[kMaxStencil], dz[kMaxStencil], nx[kMaxStencil], ny[kMaxStencil], nz[kMaxStencil],
       live[kMaxStencil];
@@ -128,9 +141,10 @@ struct alignas(64) Batch {
     for (int l = 0; l < kLanes; ++l) {
       const int64_t k = slot[l] = slots[l < n ? l : 0];
       const double* self = xn + kRec * k;
-      const double* frame = W.centre ? W.centre + W.centre_stride * k : self + 3;
-      for (int c = 0; c < W.centre_stride - 3; ++c) f3[c][l] = frame[3 + c];
-      for (int c = 0; c < 3; ++c) h2[c][l] = W.h2 ? W.h2[3 * k + c] : 0.0;
+      const double* fit = W.coefficients ? W.coefficients + W.num_coefficients * static_cast<int64_t>(W.Vertex(k)) : nullptr;
+      const double* frame = W.centre ? W.centre + W.centre_stride * k : fit ? W.frames[W.Vertex(k)].normal.data() : self + 3;
+      for (int c = 0; c < W.centre_stride - 3; ++c) f3[c][l] = fit ? fit[6 + c] : frame[3 + c];
+      for (int c = 0; c < 3; ++c) h2[c][l] = fit ? fit[3 + c] : 0.0;
       for (int c = std::max(0, W.centre_stride - 3); c < 4; ++c) f3[c][l] = 0.0;
       x[l] = self[0], y[l] = self[1], z[l] = self[2], m[0][l] = frame[0], m[1][l] = frame[1], m[2][l] = frame[2];
       if (l < n) rows = std::max(rows, W.Size(k) - 1);
@@ -141,7 +155,7 @@ struct alignas(64) Batch {
     for (int l = 0; l < kLanes; ++l) {  // the record's (fitted) normal n in the frame: (c10, c01) = -(n.t1, n.t2) / n.m
       const double* nf = xn + kRec * static_cast<int64_t>(slot[l]) + 3;
       const double nm = nf[0] * m[0][l] + nf[1] * m[1][l] + nf[2] * m[2][l];
-      const bool tilt = W.centre && nm > 0;
+      const bool tilt = W.own_radius && nm > 0;
       g1[l] = tilt ? -(nf[0] * t1[0][l] + nf[1] * t1[1][l] + nf[2] * t1[2][l]) / nm : 0.0;
       g2[l] = tilt ? -(nf[0] * t2[0][l] + nf[1] * t2[1][l] + nf[2] * t2[2][l]) / nm : 0.0;
     }
@@ -508,6 +522,45 @@ struct JetConstants {
 constexpr JetConstants kJet[2] = {{5, 0.5, 1.0}, {6, 0.2, 0.6}};
 constexpr double kJetRidge = 0.003;
 
+// The sums of HermiteJets<D> for the powers u^p, P0 <= p <= P1, of its rows' (u, w): the
+// moments w u^p w^q of degrees 2..2D into acc, the right-hand sides wv u^p w^q of degrees 1..D
+// into rhs (Taylor order), each over the rows in order.
+template <int D, int P0, int P1>
+__attribute__((always_inline)) inline void JetSums(int rows, const Lanes* su, const Lanes* sw, const Lanes* swm,
+                                                   const Lanes* swv, V* acc, V* rhs) {
+  V a[NumCoefficients(2 * D) - 3] = {}, r[NumCoefficients(D) - 1] = {};
+  for (int i = 0; i < rows; ++i) {
+    const V u = *reinterpret_cast<const V*>(su[i]), w = *reinterpret_cast<const V*>(sw[i]);
+    const V wm = *reinterpret_cast<const V*>(swm[i]), wv = *reinterpret_cast<const V*>(swv[i]);
+    V wp[2 * D + 1];
+    wp[0] = u * 0 + 1;
+#pragma GCC unroll 16
+    for (int k = 1; k <= 2 * D - P0; ++k) wp[k] = wp[k - 1] * w;
+    V up = wp[0];
+#pragma GCC unroll 16
+    for (int p = 1; p <= P0; ++p) up = up * u;
+#pragma GCC unroll 16
+    for (int p = P0; p <= P1; ++p) {
+      if (p > P0) up = up * u;
+      const V t = wm * up;
+#pragma GCC unroll 16
+      for (int q = std::max(0, 2 - p); p + q <= 2 * D; ++q) a[TaylorIndex(p, q) - 3] += t * wp[q];
+      if (p > D) continue;
+      const V rv = wv * up;
+#pragma GCC unroll 16
+      for (int q = std::max(0, 1 - p); p + q <= D; ++q) r[TaylorIndex(p, q) - 1] += rv * wp[q];
+    }
+  }
+#pragma GCC unroll 16
+  for (int p = P0; p <= P1; ++p) {
+#pragma GCC unroll 16
+    for (int q = std::max(0, 2 - p); p + q <= 2 * D; ++q) acc[TaylorIndex(p, q) - 3] = a[TaylorIndex(p, q) - 3];
+    if (p > D) continue;
+#pragma GCC unroll 16
+    for (int q = std::max(0, 1 - p); p + q <= D; ++q) rhs[TaylorIndex(p, q) - 1] = r[TaylorIndex(p, q) - 1];
+  }
+}
+
 // The Hermite pass of degree-D fits (D = 4, 5; FitOptions::jet_hermite, slopes.h). Along the
 // ray to stencil point p (height h, the neighbour's fitted slopes G), Euler's identity
 // p.grad T_k = k T_k for the fit's homogeneous Taylor terms T_k gives
@@ -534,12 +587,13 @@ __attribute__((always_inline)) inline void HermiteJets(const Work& W, const Batc
       const double f = (a - k) / (kFactorial[k - q] * kFactorial[q]);
       for (int l = 0; l < kLanes; ++l) fit[c][l] = f * B.f3[c][l];
     }
-  const V big_r = *reinterpret_cast<const V*>(radius2), inv_big_r = *reinterpret_cast<const V*>(inv_radius);
-  V acc[kM] = {}, rhs[kN] = {};
   auto ld = [](const Lanes& x) { return *reinterpret_cast<const V*>(x); };
+  const V big_r = *reinterpret_cast<const V*>(radius2), inv_big_r = *reinterpret_cast<const V*>(inv_radius);
   const V m0 = ld(B.m[0]), m1 = ld(B.m[1]), m2 = ld(B.m[2]), t10 = ld(B.t1[0]), t11 = ld(B.t1[1]), t12 = ld(B.t1[2]),
           t20 = ld(B.t2[0]), t21 = ld(B.t2[1]), t22 = ld(B.t2[2]), g1 = ld(B.g1), g2 = ld(B.g2), ir = ld(inv_radius2);
   const V zero = {}, one = zero + 1;
+  // Per row: (u, w) / radius, the weights of its moments and of its value (JetSums).
+  alignas(64) Lanes su[kMaxStencil], sw[kMaxStencil], swm[kMaxStencil], swv[kMaxStencil];
   for (int i = 0; i < B.rows; ++i) {
     // The row in vector lanes (Project and hermite.h's HermiteRowOf): (a h - p.G - (a - 1) g.p) / r^2,
     // 1 / r^2 and the weight gamma s / (s + eps)^2.5.
@@ -558,7 +612,7 @@ __attribute__((always_inline)) inline void HermiteJets(const Work& W, const Batc
     for (int l = 0; l < kLanes; ++l) root[l] = std::sqrt(se[l]);
     const V rt = ld(root), weight = g * sr / (rt * rt * rt * rt * rt);
     const V row = (a * ph * nm + (nt1 * u0 + nt2 * w0)) * inv - (a - 1) * (g1 * u0 + g2 * w0) * inv_r2;
-    V up[2 * D + 1], wp[2 * D + 1];
+    V up[D + 1], wp[D + 1];
     up[0] = u0 * 0 + 1, wp[0] = up[0];
 #pragma GCC unroll 16
     for (int k = 1; k <= D; ++k) up[k] = up[k - 1] * u0, wp[k] = wp[k - 1] * w0;
@@ -568,20 +622,20 @@ __attribute__((always_inline)) inline void HermiteJets(const Work& W, const Batc
 #pragma GCC unroll 8
       for (int q = 0; q <= k; ++q, ++c) known += fit[c] * up[k - q] * wp[q];
     const V value = norm * (row - known * inv_r2);
-    const V u = u0 * inv_big_r, w = w0 * inv_big_r, s = inv_r2 * big_r;
-    const V wm = weight * s * s, wv = weight * value * s;
-#pragma GCC unroll 16
-    for (int k = 1; k <= 2 * D; ++k) up[k] = up[k - 1] * u, wp[k] = wp[k - 1] * w;
-#pragma GCC unroll 16
-    for (int p = 0; p <= 2 * D; ++p) {
-      const V t = wm * up[p];
-#pragma GCC unroll 16
-      for (int q = std::max(0, 2 - p); p + q <= 2 * D; ++q) acc[TaylorIndex(p, q) - 3] += t * wp[q];
-      if (p > D) continue;
-      const V r = wv * up[p];
-#pragma GCC unroll 16
-      for (int q = std::max(0, 1 - p); p + q <= D; ++q) rhs[TaylorIndex(p, q) - 1] += r * wp[q];
-    }
+    const V s = inv_r2 * big_r;
+    *reinterpret_cast<V*>(su[i]) = u0 * inv_big_r, *reinterpret_cast<V*>(sw[i]) = w0 * inv_big_r;
+    *reinterpret_cast<V*>(swm[i]) = weight * s * s, *reinterpret_cast<V*>(swv[i]) = weight * value * s;
+  }
+  // The moments, a few powers of u at a time: each group's sums stay in registers (one
+  // loop over all 42 / 63 spilled them), each sum still in row order (the same bits).
+  V acc[kM] = {}, rhs[kN] = {};
+  if constexpr (D == 4) {
+    JetSums<D, 0, 0>(B.rows, su, sw, swm, swv, acc, rhs), JetSums<D, 1, 1>(B.rows, su, sw, swm, swv, acc, rhs);
+    JetSums<D, 2, 3>(B.rows, su, sw, swm, swv, acc, rhs), JetSums<D, 4, 8>(B.rows, su, sw, swm, swv, acc, rhs);
+  } else {
+    JetSums<D, 0, 0>(B.rows, su, sw, swm, swv, acc, rhs), JetSums<D, 1, 1>(B.rows, su, sw, swm, swv, acc, rhs);
+    JetSums<D, 2, 2>(B.rows, su, sw, swm, swv, acc, rhs), JetSums<D, 3, 3>(B.rows, su, sw, swm, swv, acc, rhs);
+    JetSums<D, 4, 5>(B.rows, su, sw, swm, swv, acc, rhs), JetSums<D, 6, 10>(B.rows, su, sw, swm, swv, acc, rhs);
   }
   // Unknown j is the monomial (p_j, q_j) of degree 1..D in Taylor order; entry (i, j) the moment
   // of the summed exponents.
@@ -631,6 +685,10 @@ __attribute__((always_inline)) inline void PrefetchBatch(const Work& W, const do
     const int32_t k = W.walk[j];
     const int32_t* pts = W.points + W.offsets[k];
     for (int i = 0, n = W.Size(k); i < n; ++i) __builtin_prefetch(xn + kRec * static_cast<int64_t>(pts[i]));
+    if (W.coefficients) {  // degrees 4-5: the fit read in place (Batch::Load)
+      const double* fit = W.coefficients + W.num_coefficients * static_cast<int64_t>(W.Vertex(k));
+      __builtin_prefetch(fit), __builtin_prefetch(fit + W.num_coefficients - 1), __builtin_prefetch(&W.frames[W.Vertex(k)].normal);
+    }
   }
 }
 
@@ -672,13 +730,20 @@ __attribute__((target_clones("arch=x86-64-v4", "avx2", "default"))) void Hessian
       HermiteJets<5>(W, *B, hess, ok);
     else
       HermiteHessians(W, *B, reinterpret_cast<double(&)[3][kLanes]>(hess), ok);
-    // The results into the other copy (no pass reads it any more): one line per slot (degrees
-    // 4-5: the gradient's correction in place of the frame normal).
+    if (W.coefficients) {  // degrees 4-5: the new Hessian and the gradient's correction into the fits
+      for (int l = 0; l < n; ++l) {
+        if (!(ok[l] > 0)) continue;
+        double* c = W.coefficients + W.num_coefficients * static_cast<int64_t>(W.Vertex(B->slot[l]));
+        c[TaylorIndex(2, 0)] = hess[0][l], c[TaylorIndex(1, 1)] = hess[1][l], c[TaylorIndex(0, 2)] = hess[2][l];
+        c[TaylorIndex(1, 0)] += hess[3][l], c[TaylorIndex(0, 1)] += hess[4][l];
+      }
+      continue;
+    }
+    // The results into the other copy (no pass reads it any more): one line per slot.
     for (int l = 0; l < n; ++l) {
       const int64_t k = B->slot[l];
       double* out = W.xn[1 - from] + kRec * k;
-      for (int c = 0; c < 3; ++c)
-        out[c] = hess[c][l], out[4 + c] = W.degree >= 4 ? (c < 2 ? hess[3 + c][l] : 0.0) : B->xn[kRec * k + 3 + c];
+      for (int c = 0; c < 3; ++c) out[c] = hess[c][l], out[4 + c] = B->xn[kRec * k + 3 + c];
       out[3] = ok[l];
       out[kFitted] = B->xn[kRec * k + kFitted];
     }
@@ -710,8 +775,9 @@ absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighbor
   struct alignas(64) Line {
     double d[kRec];
   };
-  const std::unique_ptr<Line[]> lines(new Line[2 * static_cast<size_t>(nv)]);
-  W.xn[0] = lines[0].d, W.xn[1] = lines[nv].d;
+  const bool jets = num_coefficients >= 15;  // degrees 4-5: one copy, the fits written in place
+  const std::unique_ptr<Line[]> lines(new Line[(jets ? 1 : 2) * static_cast<size_t>(nv)]);
+  W.xn[0] = lines[0].d, W.xn[1] = jets ? nullptr : lines[nv].d;
   // Positions and the plain fits' normals, in visiting order. Here and at the end, the
   // loops run in the input numbering (the fits' arrays read and written in sequence, the
   // slots at random: one line a vertex instead of three).
@@ -719,10 +785,9 @@ absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighbor
   auto slot_of = [&](int64_t v) -> int64_t { return rank ? rank[v] : v; };
   W.degree = num_coefficients >= 21 ? 5 : num_coefficients >= 15 ? 4 : num_coefficients >= 10 ? 3 : 2;
   W.centre_stride = W.own_radius ? 3 + num_coefficients - 6 : 0;
-  std::unique_ptr<double[]> centre(W.own_radius ? new double[W.centre_stride * static_cast<size_t>(nv)] : nullptr);
+  std::unique_ptr<double[]> centre(W.own_radius && !jets ? new double[W.centre_stride * static_cast<size_t>(nv)] : nullptr);
   W.centre = centre.get();
-  std::unique_ptr<double[]> h2(W.degree == 5 ? new double[3 * static_cast<size_t>(nv)] : nullptr);
-  W.h2 = h2.get();
+  if (jets) W.frames = frames, W.coefficients = coefficients, W.num_coefficients = num_coefficients;
   ParallelFor(nv, threads, [&](int64_t v) {
     if (v + 16 < nv) __builtin_prefetch(W.xn[0] + kRec * slot_of(v + 16), 1);
     const int64_t k = slot_of(v);
@@ -736,7 +801,6 @@ absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighbor
       double* to = centre.get() + W.centre_stride * k;
       for (int i = 0; i < 3; ++i) to[i] = fr.normal[i];
       for (int j = 6; j < num_coefficients; ++j) to[3 + j - 6] = c[j];
-      if (W.h2) for (int j = 0; j < 3; ++j) h2[3 * k + j] = c[3 + j];
     }
   }, 4096);
   // Normal passes, from one copy of the normals into the other (every vertex reads its
@@ -744,8 +808,12 @@ absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighbor
   constexpr int64_t kGrain = 1024;
   const int64_t chunks = (nv + kGrain - 1) / kGrain;
   W.walk.resize(nv);
+  // Degrees 4-5 sort each 64 slots apart: their batches read the fits in place, which then
+  // stay near in memory (a vertex's result does not depend on its batch).
+  const int64_t window = jets ? 64 : kGrain;
   ParallelFor(chunks, threads, [&](int64_t c) {
-    BatchOrder(W, c * kGrain, std::min<int64_t>(nv, (c + 1) * kGrain), W.walk.data());
+    for (int64_t k0 = c * kGrain, k1 = std::min<int64_t>(nv, (c + 1) * kGrain); k0 < k1; k0 += window)
+      BatchOrder(W, k0, std::min<int64_t>(k1, k0 + window), W.walk.data());
   }, 1);
   int from = 0;
   for (int pass = 0; pass < passes; ++pass, from = 1 - from)
@@ -759,6 +827,7 @@ absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighbor
   GF_RETURN_IF_ERROR(ParallelFor(
       chunks, ctx, [&](int64_t c) { HessiansRange(W, from, c * kGrain, std::min<int64_t>(nv, (c + 1) * kGrain)); },
       1));
+  if (jets) return absl::OkStatus();  // written by the Hessian pass
   // The refined frames and Hessians into the fits (the tangent plane is the frame's): the
   // Hessian pass's records, the positions the mesh's own.
   const double* refined = W.xn[1 - from];
@@ -773,7 +842,6 @@ absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighbor
       const Eigen::Vector3d n(x[4], x[5], x[6]);
       const double nm = n.dot(fr.normal);
       if (passes > 0 && nm > 0) c[TaylorIndex(1, 0)] = -n.dot(fr.t1) / nm, c[TaylorIndex(0, 1)] = -n.dot(fr.t2) / nm;
-      if (x[3] > 0 && W.degree >= 4) c[TaylorIndex(1, 0)] += x[4], c[TaylorIndex(0, 1)] += x[5];
       return;
     }
     frames[v] = FrameFromNormal(Eigen::Vector3d(mesh.positions(v, 0), mesh.positions(v, 1), mesh.positions(v, 2)),

@@ -265,9 +265,11 @@ v1::ComputeDifferentialsRequest StreamedRequest(const std::string& id) {
   return request;
 }
 
-void ExpectSameAsInProcess(const Differentials& d, const Mesh& mesh, int degree = 3) {
+void ExpectSameAsInProcess(const Differentials& d, const Mesh& mesh, int degree = 3,
+                           JetHermiteMode jets = JetHermiteMode::kAuto) {
   FitOptions options;
   options.degree = degree;
+  options.jet_hermite = jets;
   auto local = ComputeDifferentials(mesh, options, kAllQuantities, RunContext(nullptr, 1));
   ASSERT_TRUE(local.ok());
   EXPECT_EQ(d.normals, local->normals);
@@ -424,10 +426,11 @@ TEST_F(HandlersTest, TheOwnerSendsAFollowersLastChunkAsSoonAsItEnds) {
   const int64_t last_start = (n - 1) / kRows * kRows;
   ASSERT_GT(n - last_start, 2 * 512) << "the last chunk should span several fitted blocks";
   v1::ComputeDifferentialsRequest request = StreamedRequest(info->mesh_id());  // a chunk per fitted block
-  // Degree 4: degree 3's (and 5's) fits are reported once their Hermite curvatures are
-  // refitted, in one block (FitOptions::cubic_hermite, jet_hermite, as the degree-2 slope
-  // refinement's); degree 4's Hermite jets are off by default.
+  // Degree 4 without its Hermite jets: degrees 3-5's fits are reported once their Hermite
+  // curvatures are refitted, in one block (FitOptions::cubic_hermite, jet_hermite, as the
+  // degree-2 slope refinement's).
   request.mutable_options()->set_degree(4);
+  request.mutable_options()->set_jet_hermite(false);
   v1::ComputeDifferentialsRequest follower_request = request;
   follower_request.set_chunk_rows(kRows);
   CancellationToken token;
@@ -489,7 +492,7 @@ TEST_F(HandlersTest, TheOwnerSendsAFollowersLastChunkAsSoonAsItEnds) {
   EXPECT_EQ(summary.joined_compute_ms(), owner_summary.fit_ms() + owner_summary.evaluate_ms())
       << "the follower reports the computation it joined";
   EXPECT_EQ(summary.vertices_by_degree(4), n);
-  ExpectSameAsInProcess(*d, mesh, 4);
+  ExpectSameAsInProcess(*d, mesh, 4, JetHermiteMode::kOff);
 }
 
 TEST_F(HandlersTest, ARequestDuringAPrefetchStreamsFromIt) {
