@@ -91,6 +91,7 @@ FitOptionsBits FitOptionsIdentity(const FitOptions& o) {
   b[19 + kMaxDegree] = static_cast<uint64_t>(o.SlopePasses());
   b[20 + kMaxDegree] = o.CubicHermite();
   b[21 + kMaxDegree] = o.JetHermite();
+  b[22 + kMaxDegree] = o.QuadraticHermite();
   return b;
 }
 
@@ -104,6 +105,7 @@ std::string FitOptionsKey(const FitOptions& o) {
   absl::StrAppendFormat(&key, " n%s sp%d %s nd%d hh%d", NoiseModeName(o.noise), o.SmoothingPasses(),
                         WlsSolverName(o.solver), o.NormalDegree(), o.HermiteHessian());
   if (o.SlopePasses() > 0) absl::StrAppendFormat(&key, " sr%d", o.SlopePasses());
+  if (o.QuadraticHermite()) absl::StrAppend(&key, " qh1");
   if (o.degree == 3 && !o.CubicHermite()) absl::StrAppend(&key, " ch0");
   // The Hermite jets when they differ from the default (on at degree 5, off at degree 4).
   if ((o.degree == 4 || o.degree == 5) && o.JetHermite() != (o.degree == 5))
