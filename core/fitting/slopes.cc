@@ -179,6 +179,26 @@ __attribute__((always_inline)) inline void Project(const Batch& B, int i, int l,
   nt2 = nx * B.t2[0][l] + ny * B.t2[1][l] + nz * B.t2[2][l];
 }
 
+// The degree-2 normal passes' sums per lane: weighted moments u^p w^q (p + q = 2..4) and the
+// right-hand side's against u, w, u^2, uw, w^2.
+enum { k20, k11, k02, k30, k21, k12, k03, k40, k31, k22, k13, k04, kb0, kb1, kb2, kb3, kb4, kSums };
+
+// Their normal equations in the columns u, w, u^2/2, uw, w^2/2 (Taylor; upper triangle).
+__attribute__((always_inline)) inline void QuadraticSystem(const double (&acc)[kSums][kLanes], double (&a)[5][5][kLanes],
+                                                           double (&b)[5][kLanes]) {
+#pragma omp simd
+  for (int l = 0; l < kLanes; ++l) {
+    a[0][0][l] = acc[k20][l], a[0][1][l] = acc[k11][l], a[0][2][l] = 0.5 * acc[k30][l], a[0][3][l] = acc[k21][l],
+    a[0][4][l] = 0.5 * acc[k12][l];
+    a[1][1][l] = acc[k02][l], a[1][2][l] = 0.5 * acc[k21][l], a[1][3][l] = acc[k12][l], a[1][4][l] = 0.5 * acc[k03][l];
+    a[2][2][l] = 0.25 * acc[k40][l], a[2][3][l] = 0.5 * acc[k31][l], a[2][4][l] = 0.25 * acc[k22][l];
+    a[3][3][l] = acc[k22][l], a[3][4][l] = 0.5 * acc[k13][l];
+    a[4][4][l] = 0.25 * acc[k04][l];
+    b[0][l] = acc[kb0][l], b[1][l] = acc[kb1][l], b[2][l] = 0.5 * acc[kb2][l], b[3][l] = acc[kb3][l],
+    b[4][l] = 0.5 * acc[kb4][l];
+  }
+}
+
 // Pass 1 on a batch (see slopes.h): each lane's record into `out`: the position copied, the
 // refined normal (the centre's own where the fit is ill-posed or the vertex not refinable),
 // its stencil's squared radius (0 then) and the fitted flag copied.
@@ -195,7 +215,6 @@ __attribute__((always_inline)) inline void SlopeNormals(const Work& W, const Bat
       const double l2 = B.dx[i][l] * B.dx[i][l] + B.dy[i][l] * B.dy[i][l] + B.dz[i][l] * B.dz[i][l];
       if (l2 > 0) scale[l] = 1 / std::sqrt(l2);
     }
-  enum { k20, k11, k02, k30, k21, k12, k03, k40, k31, k22, k13, k04, kb0, kb1, kb2, kb3, kb4, kSums };
   alignas(64) double acc[kSums][kLanes] = {};
   alignas(64) Lanes r2max = {};
   const double cos_cut = W.cos_cut;
@@ -223,18 +242,9 @@ __attribute__((always_inline)) inline void SlopeNormals(const Work& W, const Bat
   // Columns u, w, u^2/2, uw, w^2/2 (Taylor).
   alignas(64) double a[5][5][kLanes], b[5][kLanes];
   alignas(64) Lanes ok;
+  QuadraticSystem(acc, a, b);
 #pragma omp simd
-  for (int l = 0; l < kLanes; ++l) {
-    a[0][0][l] = acc[k20][l], a[0][1][l] = acc[k11][l], a[0][2][l] = 0.5 * acc[k30][l], a[0][3][l] = acc[k21][l],
-    a[0][4][l] = 0.5 * acc[k12][l];
-    a[1][1][l] = acc[k02][l], a[1][2][l] = 0.5 * acc[k21][l], a[1][3][l] = acc[k12][l], a[1][4][l] = 0.5 * acc[k03][l];
-    a[2][2][l] = 0.25 * acc[k40][l], a[2][3][l] = 0.5 * acc[k31][l], a[2][4][l] = 0.25 * acc[k22][l];
-    a[3][3][l] = acc[k22][l], a[3][4][l] = 0.5 * acc[k13][l];
-    a[4][4][l] = 0.25 * acc[k04][l];
-    b[0][l] = acc[kb0][l], b[1][l] = acc[kb1][l], b[2][l] = 0.5 * acc[kb2][l], b[3][l] = acc[kb3][l],
-    b[4][l] = 0.5 * acc[kb4][l];
-    ok[l] = r2max[l] > 0 && scale[l] > 0 ? 1.0 : 0.0;
-  }
+  for (int l = 0; l < kLanes; ++l) ok[l] = r2max[l] > 0 && scale[l] > 0 ? 1.0 : 0.0;
   SolveSpdLanes<5>(a, b, 1e-10, ok);
   // The fitted linear term itself (2/3 of the gradient it estimates): see slopes.h.
   alignas(64) double nn[3][kLanes], radius2[kLanes];
@@ -507,7 +517,6 @@ __attribute__((always_inline)) inline void HermiteHessians(const Work& W, const 
 __attribute__((always_inline)) inline void OperatorPass(const Work& W, const Batch& B, double* out, bool last) {
   alignas(64) Lanes radius2, inv_radius2, inv_radius, ok;
   StencilRadii(W, B, radius2, inv_radius2, inv_radius, ok);
-  enum { k20, k11, k02, k30, k21, k12, k03, k40, k31, k22, k13, k04, kb0, kb1, kb2, kb3, kb4, kSums };
   alignas(64) double acc[kSums][kLanes] = {};
   const double cos_cut = W.cos_cut, eps = W.weight_epsilon;
   for (int i = 0; i < B.rows; ++i) {
@@ -530,17 +539,7 @@ __attribute__((always_inline)) inline void OperatorPass(const Work& W, const Bat
     }
   }
   alignas(64) double a[5][5][kLanes], b[5][kLanes];
-#pragma omp simd
-  for (int l = 0; l < kLanes; ++l) {
-    a[0][0][l] = acc[k20][l], a[0][1][l] = acc[k11][l], a[0][2][l] = 0.5 * acc[k30][l], a[0][3][l] = acc[k21][l],
-    a[0][4][l] = 0.5 * acc[k12][l];
-    a[1][1][l] = acc[k02][l], a[1][2][l] = 0.5 * acc[k21][l], a[1][3][l] = acc[k12][l], a[1][4][l] = 0.5 * acc[k03][l];
-    a[2][2][l] = 0.25 * acc[k40][l], a[2][3][l] = 0.5 * acc[k31][l], a[2][4][l] = 0.25 * acc[k22][l];
-    a[3][3][l] = acc[k22][l], a[3][4][l] = 0.5 * acc[k13][l];
-    a[4][4][l] = 0.25 * acc[k04][l];
-    b[0][l] = acc[kb0][l], b[1][l] = acc[kb1][l], b[2][l] = 0.5 * acc[kb2][l], b[3][l] = acc[kb3][l],
-    b[4][l] = 0.5 * acc[kb4][l];
-  }
+  QuadraticSystem(acc, a, b);
   SolveSpdLanes<5>(a, b, 1e-10, ok);
   alignas(64) double nn[3][kLanes];
 #pragma omp simd
