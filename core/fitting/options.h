@@ -130,7 +130,7 @@ struct FitOptions {
   /// h_j - p_j.G_j / 3 with the neighbours' fitted slopes G_j (the cubic term cancels): the
   /// normal from the second application, the Hessian 0.7 of the second's and 0.3 of the fit's
   /// own, in the fit's frame. On the clean meshes of bench/README.md (`d2fast`): normals
-  /// 0.01-0.26x, H and K 0.06-0.42x CGAL Jet_fitting_3's (0.44-0.89x without), for ~2x the CPU
+  /// 0.01-0.26x, H and K 0.12-0.42x CGAL Jet_fitting_3's (0.37-0.89x without), for ~2.5x the CPU
   /// time of a plain degree-2 fit: off by default (over issue 15's in-process budget).
   /// Results stream after the whole fit. Ignored by the GFD operators (FitRequest::stencils).
   bool quadratic_hermite = false;
