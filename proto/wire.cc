@@ -109,6 +109,7 @@ absl::StatusOr<FitOptions> FromProto(const v1::FitOptions& p, FitOptions o) {
   if (p.hermite_hessian()) o.hermite_hessian = true;
   if (p.slope_refinement() != 0) o.slope_refinement = p.slope_refinement();
   if (p.has_cubic_hermite()) o.cubic_hermite = p.cubic_hermite();
+  if (p.has_quadratic_hermite()) o.quadratic_hermite = p.quadratic_hermite();
   if (p.has_jet_hermite()) o.jet_hermite = p.jet_hermite() ? JetHermiteMode::kOn : JetHermiteMode::kOff;
   switch (p.solver()) {
     case v1::WLS_SOLVER_UNSPECIFIED:
@@ -198,6 +199,7 @@ v1::FitOptions ToProto(const FitOptions& o) {
   p.set_hermite_hessian(o.hermite_hessian);
   p.set_slope_refinement(o.slope_refinement);
   p.set_cubic_hermite(o.cubic_hermite);
+  if (o.quadratic_hermite) p.set_quadratic_hermite(true);  // unset = off
   if (o.jet_hermite != JetHermiteMode::kAuto) p.set_jet_hermite(o.jet_hermite == JetHermiteMode::kOn);  // unset = auto
   p.set_solver(o.solver == WlsSolver::kSVD ? v1::WLS_SOLVER_SVD : v1::WLS_SOLVER_QR);
   p.set_safeguard_angle_deg(o.safeguard_angle_deg);
