@@ -13,7 +13,7 @@
 //
 // Environment overrides of our fit only: GF_RINGS, GF_MPF, GF_EPS, GF_ND (normal_degree),
 // GF_HERM (hermite_hessian), GF_SLOPES (slope_refinement),
-// GF_CH (cubic_hermite: 0 = off), GF_PH (plane_hermite: 0 = off), GF_JH (jet_hermite: 1 = on, 0 = off; unset = the default: on at degrees 4 and 5), GF_TWO (two_pass); of CGAL's stencils only: GF_CGAL_RINGS, GF_CGAL_MPF; of both:
+// GF_QH (quadratic_hermite: 1 = on), GF_CH (cubic_hermite: 0 = off), GF_PH (plane_hermite: 0 = off), GF_JH (jet_hermite: 1 = on, 0 = off; unset = the default: on at degrees 4 and 5), GF_TWO (two_pass); of CGAL's stencils only: GF_CGAL_RINGS, GF_CGAL_MPF; of both:
 // GF_NOISE (the noise mode's stencils), GF_NEARDUP (RingSpec::count_near_duplicates).
 //
 // CGAL's results are converted to the project's conventions in bench/cgal_jet.h.
@@ -123,6 +123,7 @@ int main(int argc, char** argv) {
         if (const char* e = std::getenv("GF_ND")) ours_o.normal_degree = std::atoi(e);
         if (std::getenv("GF_HERM")) ours_o.hermite_hessian = true;  // Hermite curvatures
         if (const char* e = std::getenv("GF_SLOPES")) ours_o.slope_refinement = std::atoi(e);  // slope passes
+        if (const char* e = std::getenv("GF_QH")) ours_o.quadratic_hermite = std::atoi(e) != 0;  // degree-2 operator refinement
         if (const char* e = std::getenv("GF_CH")) ours_o.cubic_hermite = std::atoi(e) != 0;  // degree-3 Hermite
         if (const char* e = std::getenv("GF_JH")) ours_o.jet_hermite = std::atoi(e) != 0 ? JetHermiteMode::kOn : JetHermiteMode::kOff;  // degree-4/5 Hermite
         if (const char* e = std::getenv("GF_PH")) ours_o.plane_hermite = std::atoi(e) != 0;  // degree-1 Hermite normals

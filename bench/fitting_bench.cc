@@ -6,7 +6,8 @@
 //   BM_FitQuantities/<degree>/<threads> FitSurface + ComputeDifferentials(all), stencils precomputed
 //   BM_FitQuantitiesScalar/<d>/<t>      the same with the scalar kernel (batched_kernel = false)
 //   BM_Degree2Refined/<mode>/<t>        degree 2 as BM_FitQuantities with mode 0: plain, 1 / 3:
-//                                       slope_refinement 1 / 2, 2: hermite_hessian (degree-3 pre-fit)
+//                                       slope_refinement 1 / 2, 2: hermite_hessian (degree-3 pre-fit),
+//                                       4: quadratic_hermite
 //   BM_Neighborhoods/<degree>/<threads> BuildNeighborhoods alone (for the breakdown)
 //   BM_VertexNormals/<threads>          ApproximateVertexNormals alone
 //   BM_Topology                         BuildTopology alone (not part of the pipeline above)
@@ -149,6 +150,7 @@ void BM_Degree2Refined(benchmark::State& state) {
   FitOptions o = Options(2);
   o.slope_refinement = state.range(0) == 1 ? 1 : state.range(0) == 3 ? 2 : 0;
   o.hermite_hessian = state.range(0) == 2;
+  o.quadratic_hermite = state.range(0) == 4;
   const RunContext ctx(nullptr, static_cast<int>(state.range(1)));
   for (auto _ : state) {
     auto fits = FitSurface(f.mesh, f.topo, o, f.nb[2], {}, ctx).value();
@@ -284,7 +286,7 @@ BENCHMARK(BM_Pipeline)->Apply(Args);
 BENCHMARK(BM_FitQuantities)->Apply(Args);
 BENCHMARK(BM_FitQuantitiesScalar)->Apply(Args);
 BENCHMARK(BM_Degree2Refined)
-    ->ArgsProduct({{0, 1, 3, 2}, {1, 2}})
+    ->ArgsProduct({{0, 1, 3, 2, 4}, {1, 2}})
     ->ArgNames({"mode", "threads"})
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime();

@@ -110,6 +110,7 @@ absl::StatusOr<FitOptions> FromProto(const v1::FitOptions& p, FitOptions o) {
   if (p.slope_refinement() != 0) o.slope_refinement = p.slope_refinement();
   if (p.has_cubic_hermite()) o.cubic_hermite = p.cubic_hermite();
   if (p.has_plane_hermite()) o.plane_hermite = p.plane_hermite();
+  if (p.has_quadratic_hermite()) o.quadratic_hermite = p.quadratic_hermite();
   if (p.has_jet_hermite()) o.jet_hermite = p.jet_hermite() ? JetHermiteMode::kOn : JetHermiteMode::kOff;
   switch (p.solver()) {
     case v1::WLS_SOLVER_UNSPECIFIED:
@@ -200,6 +201,7 @@ v1::FitOptions ToProto(const FitOptions& o) {
   p.set_slope_refinement(o.slope_refinement);
   p.set_cubic_hermite(o.cubic_hermite);
   p.set_plane_hermite(o.plane_hermite);
+  if (o.quadratic_hermite) p.set_quadratic_hermite(true);  // unset = off
   if (o.jet_hermite != JetHermiteMode::kAuto) p.set_jet_hermite(o.jet_hermite == JetHermiteMode::kOn);  // unset = auto
   p.set_solver(o.solver == WlsSolver::kSVD ? v1::WLS_SOLVER_SVD : v1::WLS_SOLVER_QR);
   p.set_safeguard_angle_deg(o.safeguard_angle_deg);

@@ -479,6 +479,7 @@ class SurfaceFitter {
         pass_options.weight_epsilon = o.weight_epsilon;
         pass_options.normal_degree = 0;
         pass_options.slope_refinement = schedule.slope_passes;
+        pass_options.quadratic_hermite = false;
       }
       // The final frames from a higher-degree fit, or (noise schedule with final_rings) from
       // the same degree's fit on the clean stencils, which the final fit's smaller ones keep.
@@ -516,7 +517,7 @@ class SurfaceFitter {
       }
       fits = std::make_shared<SurfaceFits>();
       // Slope refinement (slopes.h) after the final fit: its blocks are reported once refined.
-      const bool slopes = last && (pass_options.SlopePasses() > 0 || pass_options.CubicHermite() || pass_options.JetHermite()) &&
+      const bool slopes = last && (pass_options.SlopePasses() > 0 || pass_options.QuadraticHermite() || pass_options.CubicHermite() || pass_options.JetHermite()) &&
                           !req.stencils;
       const bool plane_slopes = last && pass_options.PlaneHermite() && !req.stencils;  // plane_slopes.h
       // The noise schedule's final fit from two stencil sets (noise.h).
@@ -535,7 +536,9 @@ class SurfaceFitter {
         GF_RETURN_IF_ERROR(RefineSlopes(*input, topo, *pass_nb, std::cos(pass_options.safeguard_angle_deg * M_PI / 180.0),
                                         pass_options.CubicHermite() ? kCubicSlopePasses : pass_options.SlopePasses(),
                                         ctx, fits->diagnostics_.data(),
-                                        fits->frames_.data(), fits->coefficients_.data(), fits->num_coefficients()));
+                                        fits->frames_.data(), fits->coefficients_.data(), fits->num_coefficients(),
+                                        pass_options.QuadraticHermite() ? kQuadraticSlopePasses : 0,
+                                        pass_options.weight_epsilon));
         if (on_fitted) on_fitted(*fits, 0, mesh.NumVertices());
       }
       if (plane_slopes) {
@@ -597,7 +600,7 @@ class SurfaceFitter {
   // (is_boundary aside).
   static bool PlainFit(const FitOptions& o) {
     return o.noise == NoiseMode::kOff && o.SmoothingPasses() == 0 && !o.two_pass && o.NormalDegree() <= o.degree &&
-           o.SlopePasses() == 0 && !o.PlaneHermite() && !o.CubicHermite() && !o.JetHermite() && (o.method == FitMethod::kLHF || o.method == FitMethod::kLOP);
+           o.SlopePasses() == 0 && !o.PlaneHermite() && !o.QuadraticHermite() && !o.CubicHermite() && !o.JetHermite() && (o.method == FitMethod::kLHF || o.method == FitMethod::kLOP);
   }
 
  private:

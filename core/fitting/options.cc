@@ -92,6 +92,7 @@ FitOptionsBits FitOptionsIdentity(const FitOptions& o) {
   b[20 + kMaxDegree] = o.CubicHermite();
   b[21 + kMaxDegree] = o.JetHermite();
   b[22 + kMaxDegree] = o.PlaneHermite();
+  b[23 + kMaxDegree] = o.QuadraticHermite();
   return b;
 }
 
@@ -105,6 +106,7 @@ std::string FitOptionsKey(const FitOptions& o) {
   absl::StrAppendFormat(&key, " n%s sp%d %s nd%d hh%d", NoiseModeName(o.noise), o.SmoothingPasses(),
                         WlsSolverName(o.solver), o.NormalDegree(), o.HermiteHessian());
   if (o.SlopePasses() > 0) absl::StrAppendFormat(&key, " sr%d", o.SlopePasses());
+  if (o.QuadraticHermite()) absl::StrAppend(&key, " qh1");
   if (o.degree == 3 && !o.CubicHermite()) absl::StrAppend(&key, " ch0");
   if (o.degree == 1 && !o.PlaneHermite()) absl::StrAppend(&key, " ph0");
   // The Hermite jets when they differ from the default (on at degrees 4 and 5).

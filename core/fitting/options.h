@@ -124,6 +124,16 @@ struct FitOptions {
   /// torus) and H, K 0.55-0.96x CGAL Jet_fitting_3's; on, normals 0.03-0.32x, H, K <= 0.54x
   /// (bench/README.md, `clean4`, `d3nrm`). Ignored by the GFD operators (FitRequest::stencils).
   bool cubic_hermite = true;
+  /// Slope refinement of degree-2 fits by their own operator (interpolating LHF fits with the
+  /// QR solver, noise off, slope_refinement 0; slopes.h): after the fit, its least-squares
+  /// operator (same stencil, weights and columns) is applied twice more to
+  /// h_j - p_j.G_j / 3 with the neighbours' fitted slopes G_j (the cubic term cancels): the
+  /// normal from the second application, the Hessian 0.7 of the second's and 0.3 of the fit's
+  /// own, in the fit's frame. On the clean meshes of bench/README.md (`d2fast`): normals
+  /// 0.01-0.26x, H and K 0.12-0.42x CGAL Jet_fitting_3's (0.37-0.89x without), for ~2.5x the CPU
+  /// time of a plain degree-2 fit: off by default (over issue 15's in-process budget).
+  /// Results stream after the whole fit. Ignored by the GFD operators (FitRequest::stencils).
+  bool quadratic_hermite = false;
   /// Hermite jets of degree-4 and -5 fits (interpolating LHF fits with the QR solver, noise
   /// off): after the fit, its Hessian and gradient are refitted to the rows
   /// (a h_j - p_j.G_j) / r_j^2 of the stencil points with the neighbours' fitted slopes G_j,
@@ -158,6 +168,11 @@ struct FitOptions {
                    NormalDegree() == degree
                ? slope_refinement
                : 0;
+  }
+  /// Whether the degree-2 operator refinement runs (see quadratic_hermite).
+  bool QuadraticHermite() const {
+    return quadratic_hermite && degree == 2 && method == FitMethod::kLHF && solver == WlsSolver::kQR &&
+           Interpolates() && noise == NoiseMode::kOff && NormalDegree() == degree && slope_refinement == 0;
   }
   /// Whether the degree-3 Hermite curvatures run (see cubic_hermite).
   bool CubicHermite() const {
@@ -214,7 +229,7 @@ std::string FitOptionsKey(const FitOptions& options);
 /// as exact bit patterns: two option sets give identical fits iff their bits are equal.
 /// Cache keys are built from these, never from formatted text (`%g` aliases 1.5 and
 /// 1.5000001).
-using FitOptionsBits = std::array<uint64_t, 23 + kMaxDegree>;
+using FitOptionsBits = std::array<uint64_t, 24 + kMaxDegree>;
 FitOptionsBits FitOptionsIdentity(const FitOptions& options);
 
 const char* FitMethodName(FitMethod m);

@@ -96,6 +96,7 @@ struct Work {
   double* centre = nullptr;          // with own_radius: per slot the fit's frame normal (the Hessians
                                      //   stay in the fits' frames) and derivatives of degree 3..`degree`
                                      //   (degree 3: the fit's cubic, then each normal pass's)
+  double weight_epsilon = 0.01;      // the operator passes: eps of the fits' weights (2.2.1)
   int degree = 2;                    // the fits' degree (centre_stride = 3 + its derivatives of degree >= 3)
   int centre_stride = 0;
   // Degrees 4-5 (the jets): the fits read in place (frame normal, Hessian, derivatives of degree
@@ -192,6 +193,26 @@ __attribute__((always_inline)) inline void Project(const Batch& B, int i, int l,
   nt2 = nx * B.t2[0][l] + ny * B.t2[1][l] + nz * B.t2[2][l];
 }
 
+// The degree-2 normal passes' sums per lane: weighted moments u^p w^q (p + q = 2..4) and the
+// right-hand side's against u, w, u^2, uw, w^2.
+enum { k20, k11, k02, k30, k21, k12, k03, k40, k31, k22, k13, k04, kb0, kb1, kb2, kb3, kb4, kSums };
+
+// Their normal equations in the columns u, w, u^2/2, uw, w^2/2 (Taylor; upper triangle).
+__attribute__((always_inline)) inline void QuadraticSystem(const double (&acc)[kSums][kLanes], double (&a)[5][5][kLanes],
+                                                           double (&b)[5][kLanes]) {
+#pragma omp simd
+  for (int l = 0; l < kLanes; ++l) {
+    a[0][0][l] = acc[k20][l], a[0][1][l] = acc[k11][l], a[0][2][l] = 0.5 * acc[k30][l], a[0][3][l] = acc[k21][l],
+    a[0][4][l] = 0.5 * acc[k12][l];
+    a[1][1][l] = acc[k02][l], a[1][2][l] = 0.5 * acc[k21][l], a[1][3][l] = acc[k12][l], a[1][4][l] = 0.5 * acc[k03][l];
+    a[2][2][l] = 0.25 * acc[k40][l], a[2][3][l] = 0.5 * acc[k31][l], a[2][4][l] = 0.25 * acc[k22][l];
+    a[3][3][l] = acc[k22][l], a[3][4][l] = 0.5 * acc[k13][l];
+    a[4][4][l] = 0.25 * acc[k04][l];
+    b[0][l] = acc[kb0][l], b[1][l] = acc[kb1][l], b[2][l] = 0.5 * acc[kb2][l], b[3][l] = acc[kb3][l],
+    b[4][l] = 0.5 * acc[kb4][l];
+  }
+}
+
 // Pass 1 on a batch (see slopes.h): each lane's record into `out`: the position copied, the
 // refined normal (the centre's own where the fit is ill-posed or the vertex not refinable),
 // its stencil's squared radius (0 then) and the fitted flag copied.
@@ -208,7 +229,6 @@ __attribute__((always_inline)) inline void SlopeNormals(const Work& W, const Bat
       const double l2 = B.dx[i][l] * B.dx[i][l] + B.dy[i][l] * B.dy[i][l] + B.dz[i][l] * B.dz[i][l];
       if (l2 > 0) scale[l] = 1 / std::sqrt(l2);
     }
-  enum { k20, k11, k02, k30, k21, k12, k03, k40, k31, k22, k13, k04, kb0, kb1, kb2, kb3, kb4, kSums };
   alignas(64) double acc[kSums][kLanes] = {};
   alignas(64) Lanes r2max = {};
   const double cos_cut = W.cos_cut;
@@ -236,18 +256,9 @@ __attribute__((always_inline)) inline void SlopeNormals(const Work& W, const Bat
   // Columns u, w, u^2/2, uw, w^2/2 (Taylor).
   alignas(64) double a[5][5][kLanes], b[5][kLanes];
   alignas(64) Lanes ok;
+  QuadraticSystem(acc, a, b);
 #pragma omp simd
-  for (int l = 0; l < kLanes; ++l) {
-    a[0][0][l] = acc[k20][l], a[0][1][l] = acc[k11][l], a[0][2][l] = 0.5 * acc[k30][l], a[0][3][l] = acc[k21][l],
-    a[0][4][l] = 0.5 * acc[k12][l];
-    a[1][1][l] = acc[k02][l], a[1][2][l] = 0.5 * acc[k21][l], a[1][3][l] = acc[k12][l], a[1][4][l] = 0.5 * acc[k03][l];
-    a[2][2][l] = 0.25 * acc[k40][l], a[2][3][l] = 0.5 * acc[k31][l], a[2][4][l] = 0.25 * acc[k22][l];
-    a[3][3][l] = acc[k22][l], a[3][4][l] = 0.5 * acc[k13][l];
-    a[4][4][l] = 0.25 * acc[k04][l];
-    b[0][l] = acc[kb0][l], b[1][l] = acc[kb1][l], b[2][l] = 0.5 * acc[kb2][l], b[3][l] = acc[kb3][l],
-    b[4][l] = 0.5 * acc[kb4][l];
-    ok[l] = r2max[l] > 0 && scale[l] > 0 ? 1.0 : 0.0;
-  }
+  for (int l = 0; l < kLanes; ++l) ok[l] = r2max[l] > 0 && scale[l] > 0 ? 1.0 : 0.0;
   SolveSpdLanes<5>(a, b, 1e-10, ok);
   // The fitted linear term itself (2/3 of the gradient it estimates): see slopes.h.
   alignas(64) double nn[3][kLanes], radius2[kLanes];
@@ -510,6 +521,69 @@ __attribute__((always_inline)) inline void HermiteHessians(const Work& W, const 
     for (int l = 0; l < kLanes; ++l) hess[c][l] = b[c][l];
 }
 
+// The degree-2 operator pass (FitOptions::quadratic_hermite; slopes.h): the plain fit's own
+// least-squares operator (its frame, columns u, w, u^2/2, uw, w^2/2 and weights (2.2.1))
+// applied to r_j = h_j - p_j.G_j / 3 = (2/3) a.p + (1/3) T2(p) - T4(p) / 3 + ..., in which the
+// cubic Taylor term cancels (Euler: p.grad T_k = k T_k). The new gradient is the fitted
+// linear term plus a third of the vertex's current one (error (e_0 - mean e_j) / 3), the
+// Hessian three times the fitted quadratic part. With `last`, each lane's result record
+// (c20 c11 c02, ok, the normal, kFitted) into `out`, else its normal record.
+__attribute__((always_inline)) inline void OperatorPass(const Work& W, const Batch& B, double* out, bool last) {
+  alignas(64) Lanes radius2, inv_radius2, inv_radius, ok;
+  StencilRadii(W, B, radius2, inv_radius2, inv_radius, ok);
+  alignas(64) double acc[kSums][kLanes] = {};
+  const double cos_cut = W.cos_cut, eps = W.weight_epsilon;
+  for (int i = 0; i < B.rows; ++i) {
+#pragma omp simd
+    for (int l = 0; l < B.lanes; ++l) {
+      double pu, pw, ph, nm, nt1, nt2;
+      Project(B, i, l, pu, pw, ph, nm, nt1, nt2);
+      const double gamma = (nm >= cos_cut ? nm : 0.0) * B.live[i][l];  // the safeguard of (2.2.1)
+      const double u = pu * inv_radius[l], w = pw * inv_radius[l], h = ph * inv_radius[l];
+      const double s2 = u * u + w * w + eps, wt = gamma * gamma / (s2 * s2);  // (2.2.1)'s degree-2 weight, squared
+      const double rhs = h + (u * nt1 + w * nt2) / (3 * (gamma > 0 ? nm : 1.0));  // h - p.G / 3
+      const double uu = u * u, uw = u * w, ww = w * w;
+      const double wu = wt * u, wv = wt * w, wuu = wt * uu, wuw = wt * uw, www = wt * ww;
+      acc[k20][l] += wu * u, acc[k11][l] += wu * w, acc[k02][l] += wv * w;
+      acc[k30][l] += wuu * u, acc[k21][l] += wuu * w, acc[k12][l] += wuw * w, acc[k03][l] += www * w;
+      acc[k40][l] += wuu * uu, acc[k31][l] += wuu * uw, acc[k22][l] += wuu * ww, acc[k13][l] += wuw * ww;
+      acc[k04][l] += www * ww;
+      acc[kb0][l] += wu * rhs, acc[kb1][l] += wv * rhs, acc[kb2][l] += wuu * rhs, acc[kb3][l] += wuw * rhs;
+      acc[kb4][l] += www * rhs;
+    }
+  }
+  alignas(64) double a[5][5][kLanes], b[5][kLanes];
+  QuadraticSystem(acc, a, b);
+  SolveSpdLanes<5>(a, b, 1e-10, ok);
+  alignas(64) double nn[3][kLanes];
+#pragma omp simd
+  for (int l = 0; l < B.lanes; ++l) {
+    const double a1 = b[0][l] + B.g1[l] / 3, a2 = b[1][l] + B.g2[l] / 3;
+    double v[3];
+    for (int c = 0; c < 3; ++c) v[c] = B.m[c][l] - a1 * B.t1[c][l] - a2 * B.t2[c][l];
+    const double len = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+    const bool good = ok[l] > 0 && len > 0 && len < HUGE_VAL;
+    for (int c = 0; c < 3; ++c) nn[c][l] = good ? v[c] / len : 0.0;
+    ok[l] = good ? 1.0 : 0.0;
+    for (int c = 0; c < 3; ++c) b[2 + c][l] *= 3 * inv_radius[l];  // Hessian: 3 x the quadratic part, real units
+  }
+  for (int l = 0; l < B.count; ++l) {
+    const int64_t k = B.slot[l];
+    const double* self = B.xn + kRec * k;
+    const bool refined = self[kFitted] != 0 && ok[l] > 0;  // else its own normal
+    double* dst = out + kRec * k;
+    if (last) {
+      for (int c = 0; c < 3; ++c) dst[c] = b[2 + c][l], dst[4 + c] = refined ? nn[c][l] : self[3 + c];
+      dst[3] = refined ? 1.0 : 0.0;
+    } else {
+      dst[0] = B.x[l], dst[1] = B.y[l], dst[2] = B.z[l];
+      for (int c = 0; c < 3; ++c) dst[3 + c] = refined ? nn[c][l] : self[3 + c];
+      dst[kRadius2] = 0.0;
+    }
+    dst[kFitted] = self[kFitted];
+  }
+}
+
 // The Hermite jets' constants per degree (scanned on the clean meshes of bench/README.md, `d45k`):
 // the combination a (a = D + 1 cancels the fit's leading bias T_{D+1}), the row weights'
 // eps (hermite.h: s / (s + eps)^2.5), and the share of the Hermite Hessian in the one
@@ -714,6 +788,17 @@ __attribute__((target_clones("arch=x86-64-v4", "avx2", "default"))) void CubicNo
   }
 }
 
+__attribute__((target_clones("arch=x86-64-v4", "avx2", "default"))) void OperatorRange(const Work& W, int from,
+                                                                                        int64_t k0, int64_t k1, bool last) {
+  std::unique_ptr<Batch> B(new Batch);
+  PrefetchBatch(W, W.xn[from], k0, k1);
+  for (int64_t j = k0; j < k1; j += kLanes) {
+    PrefetchBatch(W, W.xn[from], j + kLanes, k1);
+    B->Load(W, W.xn[from], W.walk.data() + j, static_cast<int>(std::min<int64_t>(kLanes, k1 - j)));
+    OperatorPass(W, *B, W.xn[1 - from], last);
+  }
+}
+
 __attribute__((target_clones("arch=x86-64-v4", "avx2", "default"))) void HessiansRange(const Work& W, int from,
                                                                                         int64_t k0, int64_t k1) {
   std::unique_ptr<Batch> B(new Batch);
@@ -754,13 +839,15 @@ __attribute__((target_clones("arch=x86-64-v4", "avx2", "default"))) void Hessian
 
 absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighborhoods& nb, double cos_cut, int passes,
                           const RunContext& ctx, const VertexDiagnostics* diagnostics, LocalFrame* frames,
-                          double* coefficients, int num_coefficients) {
+                          double* coefficients, int num_coefficients, int operator_passes, double weight_epsilon) {
   const int threads = ctx.threads();
   const int nv = mesh.NumVertices();
   Work W;
   W.nv = nv;
   W.cos_cut = cos_cut;
-  W.own_radius = num_coefficients >= 10;  // degree 3: no kRadius2 from the normal passes
+  const bool op = operator_passes > 0 && num_coefficients == 6;  // the degree-2 operator passes
+  W.own_radius = num_coefficients >= 10 || op;  // no kRadius2 from the normal passes
+  W.weight_epsilon = weight_epsilon;
   // Stencils as slots: the neighbourhoods' own in the topology's locality order (built
   // with them, else here), or their CSR in vertex order.
   const bool local = static_cast<int>(topo.locality_order.size()) == nv;
@@ -784,7 +871,7 @@ absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighbor
   const int32_t* rank = os ? os->rank.data() : nullptr;
   auto slot_of = [&](int64_t v) -> int64_t { return rank ? rank[v] : v; };
   W.degree = num_coefficients >= 21 ? 5 : num_coefficients >= 15 ? 4 : num_coefficients >= 10 ? 3 : 2;
-  W.centre_stride = W.own_radius ? 3 + num_coefficients - 6 : 0;
+  W.centre_stride = W.own_radius ? 3 + num_coefficients - 6 : 0;  // degree 2 (op): the frame normal alone
   std::unique_ptr<double[]> centre(W.own_radius && !jets ? new double[W.centre_stride * static_cast<size_t>(nv)] : nullptr);
   W.centre = centre.get();
   if (jets) W.frames = frames, W.coefficients = coefficients, W.num_coefficients = num_coefficients;
@@ -816,6 +903,13 @@ absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighbor
       BatchOrder(W, k0, std::min<int64_t>(k1, k0 + window), W.walk.data());
   }, 1);
   int from = 0;
+  if (op) passes = 0;
+  for (int pass = 0; op && pass < operator_passes; ++pass, from = pass < operator_passes ? 1 - from : from) {
+    const bool last = pass == operator_passes - 1;
+    GF_RETURN_IF_ERROR(ParallelFor(
+        chunks, ctx,
+        [&](int64_t c) { OperatorRange(W, from, c * kGrain, std::min<int64_t>(nv, (c + 1) * kGrain), last); }, 1));
+  }
   for (int pass = 0; pass < passes; ++pass, from = 1 - from)
     GF_RETURN_IF_ERROR(ParallelFor(
         chunks, ctx,
@@ -824,7 +918,7 @@ absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighbor
           W.centre ? CubicNormalsRange(W, from, k0, k1) : NormalsRange(W, from, k0, k1);
         },
         1));
-  GF_RETURN_IF_ERROR(ParallelFor(
+  if (!op) GF_RETURN_IF_ERROR(ParallelFor(
       chunks, ctx, [&](int64_t c) { HessiansRange(W, from, c * kGrain, std::min<int64_t>(nv, (c + 1) * kGrain)); },
       1));
   if (jets) return absl::OkStatus();  // written by the Hessian pass
@@ -837,11 +931,15 @@ absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighbor
     if (x[kFitted] == 0) return;
     double* c = coefficients + v * num_coefficients;
     if (W.centre) {  // the fit's frame and cubic terms kept; the refined normal as its gradient
-      if (x[3] > 0) c[TaylorIndex(2, 0)] = x[0], c[TaylorIndex(1, 1)] = x[1], c[TaylorIndex(0, 2)] = x[2];
+      if (x[3] > 0 && op)  // degree 2: kQuadraticShare of the operator's Hessian, the rest the fit's own
+        for (int t = TaylorIndex(2, 0); t <= TaylorIndex(0, 2); ++t)
+          c[t] = kQuadraticShare * x[t - TaylorIndex(2, 0)] + (1 - kQuadraticShare) * c[t];
+      else if (x[3] > 0)
+        c[TaylorIndex(2, 0)] = x[0], c[TaylorIndex(1, 1)] = x[1], c[TaylorIndex(0, 2)] = x[2];
       const LocalFrame& fr = frames[v];
       const Eigen::Vector3d n(x[4], x[5], x[6]);
       const double nm = n.dot(fr.normal);
-      if (passes > 0 && nm > 0) c[TaylorIndex(1, 0)] = -n.dot(fr.t1) / nm, c[TaylorIndex(0, 1)] = -n.dot(fr.t2) / nm;
+      if ((passes > 0 || op) && nm > 0) c[TaylorIndex(1, 0)] = -n.dot(fr.t1) / nm, c[TaylorIndex(0, 1)] = -n.dot(fr.t2) / nm;
       return;
     }
     frames[v] = FrameFromNormal(Eigen::Vector3d(mesh.positions(v, 0), mesh.positions(v, 1), mesh.positions(v, 2)),

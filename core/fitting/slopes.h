@@ -16,6 +16,14 @@ namespace geomfit {
 /// at 0.39x and K Linf at 0.43x CGAL's, two at 0.26x / 0.28x, for ~15% more CPU time).
 constexpr int kCubicSlopePasses = 2;
 
+/// FitOptions::quadratic_hermite: the operator applications after a degree-2 fit, and the share
+/// of the last one's Hessian in the one reported (the rest the fit's own; see RefineSlopes).
+/// Scanned on gmsh, marching-cubes and generated meshes (bench/README.md, `d2fast`): 0.6-0.65
+/// leave lower Linf orders of H and K on the gmsh ellipsoid, 0.75 the coarsest gmsh torus's
+/// K Linf at 0.51x CGAL's; one application leaves the gmsh ellipsoid's H at 0.64x.
+constexpr int kQuadraticSlopePasses = 2;
+constexpr double kQuadraticShare = 0.7;
+
 /// Slope refinement of interpolating degree-2 height fits (FitOptions::slope_refinement):
 /// two passes over the fits' own stencils that use the neighbours' fitted normals.
 ///
@@ -50,6 +58,21 @@ constexpr int kCubicSlopePasses = 2;
 /// result is independent of its batch and of the instruction set. Polls `ctx` between
 /// chunks; the fits are written only at the end (a cancelled run leaves them unrefined).
 ///
+/// Degree 2 by the fit's own operator (FitOptions::quadratic_hermite, `operator_passes` > 0,
+/// `passes` ignored): no change of frame and no Hermite pass. The plain fit's least-squares
+/// operator (its frame m, columns u, w, u^2/2, uw, w^2/2, weights (2.2.1) with eps =
+/// `weight_epsilon`, the rows' gamma from the current normals) is applied to
+/// r_j = h_j - p_j.G_j / 3 = (2/3) h_j + (d_j.n_j) / (3 m.n_j) = (2/3) a.p + T2(p) / 3 - T4(p) / 3
+/// + O(p^5) - p.e_j / 3 (Euler; e_j the neighbour's slope error): the cubic term cancels. The
+/// new gradient is the fitted linear term plus a third of the current one (error
+/// (e_0 - mean e_j) / 3, as above); each application uses the previous one's normals. The
+/// Hessian, 3x the fitted quadratic part, has -T4's projection where the fit's own has +T4's
+/// and the cubic's (the cubic's only through odd moments, O(h) on irregular stencils): the
+/// reported one is kQuadraticShare of the last application's and the rest the fit's, i.e. the
+/// operator on (1 + 2 s) h_j - s p_j.G_j (s = the share), the T3 and T4 terms at 0.3 / -0.4 of
+/// the fit's. The fits get the new gradient (c10, c01) and Hessian; frames and the tangent
+/// plane stay the fit's.
+///
 /// Degree 3 (FitOptions::cubic_hermite: `num_coefficients` = 10, normals already O(h^3),
 /// `passes` = kCubicSlopePasses) stays in each fit's own frame. The normal passes fit
 /// h_j - p_j.G_j / 4 (the quartic term cancels, the rest is in the degree-3 columns) less a
@@ -75,6 +98,7 @@ constexpr int kCubicSlopePasses = 2;
 /// 2/3). Frames and terms of degree >= 3 stay the fit's.
 absl::Status RefineSlopes(const Mesh& mesh, const Topology& topo, const Neighborhoods& nb, double cos_cut, int passes,
                           const RunContext& ctx, const VertexDiagnostics* diagnostics, LocalFrame* frames,
-                          double* coefficients, int num_coefficients = 6);
+                          double* coefficients, int num_coefficients = 6, int operator_passes = 0,
+                          double weight_epsilon = 0.01);
 
 }  // namespace geomfit

@@ -70,6 +70,16 @@ paste out.tsv sr.tsv | awk -F'\t' 'NR > 1 && $1 != $17 { d++ } END { exit !(d > 
   fail "--slope-refinement 1 left every normal unchanged"
 pass
 expect_error 2 "slope_refinement" curvature --local t.obj --degree 2 --slope-refinement 4
+# Degree 2's refinement by the fit's own operator (off by default): --quadratic-hermite
+# changes the degree-2 normals and mean curvatures (degree 2 still reported).
+run_ok curvature --local t.obj --degree 2 --quadratic-hermite --output qh.tsv
+[ "$(wc -l <qh.tsv)" -eq $((nv + 1)) ] || fail "qh.tsv has $(wc -l <qh.tsv) lines"
+awk -F'\t' 'NR > 1 && $14 != 2 { exit 1 }' qh.tsv || fail "--quadratic-hermite: degree_used is not 2"
+paste out.tsv qh.tsv | awk -F'\t' 'NR > 1 && ($1 != $17 || $2 != $18 || $3 != $19) { d++ } END { exit !(d > 0) }' ||
+  fail "--quadratic-hermite left every degree-2 normal unchanged"
+paste out.tsv qh.tsv | awk -F'\t' 'NR > 1 && $4 != $20 { d++ } END { exit !(d > 0) }' ||
+  fail "--quadratic-hermite left every degree-2 mean curvature unchanged"
+pass
 # Degree 3's slope refinement and Hermite curvatures (on by default): --plain-cubic keeps
 # the plain fit's normals and Hessian, so other normals and mean curvatures.
 run_ok curvature --local t.obj --degree 3 --output c3.tsv

@@ -265,11 +265,7 @@ v1::ComputeDifferentialsRequest StreamedRequest(const std::string& id) {
   return request;
 }
 
-void ExpectSameAsInProcess(const Differentials& d, const Mesh& mesh, int degree = 3,
-                           JetHermiteMode jets = JetHermiteMode::kAuto) {
-  FitOptions options;
-  options.degree = degree;
-  options.jet_hermite = jets;
+void ExpectSameAsInProcess(const Differentials& d, const Mesh& mesh, const FitOptions& options) {
   auto local = ComputeDifferentials(mesh, options, kAllQuantities, RunContext(nullptr, 1));
   ASSERT_TRUE(local.ok());
   EXPECT_EQ(d.normals, local->normals);
@@ -279,6 +275,13 @@ void ExpectSameAsInProcess(const Differentials& d, const Mesh& mesh, int degree 
   EXPECT_EQ(d.tensor, local->tensor);
   ASSERT_EQ(d.diagnostics.size(), local->diagnostics.size());
   for (size_t v = 0; v < d.diagnostics.size(); ++v) EXPECT_EQ(d.diagnostics[v].degree_used, local->diagnostics[v].degree_used);
+}
+void ExpectSameAsInProcess(const Differentials& d, const Mesh& mesh, int degree = 3,
+                           JetHermiteMode jets = JetHermiteMode::kAuto) {
+  FitOptions options;
+  options.degree = degree;
+  options.jet_hermite = jets;
+  ExpectSameAsInProcess(d, mesh, options);
 }
 
 TEST_F(HandlersTest, AFreshFitStreamsChunksWhileItRuns) {
@@ -349,6 +352,41 @@ TEST_F(HandlersTest, AStreamedDegreeFiveFitReportsAfterItsHermiteJets) {
   auto p = ComputeDifferentials(mesh, plain, kAllQuantities, RunContext(nullptr, 1));
   ASSERT_TRUE(p.ok());
   EXPECT_NE(d->mean, p->mean) << "the Hermite jets did not run at degree 5";
+}
+
+// Degree 2 with quadratic_hermite (off by default; proto field 24): the request's option
+// reaches the fit (the values are the in-process ones with it, not the plain fit's), and a
+// plain degree-2 request afterwards is not served from its cached fit.
+TEST_F(HandlersTest, AStreamedDegreeTwoFitRunsQuadraticHermiteWhenAsked) {
+  const Mesh mesh = TestTorus(40);
+  auto info = Upload(mesh);
+  ASSERT_TRUE(info.ok());
+  v1::ComputeDifferentialsRequest request = StreamedRequest(info->mesh_id());
+  request.mutable_options()->set_degree(2);
+  request.mutable_options()->set_quadratic_hermite(true);
+  RecordingSink sink;
+  CancellationToken token;
+  ASSERT_TRUE(handlers_.ComputeDifferentials(request, token, &sink).ok());
+  ASSERT_EQ(sink.chunks.size(), static_cast<size_t>((mesh.NumVertices() + 511) / 512));
+  EXPECT_EQ(std::count(sink.last.begin(), sink.last.end(), true), 1);
+  v1::FitSummary summary;
+  auto d = sink.Assemble(&summary);
+  ASSERT_TRUE(d.ok()) << d.status();
+  FitOptions refined;
+  refined.degree = 2;
+  refined.quadratic_hermite = true;
+  ExpectSameAsInProcess(*d, mesh, refined);
+
+  request.mutable_options()->clear_quadratic_hermite();
+  RecordingSink plain_sink;
+  ASSERT_TRUE(handlers_.ComputeDifferentials(request, token, &plain_sink).ok());
+  v1::FitSummary plain_summary;
+  auto p = plain_sink.Assemble(&plain_summary);
+  ASSERT_TRUE(p.ok()) << p.status();
+  EXPECT_FALSE(plain_summary.fit_cache_hit());
+  ExpectSameAsInProcess(*p, mesh, 2);
+  EXPECT_NE(d->normals, p->normals) << "quadratic_hermite did not change the degree-2 normals";
+  EXPECT_NE(d->mean, p->mean) << "quadratic_hermite did not change the degree-2 mean curvatures";
 }
 
 TEST(HandlersStreamTest, FittingThreadsStreamEveryChunkOnceInOrder) {

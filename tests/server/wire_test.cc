@@ -24,6 +24,7 @@ TEST(WireTest, FitOptionsRoundTripAndUnsetMeansDefault) {
   o.cubic_hermite = false;
   o.jet_hermite = JetHermiteMode::kOn;
   o.plane_hermite = false;
+  o.quadratic_hermite = true;
   auto back = FromProto(ToProto(o));
   ASSERT_TRUE(back.ok()) << back.status();
   EXPECT_EQ(back->normal_degree, 5);
@@ -32,9 +33,15 @@ TEST(WireTest, FitOptionsRoundTripAndUnsetMeansDefault) {
   EXPECT_FALSE(back->cubic_hermite);
   EXPECT_FALSE(back->plane_hermite);
   EXPECT_EQ(back->jet_hermite, JetHermiteMode::kOn);
+  EXPECT_TRUE(back->quadratic_hermite);
   o.jet_hermite = JetHermiteMode::kOff;
   EXPECT_EQ(FromProto(ToProto(o))->jet_hermite, JetHermiteMode::kOff);
   EXPECT_FALSE(ToProto(FitOptions()).has_jet_hermite());  // auto stays unset
+  EXPECT_FALSE(ToProto(FitOptions()).has_quadratic_hermite());  // off stays unset
+  FitOptions q;  // degree 2, where it runs: the server's cache key tells it from the plain fit
+  q.quadratic_hermite = true;
+  EXPECT_EQ(FitOptionsKey(*FromProto(ToProto(q))), FitOptionsKey(q));
+  EXPECT_NE(FitOptionsKey(q), FitOptionsKey(FitOptions()));
   EXPECT_EQ(FitOptionsKey(*back), FitOptionsKey(o));
   EXPECT_EQ(FitOptionsIdentity(*back), FitOptionsIdentity(o));
   for (FitMethod m : {FitMethod::kLHF, FitMethod::kLOP, FitMethod::kXu, FitMethod::kLSCM}) {
@@ -50,6 +57,7 @@ TEST(WireTest, FitOptionsRoundTripAndUnsetMeansDefault) {
   EXPECT_TRUE(defaults->cubic_hermite);
   EXPECT_TRUE(defaults->plane_hermite);
   EXPECT_EQ(defaults->jet_hermite, JetHermiteMode::kAuto);
+  EXPECT_FALSE(defaults->quadratic_hermite);
   v1::FitOptions bad;
   bad.set_degree(7);
   EXPECT_EQ(FromProto(bad).status().code(), absl::StatusCode::kInvalidArgument);

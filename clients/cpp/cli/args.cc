@@ -214,6 +214,10 @@ void AddCurvatureOptions(ArgParser* p, CurvatureArgs* a) {
            "normals on the same stencils (2: normals, H, K ~0.01-0.49x CGAL's on clean meshes at "
            "~3x a plain fit, the best clean-mesh accuracy at degree 2; 1: up to 0.48x on "
            "marching-cubes meshes, ~2.5x); 0 = off")
+      .Flag("quadratic-hermite", &f.quadratic_hermite,
+            "degree 2: refine normals and curvatures by the fit's own operator with the "
+            "neighbours' fitted normals (normals ~0.01-0.26x, H, K ~0.12-0.42x CGAL's on clean "
+            "meshes at ~2.5x a plain fit; --slope-refinement 2: <= 0.29x at ~4.8x)")
       .Flag("plain-cubic", &a->plain_cubic,
             "degree 3: keep the plain fit's normals and curvatures (by default both are refined "
             "with the neighbours' fitted normals: normals ~0.3x, H, K ~0.5x CGAL's or better, "
