@@ -212,8 +212,8 @@ void AddCurvatureOptions(ArgParser* p, CurvatureArgs* a) {
       .Int("slope-refinement", &f.slope_refinement,
            "degree 2: passes (1-3) refining normals and curvatures from the neighbours' fitted "
            "normals on the same stencils (2: normals, H, K ~0.01-0.49x CGAL's on clean meshes at "
-           "~3x a plain fit, the best clean-mesh accuracy at degree 2; 1: up to 0.48x on "
-           "marching-cubes meshes, ~2.5x); 0 = off")
+           "~4.8x a plain fit in process, the best clean-mesh accuracy at degree 2; 1: up to 0.48x on "
+           "marching-cubes meshes, ~4.4x); 0 = off")
       .Flag("quadratic-hermite", &f.quadratic_hermite,
             "degree 2: refine normals and curvatures by the fit's own operator with the "
             "neighbours' fitted normals (normals ~0.01-0.26x, H, K ~0.12-0.42x CGAL's on clean "

@@ -577,8 +577,8 @@ class Client:
         curvatures from the stencil's heights and refined normals jointly (the quartic term
         cancels; implies normal_degree=3). slope_refinement=2 (degree 2; 1-3 passes): the same kind
         of normals and curvatures from the neighbours' degree-2 normals on the same stencils
-        (no degree-3 pre-fit; ~3x a plain fit): the best clean-mesh accuracy at degree 2 (one
-        pass, ~2.5x, reaches 0.48x CGAL's max-norm errors on marching-cubes meshes).
+        (no degree-3 pre-fit; ~4.8x a plain fit in process): the best clean-mesh accuracy at degree 2 (one
+        pass, ~4.4x, reaches 0.48x CGAL's max-norm errors on marching-cubes meshes).
         quadratic_hermite=True (degree 2; off by default): the fit's own operator applied twice
         more with the neighbours' fitted normals (the cubic term cancels; <= 0.42x CGAL's on clean
         meshes at ~2.5x a plain fit; ignored with slope_refinement). cubic_hermite=False
