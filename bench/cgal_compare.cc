@@ -13,7 +13,7 @@
 //
 // Environment overrides of our fit only: GF_RINGS, GF_MPF, GF_EPS, GF_ND (normal_degree),
 // GF_HERM (hermite_hessian), GF_SLOPES (slope_refinement),
-// GF_QH (quadratic_hermite: 1 = on), GF_CH (cubic_hermite: 0 = off), GF_PH (plane_hermite: 0 = off), GF_JH (jet_hermite: 1 = on, 0 = off; unset = the default: on at degrees 4 and 5), GF_TWO (two_pass); of CGAL's stencils only: GF_CGAL_RINGS, GF_CGAL_MPF; of both:
+// GF_QH (quadratic_hermite: 1 = on), GF_CH (cubic_hermite: 0 = off), GF_PH (plane_hermite: 0 = off), GF_JH (jet_hermite: 1 = on, 0 = off; unset = the default: on at degree 5 only), GF_TWO (two_pass); of CGAL's stencils only: GF_CGAL_RINGS, GF_CGAL_MPF; of both:
 // GF_NOISE (the noise mode's stencils), GF_NEARDUP (RingSpec::count_near_duplicates).
 //
 // CGAL's results are converted to the project's conventions in bench/cgal_jet.h.

@@ -109,8 +109,8 @@ std::string FitOptionsKey(const FitOptions& o) {
   if (o.QuadraticHermite()) absl::StrAppend(&key, " qh1");
   if (o.degree == 3 && !o.CubicHermite()) absl::StrAppend(&key, " ch0");
   if (o.degree == 1 && !o.PlaneHermite()) absl::StrAppend(&key, " ph0");
-  // The Hermite jets when they differ from the default (on at degrees 4 and 5).
-  if ((o.degree == 4 || o.degree == 5) && !o.JetHermite())
+  // The Hermite jets when they differ from the default (on at degree 5, off at degree 4).
+  if ((o.degree == 4 || o.degree == 5) && o.JetHermite() != (o.degree == 5))
     absl::StrAppendFormat(&key, " jh%d", o.JetHermite());
   return key;
 }

@@ -141,11 +141,12 @@ struct FitOptions {
   /// identity; slopes.h), the fit's terms of degrees 3..degree as unknowns ridged towards the
   /// fit's. In the fit's frame; frames and terms of degree >= 3 stay the fit's. On the clean
   /// meshes of bench/README.md (`d45k`): normals 0.03-0.39x, H 0.06-0.46x, K 0.07-0.55x CGAL
-  /// Jet_fitting_3's at degrees 4-5 (0.14-0.70x without). Costs ~0.75x a plain degree-4 fit in
-  /// process, ~0.3x of the whole `geomfit curvature` run (one more pass over the stencils with
-  /// a 14- or 20-unknown solve per vertex; bench/README.md, `jets4`); kAuto (the default) runs
-  /// it at degrees 4 and 5, kOff keeps the plain fit. Results stream after the whole fit.
-  /// Ignored by the GFD operators (FitRequest::stencils).
+  /// Jet_fitting_3's at degrees 4-5 (0.14-0.70x without). Costs ~0.75x a plain degree-4 fit
+  /// in process (one more pass over the stencils with a 14- or 20-unknown solve per vertex),
+  /// ~1.35x the whole `geomfit curvature` run; kAuto (the default) runs it at degree 5 only: at
+  /// degree 4 it is opt-in (kOn), since the whole degree-4 run with it is ~41x CGAL's, too near
+  /// issue 15's 40x (bench/README.md, `jets4` and `merge15`). Results stream after the whole
+  /// fit. Ignored by the GFD operators (FitRequest::stencils).
   JetHermiteMode jet_hermite = JetHermiteMode::kAuto;
   /// Hermite normals of degree-1 fits (interpolating LHF fits with the QR solver, noise off):
   /// the plane's gradient error on an irregular stencil, O(h), is a known linear map B of the
@@ -182,7 +183,7 @@ struct FitOptions {
   /// Whether the degree-4/5 Hermite jets run (see jet_hermite).
   bool JetHermite() const {
     const bool on = jet_hermite == JetHermiteMode::kOn ? degree == 4 || degree == 5
-                    : jet_hermite == JetHermiteMode::kAuto ? degree == 4 || degree == 5
+                    : jet_hermite == JetHermiteMode::kAuto ? degree == 5
                                                            : false;
     return on && method == FitMethod::kLHF && solver == WlsSolver::kQR &&
            Interpolates() && noise == NoiseMode::kOff && NormalDegree() == degree;

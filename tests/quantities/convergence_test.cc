@@ -202,13 +202,13 @@ TEST(PlaneHermiteTest, NormalsOfOrderTwoAtDegreeOne) {
 // n = 64; CGAL K L2 / Linf): torus d4 8.42e-4 / 2.59e-3, d5 5.32e-4 / 1.57e-3; quad torus d4
 // 5.56e-4 / 1.00e-3, d5 4.76e-4 / 7.84e-4. The fits' own Hessians give the quad torus K 0.52-0.64x
 // of these (main before `d45k`); the Hermite jets (FitOptions::jet_hermite: on by default at
-// degrees 4 and 5 since `jets4`) 0.2-0.4x, at the orders of the fits (normals d, K d - 1 or better;
+// degree 5, kOn at degree 4) 0.2-0.4x, at the orders of the fits (normals d, K d - 1 or better;
 // bench/README.md, issue 16).
-TEST(JetHermiteTest, OnByDefaultAtDegreesFourAndFive) {
+TEST(JetHermiteTest, OnByDefaultAtDegreeFiveOnly) {
   FitOptions o;
   for (int d = 2; d <= 6; ++d) {
     o.degree = d;
-    EXPECT_EQ(o.JetHermite(), d == 4 || d == 5) << d;
+    EXPECT_EQ(o.JetHermite(), d == 5) << d;
   }
   o.jet_hermite = JetHermiteMode::kOn;
   o.degree = 4;
@@ -217,8 +217,6 @@ TEST(JetHermiteTest, OnByDefaultAtDegreesFourAndFive) {
   EXPECT_FALSE(o.JetHermite());
   o.degree = 5;
   o.jet_hermite = JetHermiteMode::kOff;
-  EXPECT_FALSE(o.JetHermite());
-  o.degree = 4;
   EXPECT_FALSE(o.JetHermite());
   o.jet_hermite = JetHermiteMode::kAuto;
   o.noise = NoiseMode::kOn;  // noisy input: the plain fit
@@ -233,7 +231,8 @@ TEST(JetHermiteTest, CurvaturesBelowHalfOfCgalAtDegreesFourAndFive) {
       SCOPED_TRACE(std::string(surfaces[i]) + " degree " + std::to_string(d));
       FitOptions o;
       o.degree = d;
-      EXPECT_TRUE(o.JetHermite());  // on by default (kAuto)
+      if (d == 4) o.jet_hermite = JetHermiteMode::kOn;  // degree 5: on by default (kAuto)
+      EXPECT_TRUE(o.JetHermite());
       const Study s = RunStudy(surfaces[i], {16, 32, 64}, o);
       EXPECT_LT(s.k_l2.back(), 0.5 * cgal[i][d - 4][0]);
       EXPECT_LT(s.k_linf.back(), 0.5 * cgal[i][d - 4][1]);

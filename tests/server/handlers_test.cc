@@ -464,11 +464,10 @@ TEST_F(HandlersTest, TheOwnerSendsAFollowersLastChunkAsSoonAsItEnds) {
   const int64_t last_start = (n - 1) / kRows * kRows;
   ASSERT_GT(n - last_start, 2 * 512) << "the last chunk should span several fitted blocks";
   v1::ComputeDifferentialsRequest request = StreamedRequest(info->mesh_id());  // a chunk per fitted block
-  // Degree 4 without its Hermite jets: degrees 3-5's fits are reported once their Hermite
-  // curvatures are refitted, in one block (FitOptions::cubic_hermite, jet_hermite, as the
-  // degree-2 slope refinement's).
+  // Degree 4: degree 3's (and 5's) fits are reported once their Hermite curvatures are
+  // refitted, in one block (FitOptions::cubic_hermite, jet_hermite, as the degree-2 slope
+  // refinement's); degree 4's Hermite jets are off by default.
   request.mutable_options()->set_degree(4);
-  request.mutable_options()->set_jet_hermite(false);
   v1::ComputeDifferentialsRequest follower_request = request;
   follower_request.set_chunk_rows(kRows);
   CancellationToken token;

@@ -228,7 +228,8 @@ void AddCurvatureOptions(ArgParser* p, CurvatureArgs* a) {
             "or better)")
       .Flag("hermite-jets", &a->hermite_jets,
             "degrees 4-5: refit the Hessian and gradient with the neighbours' fitted slopes "
-            "(H, K ~0.5x CGAL's or better; on by default, ~0.75x a plain degree-4 fit more)")
+            "(H, K ~0.5x CGAL's or better; on by default at degree 5, ~0.75x a plain degree-4 "
+            "fit more)")
       .Flag("plain-jets", &a->plain_jets, "degrees 4-5: keep the plain fit's normals and curvatures")
       .String("solver", &a->solver, "least-squares solver: qr (the default) or svd", "qr|svd")
       .Flag("two-pass", &f.two_pass, "refit in frames from the first pass's fitted normals")

@@ -585,7 +585,7 @@ class Client:
         (degree 3): the plain fit's normals and curvatures instead of the slope refinement and
         Hermite refit (on by default). jet_hermite=True / False (degrees 4-5): the Hessian and
         gradient refitted with the neighbours' fitted slopes (H, K ~0.5x CGAL's or better) or the
-        plain fit's (unset: on at degrees 4 and 5). plane_hermite=False (degree 1): the
+        plain fit's (unset: on at degree 5, off at degree 4). plane_hermite=False (degree 1): the
         plain plane fit's normals (by default their O(h) bias, a known map of the Hessian, is
         removed with the neighbours' normals: order 2, <= ~0.3x CGAL's). method: "lhf", "lop", or the
         comparison methods "xu", "lscm".
