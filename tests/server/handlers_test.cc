@@ -354,7 +354,7 @@ TEST_F(HandlersTest, AStreamedDegreeFiveFitReportsAfterItsHermiteJets) {
   EXPECT_NE(d->mean, p->mean) << "the Hermite jets did not run at degree 5";
 }
 
-// Degree 2 with quadratic_hermite (off by default; proto field 24): the request's option
+// Degree 2 with quadratic_hermite (off by default; proto field 25): the request's option
 // reaches the fit (the values are the in-process ones with it, not the plain fit's), and a
 // plain degree-2 request afterwards is not served from its cached fit.
 TEST_F(HandlersTest, AStreamedDegreeTwoFitRunsQuadraticHermiteWhenAsked) {
